@@ -1,0 +1,80 @@
+// A Link moves whole EtherCAT frames (2-byte EtherCAT header + datagrams) between the master and a
+// segment. It knows the encapsulation (Ethernet II, UDP, in-process memory) and nothing about the
+// protocol: no retries, no index matching, no timeouts beyond the one receive() is given.
+//
+// Threading: send() and receive() may be called from different threads, but at most one thread
+// receives at a time and at most one thread sends at a time. interrupt() may be called from any
+// thread to wake a blocked receive().
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <utility>
+
+#include <ecat/result.hpp>
+#include <ecat/wire/bytes.hpp>
+#include <ecat/wire/frame.hpp>
+
+namespace ecat::link {
+
+struct ReceivedFrame {
+  // The EtherCAT frame (header + datagrams, possibly followed by Ethernet padding). Points into
+  // the link's own buffer: valid until the next receive() on the same link.
+  wire::Bytes frame;
+  // When the frame arrived, in CLOCK_MONOTONIC nanoseconds: the kernel's receive timestamp where
+  // the link has one, otherwise taken right after the receive call returned.
+  std::int64_t timestamp_ns = 0;
+  // Ethernet source address (all zero for links without one).
+  wire::MacAddress source{};
+};
+
+struct LinkStats {
+  std::uint64_t frames_sent = 0;
+  std::uint64_t frames_received = 0;
+  std::uint64_t bytes_sent = 0;
+  std::uint64_t bytes_received = 0;
+  // Frames the link read but did not hand on: foreign EtherType, its own outgoing frames, runt
+  // or oversized frames.
+  std::uint64_t frames_ignored = 0;
+  std::uint64_t send_errors = 0;
+  std::uint64_t receive_errors = 0;
+  // Frames send() accepted but the medium could not deliver (a full in-process queue), the way a
+  // congested wire loses them. Not included in frames_sent.
+  std::uint64_t frames_dropped = 0;
+};
+
+class Link {
+ public:
+  virtual ~Link() = default;
+  Link() = default;
+  Link(const Link&) = delete;
+  Link& operator=(const Link&) = delete;
+
+  // Sends one EtherCAT frame. Does not allocate. Fails with Errc::invalid_argument for a frame
+  // larger than the link carries, Errc::closed after close(), Errc::io_error otherwise.
+  virtual Result<void> send(wire::Bytes ethercat_frame) = 0;
+
+  // Waits up to `timeout` for one frame (a zero timeout polls). Returns std::nullopt on timeout or
+  // when interrupt() was called. Does not allocate.
+  virtual Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) = 0;
+
+  // Wakes a receive() that is blocked now (or the next one, if none is).
+  virtual void interrupt() = 0;
+
+  // Releases the underlying resource; later send/receive calls fail with Errc::closed.
+  virtual void close() = 0;
+
+  // "eth0", "udp:127.0.0.1:34980", "memory:a", ... for messages and status.
+  virtual std::string name() const = 0;
+
+  virtual LinkStats stats() const = 0;
+
+  // Largest EtherCAT frame send() accepts.
+  virtual std::size_t max_frame_size() const { return wire::kMaxFrameSize; }
+};
+
+}  // namespace ecat::link

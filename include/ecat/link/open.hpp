@@ -1,0 +1,21 @@
+// Opens a link from a one-line spec, as the `ecat` command and configuration files name them.
+#pragma once
+
+#include <memory>
+#include <string_view>
+
+#include <ecat/link/link.hpp>
+#include <ecat/result.hpp>
+
+namespace ecat::link {
+
+// Accepted specs:
+//   raw:IFACE          EtherCAT on Ethernet through network interface IFACE (needs CAP_NET_RAW)
+//   udp:HOST:PORT      EtherCAT over UDP to HOST (IPv4 address or name) at PORT
+//   udp:[IPV6]:PORT    the same with an IPv6 address
+//   udp:HOST           port 34980 (0x88A4); HOST may also be a bare IPv6 address
+// "sim:RING.yaml" is reserved for the built-in simulator and reports that it is not available.
+// A malformed spec is Errc::invalid_argument naming the spec and these forms.
+Result<std::unique_ptr<Link>> open_link(std::string_view spec);
+
+}  // namespace ecat::link

@@ -1,0 +1,271 @@
+#include <array>
+#include <atomic>
+#include <condition_variable>
+#include <cstring>
+#include <exception>
+#include <mutex>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include <ecat/link/memory_link.hpp>
+
+#include "link/posix.hpp"
+
+namespace ecat::link {
+
+namespace {
+
+// A bounded FIFO of frames in slots allocated once, at construction.
+class FrameQueue {
+ public:
+  explicit FrameQueue(std::size_t depth) : slots_(depth == 0 ? 1 : depth) {}
+
+  bool push(wire::Bytes frame, std::int64_t timestamp_ns) noexcept {
+    if (count_ == slots_.size() || frame.size() > wire::kMaxFrameSize) return false;
+    Slot& slot = slots_[(head_ + count_) % slots_.size()];
+    if (!frame.empty()) std::memcpy(slot.data.data(), frame.data(), frame.size());
+    slot.size = frame.size();
+    slot.timestamp_ns = timestamp_ns;
+    ++count_;
+    return true;
+  }
+
+  // Copies the oldest frame into `out` (at least kMaxFrameSize bytes) and removes it.
+  ReceivedFrame pop_into(wire::MutableBytes out) noexcept {
+    const Slot& slot = slots_[head_];
+    if (slot.size != 0) std::memcpy(out.data(), slot.data.data(), slot.size);
+    ReceivedFrame frame;
+    frame.frame = wire::Bytes(out.data(), slot.size);
+    frame.timestamp_ns = slot.timestamp_ns;
+    head_ = (head_ + 1) % slots_.size();
+    --count_;
+    return frame;
+  }
+
+  bool empty() const noexcept { return count_ == 0; }
+  void clear() noexcept {
+    head_ = 0;
+    count_ = 0;
+  }
+
+ private:
+  struct Slot {
+    std::array<std::uint8_t, wire::kMaxFrameSize> data;
+    std::size_t size = 0;
+    std::int64_t timestamp_ns = 0;
+  };
+  std::vector<Slot> slots_;
+  std::size_t head_ = 0;
+  std::size_t count_ = 0;
+};
+
+// One direction of a memory pair.
+struct Channel {
+  explicit Channel(std::size_t depth) : queue(depth) {}
+  std::mutex mutex;
+  std::condition_variable ready;
+  FrameQueue queue;
+  bool writer_closed = false;
+  bool reader_closed = false;
+  bool interrupt = false;  // for the reader
+};
+
+Error too_large(const std::string& name, std::size_t size) {
+  return Error(Errc::invalid_argument,
+               fmt::format("{}: frame of {} bytes exceeds the {}-byte maximum", name, size,
+                           wire::kMaxFrameSize));
+}
+
+class MemoryLink final : public Link {
+ public:
+  MemoryLink(std::string name, std::string peer_name, std::shared_ptr<Channel> in,
+             std::shared_ptr<Channel> out)
+      : name_(std::move(name)),
+        peer_name_(std::move(peer_name)),
+        in_(std::move(in)),
+        out_(std::move(out)) {}
+  ~MemoryLink() override { close(); }
+
+  Result<void> send(wire::Bytes frame) override {
+    if (frame.size() > wire::kMaxFrameSize) return too_large(name_, frame.size());
+    if (closed_.load(std::memory_order_acquire)) return closed_error();
+    bool queued = false;
+    {
+      std::lock_guard lock(out_->mutex);
+      if (out_->reader_closed) {
+        return Error(Errc::closed, fmt::format("{}: the peer {} is closed", name_, peer_name_));
+      }
+      queued = out_->queue.push(frame, detail::monotonic_ns());
+    }
+    if (!queued) {
+      detail::AtomicLinkStats::add(stats_.frames_dropped);
+      return ok();
+    }
+    out_->ready.notify_one();
+    stats_.sent(frame.size());
+    return ok();
+  }
+
+  Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
+    using Clock = std::chrono::steady_clock;
+    // Beyond a day counts as forever, which also keeps now() + timeout from overflowing.
+    const bool forever = timeout >= std::chrono::hours(24);
+    const Clock::time_point deadline =
+        forever ? Clock::time_point::max()
+                : Clock::now() + std::max(timeout, std::chrono::nanoseconds::zero());
+    std::unique_lock lock(in_->mutex);
+    for (;;) {
+      if (in_->reader_closed) return closed_error();
+      if (in_->interrupt) {
+        in_->interrupt = false;
+        return std::optional<ReceivedFrame>{};
+      }
+      if (!in_->queue.empty()) {
+        const ReceivedFrame frame = in_->queue.pop_into(rx_);
+        lock.unlock();
+        stats_.received(frame.frame.size());
+        return std::optional<ReceivedFrame>(frame);
+      }
+      if (in_->writer_closed) {
+        return Error(Errc::closed, fmt::format("{}: the peer {} closed", name_, peer_name_));
+      }
+      if (forever) {
+        in_->ready.wait(lock);
+      } else if (Clock::now() >= deadline) {
+        return std::optional<ReceivedFrame>{};
+      } else if (in_->ready.wait_until(lock, deadline) == std::cv_status::timeout) {
+        // A frame or an interrupt that raced the timeout still wins.
+        if (in_->reader_closed || in_->interrupt || !in_->queue.empty() || in_->writer_closed) {
+          continue;
+        }
+        return std::optional<ReceivedFrame>{};
+      }
+    }
+  }
+
+  void interrupt() override {
+    {
+      std::lock_guard lock(in_->mutex);
+      in_->interrupt = true;
+    }
+    in_->ready.notify_all();
+  }
+
+  void close() override {
+    if (closed_.exchange(true)) return;
+    {
+      std::lock_guard lock(out_->mutex);
+      out_->writer_closed = true;
+    }
+    out_->ready.notify_all();
+    {
+      std::lock_guard lock(in_->mutex);
+      in_->reader_closed = true;
+      in_->queue.clear();
+    }
+    in_->ready.notify_all();
+  }
+
+  std::string name() const override { return name_; }
+  LinkStats stats() const override { return stats_.snapshot(); }
+
+ private:
+  Error closed_error() const {
+    return Error(Errc::closed, fmt::format("{}: link is closed", name_));
+  }
+
+  std::string name_;
+  std::string peer_name_;
+  std::shared_ptr<Channel> in_;
+  std::shared_ptr<Channel> out_;
+  std::atomic<bool> closed_{false};
+  detail::AtomicLinkStats stats_;
+  std::array<std::uint8_t, wire::kMaxFrameSize> rx_{};
+};
+
+class FunctionLink final : public Link, private ReplySink {
+ public:
+  FunctionLink(FrameHandler handler, FunctionLinkOptions options)
+      : handler_(std::move(handler)),
+        name_(std::move(options.name)),
+        replies_(options.reply_queue_depth) {}
+
+  Result<void> send(wire::Bytes frame) override {
+    if (frame.size() > wire::kMaxFrameSize) return too_large(name_, frame.size());
+    if (closed_.load(std::memory_order_acquire)) return closed_error();
+    stats_.sent(frame.size());
+    if (!handler_) return ok();
+    try {
+      handler_(frame, *this);
+    } catch (const std::exception& e) {
+      return Error(Errc::internal, fmt::format("{}: the frame handler threw: {}", name_, e.what()));
+    } catch (...) {
+      return Error(Errc::internal, fmt::format("{}: the frame handler threw", name_));
+    }
+    return ok();
+  }
+
+  Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds /*timeout*/) override {
+    if (closed_.load(std::memory_order_acquire)) return closed_error();
+    if (interrupted_.exchange(false)) return std::optional<ReceivedFrame>{};
+    std::unique_lock lock(mutex_);
+    if (replies_.empty()) return std::optional<ReceivedFrame>{};
+    const ReceivedFrame frame = replies_.pop_into(rx_);
+    lock.unlock();
+    stats_.received(frame.frame.size());
+    return std::optional<ReceivedFrame>(frame);
+  }
+
+  void interrupt() override { interrupted_.store(true); }
+
+  void close() override {
+    closed_.store(true, std::memory_order_release);
+    std::lock_guard lock(mutex_);
+    replies_.clear();
+  }
+
+  std::string name() const override { return name_; }
+  LinkStats stats() const override { return stats_.snapshot(); }
+
+ private:
+  bool reply(wire::Bytes frame) override {
+    bool queued = false;
+    {
+      std::lock_guard lock(mutex_);
+      queued = replies_.push(frame, detail::monotonic_ns());
+    }
+    if (!queued) detail::AtomicLinkStats::add(stats_.frames_dropped);
+    return queued;
+  }
+
+  Error closed_error() const {
+    return Error(Errc::closed, fmt::format("{}: link is closed", name_));
+  }
+
+  FrameHandler handler_;
+  std::string name_;
+  std::mutex mutex_;
+  FrameQueue replies_;
+  std::atomic<bool> closed_{false};
+  std::atomic<bool> interrupted_{false};
+  detail::AtomicLinkStats stats_;
+  std::array<std::uint8_t, wire::kMaxFrameSize> rx_{};
+};
+
+}  // namespace
+
+std::pair<std::unique_ptr<Link>, std::unique_ptr<Link>> make_memory_link_pair(
+    std::size_t queue_depth) {
+  auto a_to_b = std::make_shared<Channel>(queue_depth);
+  auto b_to_a = std::make_shared<Channel>(queue_depth);
+  std::unique_ptr<Link> a = std::make_unique<MemoryLink>("memory:a", "memory:b", b_to_a, a_to_b);
+  std::unique_ptr<Link> b = std::make_unique<MemoryLink>("memory:b", "memory:a", a_to_b, b_to_a);
+  return {std::move(a), std::move(b)};
+}
+
+std::unique_ptr<Link> make_function_link(FrameHandler handler, FunctionLinkOptions options) {
+  return std::make_unique<FunctionLink>(std::move(handler), std::move(options));
+}
+
+}  // namespace ecat::link
