@@ -1,0 +1,200 @@
+// One emulated EtherCAT slave controller (ESC): the register file and process RAM, and the
+// semantics a real ESC applies to every datagram that passes it — addressing, working counter,
+// register write permissions, FMMU logical mapping down to single bits, SyncManager mailbox and
+// 3-buffer handshakes, the SII EEPROM interface, and hand-off of AL control requests to the
+// device's application (the firmware on the PDI side).
+//
+// Nothing here knows about a particular device. A device is an Esc plus an Application
+// (include/ecat/sim/application.hpp) that reacts like that device's firmware.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <ecat/sim/application.hpp>
+#include <ecat/wire/al.hpp>
+#include <ecat/wire/bytes.hpp>
+#include <ecat/wire/frame.hpp>
+#include <ecat/wire/registers.hpp>
+
+namespace ecat::sim {
+
+class DcUnit;
+
+// The hardware of one ESC: what its information registers report and how large it is.
+struct EscHardware {
+  std::uint8_t type = 0x11;  // ET1100-class, as Beckhoff terminals report
+  std::uint8_t revision = 0x00;
+  std::uint16_t build = 0x0000;
+  std::uint8_t fmmu_count = 8;
+  std::uint8_t sync_manager_count = 8;
+  std::uint8_t ram_size_kib = 8;  // process RAM from 0x1000
+  wire::PortDescriptor ports{{wire::PortType::ebus, wire::PortType::ebus,
+                              wire::PortType::not_implemented, wire::PortType::not_implemented}};
+  wire::EscFeatures features{};
+  bool sii_reads_8_bytes = true;  // SII data register holds 8 bytes (else 4)
+  bool dc_supported = true;
+  // How long the SII interface stays busy after a command, in nanoseconds of segment time.
+  std::int64_t sii_busy_ns = 0;
+};
+
+// Per-frame facts the segment hands to each ESC: when the frame reached this ESC's ports and its
+// processing unit, for DC receive-time latching. Times are in segment nanoseconds.
+struct PassContext {
+  std::int64_t epu_time_ns = 0;                // when the ESC processed the frame
+  std::array<std::int64_t, 4> port_time_ns{};  // when the frame arrived at each port (0 = none)
+  std::array<bool, 4> port_seen{};             // which ports the frame arrived at
+};
+
+// A datagram in flight, modified in place as it passes the ESC.
+struct DatagramInFlight {
+  wire::Command command = wire::Command::nop;
+  std::uint32_t address = 0;  // ADP | ADO << 16, or logical
+  std::span<std::uint8_t> data;
+  std::uint16_t wkc = 0;
+
+  std::uint16_t adp() const noexcept { return static_cast<std::uint16_t>(address); }
+  std::uint16_t ado() const noexcept { return static_cast<std::uint16_t>(address >> 16); }
+  void set_adp(std::uint16_t adp) noexcept { address = (address & 0xFFFF0000u) | adp; }
+};
+
+// What one datagram did at one ESC, for fault injection and observation.
+struct DatagramEffect {
+  bool addressed = false;  // the ESC matched the address (or had an FMMU overlap)
+  std::uint16_t wkc_added = 0;
+};
+
+// Runtime state of one SyncManager as the ESC tracks it.
+struct SyncManagerState {
+  wire::SyncManagerConfig config;  // as last written (status byte maintained by the ESC)
+  bool enabled = false;
+  bool mailbox_full = false;  // mailbox mode: buffer holds unread data
+  bool write_open = false;    // first byte written, last byte not yet
+  bool read_open = false;
+  std::vector<std::uint8_t> shadow;   // 3-buffer write side: committed when the last byte lands
+  std::uint64_t buffers_written = 0;  // completed ECAT writes (outputs, mailbox out)
+  std::uint64_t buffers_read = 0;     // completed ECAT reads (inputs, mailbox in)
+  std::int64_t last_write_ns = 0;     // segment time of the last completed ECAT write
+};
+
+class Esc {
+ public:
+  Esc(EscHardware hardware, std::vector<std::uint8_t> eeprom,
+      std::unique_ptr<Application> application);
+  ~Esc();
+  Esc(const Esc&) = delete;
+  Esc& operator=(const Esc&) = delete;
+
+  // Processes one datagram as the frame passes this ESC; updates data, ADP and WKC in place.
+  DatagramEffect process(DatagramInFlight& datagram, const PassContext& pass);
+
+  // Lets time-driven behaviour (watchdogs, DC SYNC, device dynamics) advance to `now_ns`.
+  void advance(std::int64_t now_ns);
+
+  // Power cycle: registers back to reset values, station 0, INIT, SMs and FMMUs off; the
+  // application restarts.
+  void power_cycle(std::int64_t now_ns);
+
+  // ---- Observation (tests, the control channel, `ecat sim status`) -------------------------
+  std::uint16_t station_address() const noexcept;
+  std::uint16_t station_alias() const noexcept;
+  wire::AlState al_state() const noexcept;
+  bool al_error() const noexcept;
+  std::uint16_t al_status_code() const noexcept;
+  const EscHardware& hardware() const noexcept { return hardware_; }
+  wire::Bytes memory() const noexcept { return memory_; }
+  std::uint8_t read_u8(std::uint16_t address) const noexcept;
+  std::uint16_t read_u16(std::uint16_t address) const noexcept;
+  std::uint32_t read_u32(std::uint16_t address) const noexcept;
+  std::uint64_t read_u64(std::uint16_t address) const noexcept;
+  const SyncManagerState& sync_manager(std::size_t index) const { return sms_.at(index); }
+  const wire::FmmuConfig& fmmu(std::size_t index) const { return fmmus_.at(index); }
+  std::span<const std::uint8_t> eeprom() const noexcept { return eeprom_; }
+  Application& application() noexcept { return *application_; }
+  DcUnit* dc() noexcept { return dc_.get(); }
+  std::int64_t now_ns() const noexcept { return now_ns_; }
+  // Whether the DC system time unit (0x0910..0x09FF) answers: the hardware has DC and the SII's
+  // ESC configuration (0x0141 bits 2, 3) enables the SYNC or latch units (see reset_registers).
+  bool dc_system_time() const noexcept { return dc_system_time_; }
+  // Whether a register byte exists in this ESC (FMMUs and SyncManagers beyond its count, DC
+  // registers without DC do not: accesses to them leave the working counter alone).
+  bool register_implemented(std::uint32_t address) const noexcept;
+
+  // ---- The PDI side: what the device's firmware (Application) uses --------------------------
+  void pdi_set_al_status(wire::AlState state, bool error, std::uint16_t status_code);
+  // Copies a reply into a mailbox SM that the master reads (direction read). Fails when the SM is
+  // not enabled, not a read mailbox, too small, or still full.
+  bool pdi_mailbox_send(std::size_t sm, wire::Bytes message);
+  // The bytes the master wrote into a write-direction mailbox SM, while it is full.
+  std::optional<wire::Bytes> pdi_mailbox_received(std::size_t sm) const;
+  // Marks the write-direction mailbox read by the firmware (the master may write again).
+  void pdi_mailbox_release(std::size_t sm);
+  // Re-sends the last mailbox reply after a repeat request; sets the repeat acknowledge.
+  void pdi_mailbox_repeat(std::size_t sm);
+  // Writes the process-data inputs of a read-direction buffered SM (the firmware's new buffer).
+  void pdi_write_buffer(std::size_t sm, wire::Bytes data);
+  // The last complete buffer the master wrote into a write-direction buffered SM.
+  wire::Bytes pdi_read_buffer(std::size_t sm) const;
+  void pdi_set_sm_deactivated(std::size_t sm, bool deactivated);
+  // Direct register/RAM access from the PDI (bypasses ECAT write permissions).
+  void pdi_write(std::uint16_t address, wire::Bytes data);
+  void pdi_write_u16(std::uint16_t address, std::uint16_t value);
+  // SII words the PDI may change (EEPROM emulation).
+  std::vector<std::uint8_t>& pdi_eeprom() noexcept { return eeprom_; }
+
+ private:
+  friend class DcUnit;
+  struct AccessResult {
+    bool read = false;
+    bool written = false;
+  };
+
+  void reset_registers();
+  bool matches_station(std::uint16_t adp) const noexcept;
+  AccessResult access(std::uint32_t address, std::span<std::uint8_t> data, bool do_read,
+                      bool do_write, bool or_into_data, const PassContext& pass);
+  AccessResult logical(DatagramInFlight& datagram, bool do_read, bool do_write,
+                       const PassContext& pass);
+  // Byte-range access through SyncManager protection; `mask` (nullable) selects bits.
+  AccessResult physical_read(std::uint32_t address, std::span<std::uint8_t> out,
+                             const std::uint8_t* mask, bool or_into_data);
+  AccessResult physical_write(std::uint32_t address, std::span<const std::uint8_t> in,
+                              const std::uint8_t* mask, const PassContext& pass);
+  // Returns whether any byte was writable (only then does the write count in the WKC).
+  bool register_write(std::uint32_t address, std::span<const std::uint8_t> in,
+                      const std::uint8_t* mask, const PassContext& pass);
+  void refresh_registers_for_read(std::uint32_t address, std::size_t length);
+  void after_register_write(std::uint32_t first, std::uint32_t last, const PassContext& pass,
+                            const std::array<std::uint8_t, 8>& sm_activate_before);
+  void sync_manager_written(std::size_t index, bool was_enabled);
+  void update_sm_status(std::size_t index);
+  void sii_command(std::uint16_t control);
+  void sii_finish_if_due();
+  int sm_index_for(std::uint32_t address) const noexcept;
+
+  EscHardware hardware_;
+  std::vector<std::uint8_t> memory_;
+  std::vector<std::uint8_t> eeprom_;
+  std::vector<SyncManagerState> sms_;
+  std::vector<wire::FmmuConfig> fmmus_;
+  std::unique_ptr<Application> application_;
+  std::unique_ptr<DcUnit> dc_;
+  std::int64_t now_ns_ = 0;
+  std::int64_t sii_busy_until_ns_ = 0;
+  bool dc_system_time_ = false;
+  std::vector<std::uint8_t> last_mailbox_reply_;
+};
+
+// Byte ranges of the register area (0x0000..0x0FFF) the master may write; everything else is
+// read-only from ECAT. A write that reaches no writable byte is ignored and does not count in the
+// working counter, as on real ESCs (BWR 0x092C, system time difference, comes back with WKC 0 from
+// DC-capable EK1100 and EL2889 in replay-ek1100-el2828-el2889.pcapng).
+bool ecat_may_write_register(std::uint16_t address) noexcept;
+
+}  // namespace ecat::sim

@@ -1,0 +1,158 @@
+// A simulated EtherCAT segment: emulated ESCs wired into a topology. A frame enters the first
+// slave's port 0, is processed by each ESC's processing unit in the order a real segment visits
+// them (depth first, ports in ESC forwarding order 0 -> 3 -> 1 -> 2), and returns to the master.
+// Every hop costs time, so DC receive-time latches see realistic, topology-dependent times.
+//
+// Not thread-safe: one thread processes frames (the server holds a lock around it).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/result.hpp>
+#include <ecat/sim/esc.hpp>
+#include <ecat/wire/frame.hpp>
+
+namespace ecat::sim {
+
+// Where a slave is attached: to which port of which earlier slave.
+struct Attachment {
+  // Index of the slave this one hangs off; nullopt = the previous slave (a line).
+  std::optional<std::size_t> parent;
+  // The parent's port (1, 2 or 3) this slave's port 0 is cabled to.
+  std::uint8_t parent_port = 1;
+  // Propagation delay of the cable into this slave's port 0.
+  std::int64_t cable_delay_ns = 5;
+};
+
+// Timing of the processing and forwarding inside one ESC.
+struct HopTiming {
+  std::int64_t processing_delay_ns = 100;  // port 0 in -> processing unit -> next port out
+  std::int64_t forwarding_delay_ns = 50;   // a port's return path through the ESC
+};
+
+// Observes and alters processing, for fault injection (include/ecat/sim/faults.hpp).
+class SegmentHooks {
+ public:
+  virtual ~SegmentHooks() = default;
+  // Before a frame: return false to lose it (no reply at all).
+  virtual bool before_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) {
+    (void)frame;
+    (void)now_ns;
+    return true;
+  }
+  // Whether slave `index` is cut off for this frame (the frame passes it unprocessed, and it is
+  // not counted for auto-increment addressing).
+  virtual bool slave_unreachable(std::size_t index) {
+    (void)index;
+    return false;
+  }
+  // After slave `index` processed a datagram.
+  virtual void after_datagram(std::size_t index, std::size_t datagram_number,
+                              DatagramInFlight& datagram, const DatagramEffect& effect) {
+    (void)index;
+    (void)datagram_number;
+    (void)datagram;
+    (void)effect;
+  }
+  // After the whole frame; may still change it (e.g. a WKC offset per command).
+  virtual void after_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) {
+    (void)frame;
+    (void)now_ns;
+  }
+};
+
+struct SegmentStats {
+  std::uint64_t frames = 0;
+  std::uint64_t frames_lost = 0;       // hooks or topology swallowed them
+  std::uint64_t frames_malformed = 0;  // not an EtherCAT frame: ignored, not answered
+  std::uint64_t datagrams = 0;
+};
+
+class Segment {
+ public:
+  Segment();
+  ~Segment();
+  Segment(const Segment&) = delete;
+  Segment& operator=(const Segment&) = delete;
+
+  // Adds a slave; returns its index (its position in a line). Fails for a parent that does not
+  // exist, a port outside 1..3 or one already taken, or a duplicate name.
+  Result<std::size_t> add_slave(std::string name, std::unique_ptr<Esc> esc,
+                                Attachment attachment = {}, HopTiming timing = {});
+
+  std::size_t size() const noexcept { return nodes_.size(); }
+  Esc& esc(std::size_t index) { return *nodes_.at(index).esc; }
+  const Esc& esc(std::size_t index) const { return *nodes_.at(index).esc; }
+  const std::string& name(std::size_t index) const { return nodes_.at(index).name; }
+  std::optional<std::size_t> find(std::string_view name) const noexcept;
+
+  // Processes one EtherCAT frame (header + datagrams) in place at segment time `now_ns`.
+  // Returns false when no reply goes back (lost frame, malformed frame, master link down).
+  bool process_frame(std::span<std::uint8_t> ethercat_frame, std::int64_t now_ns);
+
+  // Lets every ESC's time-driven behaviour advance.
+  void advance(std::int64_t now_ns);
+
+  // Physical link of slave `index`'s `port` (0 = towards the master). Down on port 0 cuts the
+  // slave and everything behind it off; the parent's port then closes its loop.
+  void set_link(std::size_t index, std::uint8_t port, bool up);
+  bool link(std::size_t index, std::uint8_t port) const;
+  // The master's own link to the first slave.
+  void set_master_link(bool up) noexcept { master_link_ = up; }
+
+  // The slaves the frame visits, in processing order (reachable ones only).
+  std::vector<std::size_t> processing_order() const;
+  // The time a frame needs for the whole round trip through the segment.
+  std::int64_t round_trip_ns() const;
+
+  void set_hooks(SegmentHooks* hooks) noexcept { hooks_ = hooks; }
+  // Called after every frame, e.g. to move wired outputs to inputs.
+  void add_after_frame(std::function<void(Segment&, std::int64_t now_ns)> callback);
+
+  const SegmentStats& stats() const noexcept { return stats_; }
+
+ private:
+  struct Node {
+    std::string name;
+    std::unique_ptr<Esc> esc;
+    std::optional<std::size_t> parent;
+    std::uint8_t parent_port = 1;
+    std::array<std::optional<std::size_t>, 4> children{};  // by port; [0] unused
+    std::array<bool, 4> link_up{true, true, true, true};
+    std::int64_t cable_delay_ns = 5;
+    HopTiming timing;
+  };
+  struct Visit {
+    std::size_t index = 0;
+    PassContext pass;  // times relative to the frame start
+  };
+
+  bool port_open(std::size_t index, std::uint8_t port) const;
+  void plan(std::vector<Visit>& visits, std::int64_t& round_trip) const;
+  std::int64_t visit(std::size_t index, std::int64_t arrival, std::vector<Visit>& visits) const;
+  void update_dl_status();
+
+  std::vector<Node> nodes_;
+  std::vector<Visit> visits_;  // reused per frame; no allocation in steady state
+  std::int64_t round_trip_ = 0;
+  bool master_link_ = true;
+  SegmentHooks* hooks_ = nullptr;
+  std::vector<std::function<void(Segment&, std::int64_t)>> after_frame_;
+  SegmentStats stats_;
+  struct Slot {
+    std::size_t offset = 0;
+    std::size_t length = 0;
+  };
+  std::vector<Slot> slots_;
+  std::vector<std::uint8_t> port_control_seen_;
+};
+
+}  // namespace ecat::sim

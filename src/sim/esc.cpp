@@ -1,0 +1,924 @@
+#include <algorithm>
+#include <cstring>
+
+#include <ecat/sim/application.hpp>
+#include <ecat/sim/dc_unit.hpp>
+#include <ecat/sim/esc.hpp>
+#include <ecat/wire/sii.hpp>
+
+namespace ecat::sim {
+
+namespace reg = wire::reg;
+using wire::Command;
+
+namespace {
+
+constexpr std::uint32_t kRegisterAreaEnd = 0x1000;
+// SyncManagers may cover the digital I/O and user RAM registers too (0x0F00..0x0FFF): Beckhoff
+// digital output terminals (EL2004, EL2809 ...) place their output SyncManager at 0x0F00.
+constexpr std::uint32_t kSyncManagerAreaStart = 0x0F00;
+constexpr std::uint16_t kDefaultWatchdogDivider = 0x09C2;  // 2498 -> 100 us watchdog ticks
+constexpr std::uint16_t kDefaultWatchdogTime = 0x03E8;     // 1000 ticks -> 100 ms
+constexpr std::size_t kMaxDatagram = wire::kMaxDatagramLength + 1;
+// EEPROMs up to 16 kbit (2 KiB) take one address byte, larger ones two (SII control bit 7).
+constexpr std::size_t kOneAddressByteEepromBytes = 2048;
+constexpr std::uint8_t kEscConfigDeviceEmulation = 0x01;
+constexpr std::uint8_t kEscConfigDcUnits = 0x0C;  // SYNC out unit (bit 2), latch in unit (bit 3)
+constexpr std::uint16_t kDcBase = 0x0900;
+constexpr std::uint16_t kDcReceiveTimesEnd = 0x0910;  // port receive times 0x0900..0x090F
+constexpr std::uint16_t kDcSize = 0x0100;
+
+bool in_range(std::uint32_t address, std::uint32_t first, std::uint32_t size) noexcept {
+  return address >= first && address < first + size;
+}
+
+// Does [first, last] (inclusive) overlap [start, start + size)?
+bool overlaps(std::uint32_t first, std::uint32_t last, std::uint32_t start,
+              std::uint32_t size) noexcept {
+  return first < start + size && last >= start;
+}
+
+std::uint8_t masked(std::uint8_t old_value, std::uint8_t new_value, const std::uint8_t* mask,
+                    std::size_t i) noexcept {
+  if (mask == nullptr) return new_value;
+  return static_cast<std::uint8_t>((old_value & ~mask[i]) | (new_value & mask[i]));
+}
+
+}  // namespace
+
+bool ecat_may_write_register(std::uint16_t address) noexcept {
+  struct Range {
+    std::uint16_t first;
+    std::uint16_t last;
+  };
+  // The registers a master may write (ESC datasheet, section II); all others are read-only for
+  // ECAT. SyncManager bytes are special-cased in register_write.
+  static constexpr Range kWritable[] = {
+      {0x0010, 0x0011},  // configured station address
+      {0x0020, 0x0021},  // write register enable / protection
+      {0x0030, 0x0031},  // ESC write enable / protection
+      {0x0040, 0x0040},  // ESC reset ECAT
+      {0x0100, 0x0103},  // DL control (incl. port loop control, alias enable)
+      {0x0108, 0x0109},  // physical read/write offset
+      {0x0120, 0x0121},  // AL control
+      {0x0138, 0x0139},  // LED overrides
+      {0x0200, 0x0201},  // ECAT event mask
+      {0x0300, 0x0313},  // error counters (a write clears them)
+      {0x0400, 0x0401},  // watchdog divider
+      {0x0410, 0x0411},  // watchdog time PDI
+      {0x0420, 0x0421},  // watchdog time process data
+      {0x0442, 0x0443},  // watchdog counters (a write clears them)
+      {0x0500, 0x0500},  // SII configuration (ECAT/PDI ownership)
+      {0x0502, 0x050F},  // SII control, address, data
+      {0x0510, 0x0517},  // MII management
+      {0x0600, 0x06FF},  // FMMUs
+      {0x0800, 0x087F},  // SyncManagers (bytes refined below)
+      {0x0900, 0x0903},  // DC receive time port 0: a write latches all ports
+      {0x0910, 0x0917},  // DC system time: a write feeds the drift filter
+      {0x0920, 0x092B},  // DC system time offset and delay
+      {0x0930, 0x0931},  // DC speed counter start
+      {0x0934, 0x0936},  // DC filter depths, receive time latch mode
+      {0x0980, 0x0981},  // DC cyclic unit control, activation
+      {0x0990, 0x0997},  // DC start time
+      {0x09A0, 0x09A7},  // DC SYNC0/SYNC1 cycle times
+      {0x09A8, 0x09A9},  // DC latch control
+      {0x0F00, 0x0F03},  // digital I/O output data
+      {0x0F10, 0x0F17},  // general purpose outputs
+      {0x0F80, 0x0FFF},  // user RAM
+  };
+  for (const auto& r : kWritable) {
+    if (address >= r.first && address <= r.last) return true;
+  }
+  return false;
+}
+
+Esc::Esc(EscHardware hardware, std::vector<std::uint8_t> eeprom,
+         std::unique_ptr<Application> application)
+    : hardware_(hardware),
+      memory_(kRegisterAreaEnd + static_cast<std::size_t>(hardware.ram_size_kib) * 1024u, 0),
+      eeprom_(std::move(eeprom)),
+      sms_(std::min<std::size_t>(hardware.sync_manager_count, reg::kMaxSyncManagers)),
+      fmmus_(std::min<std::size_t>(hardware.fmmu_count, reg::kMaxFmmus)),
+      application_(application ? std::move(application) : std::make_unique<BasicApplication>()) {
+  if (hardware_.dc_supported) dc_ = std::make_unique<DcUnit>(*this);
+  reset_registers();
+  application_->start(*this);
+}
+
+Esc::~Esc() = default;
+
+void Esc::reset_registers() {
+  std::fill(memory_.begin(), memory_.end(), std::uint8_t{0});
+  wire::EscInformation info;
+  info.type = hardware_.type;
+  info.revision = hardware_.revision;
+  info.build = hardware_.build;
+  info.fmmu_count = static_cast<std::uint8_t>(fmmus_.size());
+  info.sync_manager_count = static_cast<std::uint8_t>(sms_.size());
+  info.ram_size_kib = hardware_.ram_size_kib;
+  info.ports = hardware_.ports;
+  info.features = hardware_.features;
+  info.features.dc_supported = hardware_.dc_supported;
+  info.features.dc_64bit = hardware_.dc_supported;
+  const auto encoded = info.encode();
+  std::memcpy(memory_.data(), encoded.data(), encoded.size());
+
+  // Values the ESC loads from the SII EEPROM's configuration area at power-up.
+  auto eeprom_word = [&](std::size_t word) -> std::uint16_t {
+    return word * 2 + 1 < eeprom_.size() ? wire::load_le16(&eeprom_[word * 2]) : 0;
+  };
+  wire::store_le16(&memory_[reg::kPdiControl], eeprom_word(0));  // PDI control + ESC config
+  wire::store_le16(&memory_[reg::kPdiConfiguration], eeprom_word(1));
+  wire::store_le16(&memory_[reg::kDcPulseLength], eeprom_word(2));
+  wire::store_le16(&memory_[reg::kExtendedPdiConfiguration], eeprom_word(3));
+  wire::store_le16(&memory_[reg::kStationAlias], eeprom_word(4));
+
+  std::uint16_t sii_status = hardware_.sii_reads_8_bytes ? wire::sii_control::kReadSize8 : 0;
+  // Every ESC of the shared captures reports 0x0040 here with a 2 KiB EEPROM (one address byte).
+  if (eeprom_.size() > kOneAddressByteEepromBytes) {
+    sii_status |= wire::sii_control::kTwoAddressBytes;
+  }
+  const bool eeprom_ok =
+      eeprom_.size() >= 16 && wire::sii_crc8(wire::Bytes(eeprom_).first(14)) == eeprom_[14];
+  if (!eeprom_ok) sii_status |= wire::sii_control::kChecksumError;
+  wire::store_le16(&memory_[reg::kSiiControl], sii_status);
+
+  // The DC system time unit is powered down when the ESC configuration enables neither the SYNC
+  // out nor the latch in unit; only the port receive times remain. EL1004 in
+  // soem-sdinfo-ek1100-el1004.pcapng has 0x0141 = 0x01 and answers FPRD 0x0918 with WKC 0, the
+  // EK1100 (0x0D) with WKC 1. Without a loadable EEPROM the hardware default (on) stays.
+  dc_system_time_ = hardware_.dc_supported &&
+                    (!eeprom_ok || (memory_[reg::kEscConfiguration] & kEscConfigDcUnits) != 0);
+
+  wire::DlStatus dl;
+  dl.pdi_operational = eeprom_ok;
+  // Nothing reloads the PDI watchdog of an ESC without a PDI (PDI control 0): the EK1100
+  // (0x0140 = 0x00) reports DL status 0x5A31 in the replay captures, terminals with a PDI 0x..33.
+  dl.pdi_watchdog_ok = !eeprom_ok || memory_[reg::kPdiControl] != 0;
+  wire::store_le16(&memory_[reg::kDlStatus], dl.encode());
+
+  wire::store_le16(&memory_[reg::kAlStatus], static_cast<std::uint16_t>(wire::AlState::init));
+  wire::store_le16(&memory_[reg::kWatchdogDivider], kDefaultWatchdogDivider);
+  wire::store_le16(&memory_[reg::kWatchdogTimePdi], kDefaultWatchdogTime);
+  wire::store_le16(&memory_[reg::kWatchdogTimeProcessData], kDefaultWatchdogTime);
+  wire::store_le16(&memory_[reg::kWatchdogStatus], 0x0001);
+
+  for (auto& sm : sms_)
+    sm = SyncManagerState{};
+  for (std::size_t i = 0; i < sms_.size(); ++i)
+    update_sm_status(i);
+  for (auto& f : fmmus_)
+    f = wire::FmmuConfig{};
+  sii_busy_until_ns_ = 0;
+  last_mailbox_reply_.clear();
+  if (dc_) dc_->reset();
+}
+
+void Esc::power_cycle(std::int64_t now_ns) {
+  now_ns_ = now_ns;
+  reset_registers();
+  application_->start(*this);
+}
+
+void Esc::advance(std::int64_t now_ns) {
+  if (now_ns > now_ns_) now_ns_ = now_ns;
+  sii_finish_if_due();
+  // Process-data watchdog: an output SyncManager with the watchdog trigger enabled that sees no
+  // complete write for the watchdog time expires (status bit 0 -> 0, counter + 1).
+  const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
+  const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
+  if (ticks != 0) {
+    const auto timeout_ns = static_cast<std::int64_t>(ticks * (divider + 2) * 40);
+    for (const auto& sm : sms_) {
+      if (!sm.enabled || !sm.config.control.watchdog ||
+          sm.config.control.direction != wire::SmDirection::write) {
+        continue;
+      }
+      if ((read_u16(reg::kWatchdogStatus) & 1) != 0 && now_ns_ - sm.last_write_ns > timeout_ns) {
+        wire::store_le16(&memory_[reg::kWatchdogStatus], 0);
+        memory_[reg::kWatchdogCounterProcessData] =
+            static_cast<std::uint8_t>(std::min(255, memory_[reg::kWatchdogCounterProcessData] + 1));
+      }
+    }
+  }
+  if (dc_) dc_->advance(now_ns_);
+  application_->advance(*this, now_ns_);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Datagram processing
+
+bool Esc::matches_station(std::uint16_t adp) const noexcept {
+  if (adp == station_address()) return true;
+  const bool alias_enabled = (memory_[reg::kDlAliasControl] & 0x01) != 0;
+  return alias_enabled && adp == station_alias();
+}
+
+DatagramEffect Esc::process(DatagramInFlight& d, const PassContext& pass) {
+  if (pass.epu_time_ns > now_ns_) now_ns_ = pass.epu_time_ns;
+  sii_finish_if_due();
+  if (dc_) dc_->on_datagram(pass);
+  DatagramEffect effect;
+  auto count = [&](AccessResult r, bool read_write) {
+    std::uint16_t add = 0;
+    if (read_write) {
+      add = static_cast<std::uint16_t>((r.read ? 1 : 0) + (r.written ? 2 : 0));
+    } else {
+      add = (r.read || r.written) ? 1 : 0;
+    }
+    d.wkc = static_cast<std::uint16_t>(d.wkc + add);
+    effect.wkc_added = add;
+  };
+  const std::uint16_t adp = d.adp();
+  switch (d.command) {
+    case Command::nop:
+      break;
+    case Command::aprd:
+    case Command::apwr:
+    case Command::aprw: {
+      d.set_adp(static_cast<std::uint16_t>(adp + 1));
+      if (adp != 0) break;
+      effect.addressed = true;
+      const bool rd = d.command != Command::apwr;
+      const bool wr = d.command != Command::aprd;
+      count(access(d.ado(), d.data, rd, wr, false, pass), rd && wr);
+      break;
+    }
+    case Command::fprd:
+    case Command::fpwr:
+    case Command::fprw: {
+      if (!matches_station(adp)) break;
+      effect.addressed = true;
+      const bool rd = d.command != Command::fpwr;
+      const bool wr = d.command != Command::fprd;
+      count(access(d.ado(), d.data, rd, wr, false, pass), rd && wr);
+      break;
+    }
+    case Command::brd:
+    case Command::bwr:
+    case Command::brw: {
+      d.set_adp(static_cast<std::uint16_t>(adp + 1));
+      effect.addressed = true;
+      const bool rd = d.command != Command::bwr;
+      const bool wr = d.command != Command::brd;
+      count(access(d.ado(), d.data, rd, wr, true, pass), rd && wr);
+      break;
+    }
+    case Command::armw: {
+      d.set_adp(static_cast<std::uint16_t>(adp + 1));
+      effect.addressed = true;
+      const bool rd = adp == 0;
+      count(access(d.ado(), d.data, rd, !rd, false, pass), false);
+      break;
+    }
+    case Command::frmw: {
+      effect.addressed = true;
+      const bool rd = matches_station(adp);
+      count(access(d.ado(), d.data, rd, !rd, false, pass), false);
+      break;
+    }
+    case Command::lrd:
+    case Command::lwr:
+    case Command::lrw: {
+      const bool rd = d.command != Command::lwr;
+      const bool wr = d.command != Command::lrd;
+      const AccessResult r = logical(d, rd, wr, pass);
+      effect.addressed = r.read || r.written;
+      count(r, d.command == Command::lrw);
+      break;
+    }
+  }
+  return effect;
+}
+
+Esc::AccessResult Esc::access(std::uint32_t address, std::span<std::uint8_t> data, bool do_read,
+                              bool do_write, bool or_into_data, const PassContext& pass) {
+  AccessResult result;
+  if (data.empty()) return result;
+  // Read-write commands read the old contents and write what the master sent, so keep a copy of
+  // the incoming data before the read overwrites it.
+  std::array<std::uint8_t, kMaxDatagram> incoming{};
+  const std::size_t n = std::min(data.size(), incoming.size());
+  if (do_write && do_read) std::memcpy(incoming.data(), data.data(), n);
+  if (do_read) result.read = physical_read(address, data.first(n), nullptr, or_into_data).read;
+  if (do_write) {
+    std::span<const std::uint8_t> in =
+        do_read ? std::span<const std::uint8_t>(incoming.data(), n) : data.first(n);
+    result.written = physical_write(address, in, nullptr, pass).written;
+  }
+  return result;
+}
+
+Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
+                               const PassContext& pass) {
+  AccessResult result;
+  const std::uint64_t first_bit = static_cast<std::uint64_t>(d.address) * 8;
+  const std::uint64_t end_bit = first_bit + d.data.size() * 8;  // exclusive
+  for (const auto& f : fmmus_) {
+    if (!f.active || f.length == 0) continue;
+    const bool f_reads = f.type == wire::FmmuType::read || f.type == wire::FmmuType::read_write;
+    const bool f_writes = f.type == wire::FmmuType::write || f.type == wire::FmmuType::read_write;
+    const bool reading = do_read && f_reads;
+    const bool writing = do_write && f_writes;
+    if (!reading && !writing) continue;
+    const std::uint64_t f_first =
+        static_cast<std::uint64_t>(f.logical_start) * 8 + f.logical_start_bit;
+    const std::uint64_t f_end =
+        (static_cast<std::uint64_t>(f.logical_start) + f.length - 1) * 8 + f.logical_stop_bit + 1;
+    if (f_end <= f_first) continue;
+    const std::uint64_t lo = std::max(first_bit, f_first);
+    const std::uint64_t hi = std::min(end_bit, f_end);
+    if (lo >= hi) continue;
+    // Physical bit of logical bit b: phys_first + (b - f_first).
+    const std::uint64_t phys_first =
+        static_cast<std::uint64_t>(f.physical_start) * 8 + f.physical_start_bit;
+    const std::uint64_t p_lo = phys_first + (lo - f_first);
+    const std::uint64_t p_hi = phys_first + (hi - f_first);  // exclusive
+    const auto p_byte = static_cast<std::uint32_t>(p_lo / 8);
+    const std::size_t p_bytes = static_cast<std::size_t>((p_hi + 7) / 8 - p_lo / 8);
+    if (p_bytes > kMaxDatagram) continue;
+
+    const bool aligned = (lo % 8 == 0) && (hi % 8 == 0) && (p_lo % 8 == 0);
+    const std::size_t d_offset = static_cast<std::size_t>((lo - first_bit) / 8);
+    if (aligned) {
+      auto window = d.data.subspan(d_offset, p_bytes);
+      if (reading && writing) {
+        std::array<std::uint8_t, kMaxDatagram> incoming{};
+        std::memcpy(incoming.data(), window.data(), p_bytes);
+        result.read |= physical_read(p_byte, window, nullptr, false).read;
+        result.written |=
+            physical_write(p_byte, std::span<const std::uint8_t>(incoming.data(), p_bytes), nullptr,
+                           pass)
+                .written;
+      } else if (reading) {
+        result.read |= physical_read(p_byte, window, nullptr, false).read;
+      } else {
+        result.written |= physical_write(p_byte, window, nullptr, pass).written;
+      }
+      continue;
+    }
+
+    // Bit-granular mapping: gather the physical bytes, move single bits, scatter back.
+    std::array<std::uint8_t, kMaxDatagram> phys{};
+    std::array<std::uint8_t, kMaxDatagram> mask{};
+    std::array<std::uint8_t, kMaxDatagram> incoming{};
+    std::memcpy(incoming.data(), d.data.data(), d.data.size());
+    auto bit_of = [](const std::uint8_t* bytes, std::uint64_t bit) {
+      return (bytes[bit / 8] >> (bit % 8)) & 1;
+    };
+    if (reading) {
+      const AccessResult r =
+          physical_read(p_byte, std::span<std::uint8_t>(phys.data(), p_bytes), nullptr, false);
+      if (r.read) {
+        result.read = true;
+        for (std::uint64_t b = lo; b < hi; ++b) {
+          const std::uint64_t pb = p_lo + (b - lo) - static_cast<std::uint64_t>(p_byte) * 8;
+          const std::uint64_t db = b - first_bit;
+          const auto bit = static_cast<std::uint8_t>(1u << (db % 8));
+          if (bit_of(phys.data(), pb) != 0) {
+            d.data[db / 8] = static_cast<std::uint8_t>(d.data[db / 8] | bit);
+          } else {
+            d.data[db / 8] = static_cast<std::uint8_t>(d.data[db / 8] & ~bit);
+          }
+        }
+      }
+    }
+    if (writing) {
+      std::fill(phys.begin(), phys.begin() + static_cast<std::ptrdiff_t>(p_bytes), 0);
+      for (std::uint64_t b = lo; b < hi; ++b) {
+        const std::uint64_t pb = p_lo + (b - lo) - static_cast<std::uint64_t>(p_byte) * 8;
+        const std::uint64_t db = b - first_bit;
+        const auto bit = static_cast<std::uint8_t>(1u << (pb % 8));
+        mask[pb / 8] = static_cast<std::uint8_t>(mask[pb / 8] | bit);
+        if (bit_of(incoming.data(), db) != 0) {
+          phys[pb / 8] = static_cast<std::uint8_t>(phys[pb / 8] | bit);
+        }
+      }
+      result.written |= physical_write(p_byte, std::span<const std::uint8_t>(phys.data(), p_bytes),
+                                       mask.data(), pass)
+                            .written;
+    }
+  }
+  return result;
+}
+
+int Esc::sm_index_for(std::uint32_t address) const noexcept {
+  for (std::size_t i = 0; i < sms_.size(); ++i) {
+    const auto& sm = sms_[i];
+    if (sm.enabled && in_range(address, sm.config.physical_start, sm.config.length)) {
+      return static_cast<int>(i);
+    }
+  }
+  return -1;
+}
+
+Esc::AccessResult Esc::physical_read(std::uint32_t address, std::span<std::uint8_t> out,
+                                     const std::uint8_t* mask, bool or_into_data) {
+  AccessResult result;
+  const std::uint32_t end = address + static_cast<std::uint32_t>(out.size());
+  if (address < kRegisterAreaEnd) refresh_registers_for_read(address, out.size());
+  std::uint32_t pos = address;
+  while (pos < end) {
+    const std::size_t i = pos - address;
+    if (pos >= memory_.size()) break;  // beyond the implemented RAM: not accessible
+    const int sm_index = pos >= kSyncManagerAreaStart ? sm_index_for(pos) : -1;
+    std::uint32_t run_end =
+        std::min<std::uint32_t>(end, static_cast<std::uint32_t>(memory_.size()));
+    if (sm_index < 0) {
+      // Up to the next SyncManager area that starts inside the range.
+      for (const auto& sm : sms_) {
+        if (sm.enabled && sm.config.length > 0 && sm.config.physical_start > pos &&
+            sm.config.physical_start < run_end) {
+          run_end = sm.config.physical_start;
+        }
+      }
+      for (std::uint32_t a = pos; a < run_end; ++a) {
+        // Bytes the ESC does not have leave the datagram alone and do not count.
+        if (a < kRegisterAreaEnd && !register_implemented(a)) continue;
+        const std::uint8_t v = memory_[a];
+        const std::size_t k = a - address;
+        out[k] = or_into_data ? static_cast<std::uint8_t>(out[k] | v) : masked(out[k], v, mask, k);
+        result.read = true;
+      }
+      pos = run_end;
+      continue;
+    }
+    auto& sm = sms_[static_cast<std::size_t>(sm_index)];
+    const std::uint32_t sm_start = sm.config.physical_start;
+    const std::uint32_t sm_end = sm_start + sm.config.length;
+    run_end = std::min(run_end, sm_end);
+    const bool covers_first = pos == sm_start;
+    const bool covers_last = run_end == sm_end;
+    const bool deactivated = sm.config.pdi_control.deactivate;
+    const bool mailbox = sm.config.control.mode == wire::SmMode::mailbox;
+    const bool ecat_reads = sm.config.control.direction == wire::SmDirection::read;
+    bool allowed = !deactivated;
+    if (mailbox) allowed = allowed && ecat_reads && sm.mailbox_full;
+    if (allowed && !mailbox && ecat_reads && covers_first) {
+      application_->before_buffer_read(*this, static_cast<std::size_t>(sm_index));
+    }
+    if (allowed) {
+      for (std::uint32_t a = pos; a < run_end; ++a) {
+        const std::uint8_t v = memory_[a];
+        const std::size_t k = a - address;
+        out[k] = or_into_data ? static_cast<std::uint8_t>(out[k] | v) : masked(out[k], v, mask, k);
+      }
+      result.read = true;
+      if (ecat_reads) {
+        if (covers_first) sm.read_open = true;
+        if (covers_last && sm.read_open) {
+          sm.read_open = false;
+          ++sm.buffers_read;
+          if (mailbox) sm.mailbox_full = false;
+          sm.config.status.interrupt_read = true;
+          sm.config.status.interrupt_write = false;
+          update_sm_status(static_cast<std::size_t>(sm_index));
+          application_->on_buffer_read(*this, static_cast<std::size_t>(sm_index));
+        } else {
+          update_sm_status(static_cast<std::size_t>(sm_index));
+        }
+      }
+    }
+    (void)i;
+    pos = run_end;
+  }
+  const std::uint32_t dc_end = dc_system_time_ ? kDcBase + kDcSize : kDcReceiveTimesEnd;
+  if (dc_ && address < kRegisterAreaEnd && overlaps(address, end - 1, kDcBase, dc_end - kDcBase)) {
+    dc_->after_read(static_cast<std::uint16_t>(std::max<std::uint32_t>(address, kDcBase)),
+                    static_cast<std::uint16_t>(std::min<std::uint32_t>(end - 1, dc_end - 1)));
+  }
+  return result;
+}
+
+Esc::AccessResult Esc::physical_write(std::uint32_t address, std::span<const std::uint8_t> in,
+                                      const std::uint8_t* mask, const PassContext& pass) {
+  AccessResult result;
+  const std::uint32_t end = address + static_cast<std::uint32_t>(in.size());
+  std::uint32_t pos = address;
+  while (pos < end) {
+    if (pos >= memory_.size()) break;
+    const int sm_index = pos >= kSyncManagerAreaStart ? sm_index_for(pos) : -1;
+    std::uint32_t run_end =
+        std::min<std::uint32_t>(end, static_cast<std::uint32_t>(memory_.size()));
+    if (sm_index < 0) {
+      for (const auto& sm : sms_) {
+        if (sm.enabled && sm.config.length > 0 && sm.config.physical_start > pos &&
+            sm.config.physical_start < run_end) {
+          run_end = sm.config.physical_start;
+        }
+      }
+      if (pos < kRegisterAreaEnd) {
+        // Registers outside any SyncManager keep their ECAT write permissions.
+        run_end = std::min(run_end, kRegisterAreaEnd);
+        const std::size_t k = pos - address;
+        if (register_write(pos, in.subspan(k, run_end - pos), mask != nullptr ? mask + k : nullptr,
+                           pass)) {
+          result.written = true;
+        }
+      } else {
+        for (std::uint32_t a = pos; a < run_end; ++a) {
+          memory_[a] = masked(memory_[a], in[a - address], mask, a - address);
+        }
+        result.written = true;
+      }
+      pos = run_end;
+      continue;
+    }
+    const auto index = static_cast<std::size_t>(sm_index);
+    auto& sm = sms_[index];
+    const std::uint32_t sm_start = sm.config.physical_start;
+    const std::uint32_t sm_end = sm_start + sm.config.length;
+    run_end = std::min(run_end, sm_end);
+    const bool covers_first = pos == sm_start;
+    const bool covers_last = run_end == sm_end;
+    const bool mailbox = sm.config.control.mode == wire::SmMode::mailbox;
+    const bool ecat_writes = sm.config.control.direction == wire::SmDirection::write;
+    bool allowed = ecat_writes && !sm.config.pdi_control.deactivate;
+    if (mailbox) allowed = allowed && !sm.mailbox_full;
+    if (allowed) {
+      if (covers_first) {
+        sm.write_open = true;
+        if (!mailbox) {
+          // The producer's buffer starts as the last complete one, so partial (bit-masked)
+          // writes keep the bits they do not touch.
+          sm.shadow.assign(memory_.begin() + sm_start, memory_.begin() + sm_end);
+        }
+      }
+      for (std::uint32_t a = pos; a < run_end; ++a) {
+        const std::size_t k = a - address;
+        if (mailbox) {
+          memory_[a] = masked(memory_[a], in[k], mask, k);
+        } else if (sm.shadow.size() == sm.config.length) {
+          auto& byte = sm.shadow[a - sm_start];
+          byte = masked(byte, in[k], mask, k);
+        }
+      }
+      result.written = true;
+      if (covers_last && sm.write_open) {
+        sm.write_open = false;
+        if (!mailbox && sm.shadow.size() == sm.config.length) {
+          std::copy(sm.shadow.begin(), sm.shadow.end(), memory_.begin() + sm_start);
+          sm.config.status.buffer_state = static_cast<std::uint8_t>((sm.buffers_written + 1) % 3);
+        }
+        if (mailbox) sm.mailbox_full = true;
+        ++sm.buffers_written;
+        sm.last_write_ns = pass.epu_time_ns;
+        sm.config.status.interrupt_write = true;
+        sm.config.status.interrupt_read = false;
+        if (sm.config.control.watchdog) {
+          wire::store_le16(&memory_[reg::kWatchdogStatus], 0x0001);  // retriggered
+        }
+        update_sm_status(index);
+        application_->on_buffer_written(*this, index);
+      } else {
+        update_sm_status(index);
+      }
+    }
+    pos = run_end;
+  }
+  return result;
+}
+
+bool Esc::register_write(std::uint32_t address, std::span<const std::uint8_t> in,
+                         const std::uint8_t* mask, const PassContext& pass) {
+  const std::uint32_t first = address;
+  const std::uint32_t last = address + static_cast<std::uint32_t>(in.size()) - 1;
+  std::array<std::uint8_t, 8> unused{};
+  bool any_writable = false;
+  for (std::uint32_t a = first; a <= last; ++a) {
+    const auto r = static_cast<std::uint16_t>(a);
+    if (!ecat_may_write_register(r) || !register_implemented(a)) continue;
+    any_writable = true;
+    if (in_range(a, reg::kSyncManagerBase, reg::kSyncManagerSize * reg::kMaxSyncManagers)) {
+      const std::size_t sm = (a - reg::kSyncManagerBase) / reg::kSyncManagerSize;
+      const std::size_t byte = (a - reg::kSyncManagerBase) % reg::kSyncManagerSize;
+      if (sm >= sms_.size()) continue;
+      if (byte == reg::kSyncManagerStatusOffset || byte == reg::kSyncManagerPdiControlOffset) {
+        continue;  // written by the ESC / the PDI only
+      }
+      // Start, length and control can only change while the SyncManager is disabled.
+      if (byte < reg::kSyncManagerStatusOffset && sms_[sm].enabled) continue;
+    }
+    memory_[a] = masked(memory_[a], in[a - first], mask, a - first);
+  }
+  if (any_writable) after_register_write(first, last, pass, unused);
+  return any_writable;
+}
+
+bool Esc::register_implemented(std::uint32_t address) const noexcept {
+  if (in_range(address, reg::kFmmuBase, reg::kFmmuSize * reg::kMaxFmmus)) {
+    return (address - reg::kFmmuBase) / reg::kFmmuSize < fmmus_.size();
+  }
+  if (in_range(address, reg::kSyncManagerBase, 0x100)) {  // 0x0880..0x08FF: reserved
+    return (address - reg::kSyncManagerBase) / reg::kSyncManagerSize < sms_.size();
+  }
+  if (in_range(address, kDcBase, kDcSize)) {
+    return hardware_.dc_supported && (address < kDcReceiveTimesEnd || dc_system_time_);
+  }
+  return true;
+}
+
+void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const PassContext& pass,
+                               const std::array<std::uint8_t, 8>& /*sm_activate_before*/) {
+  if (overlaps(first, last, reg::kRxErrorCounter, 0x0C)) {
+    // A write to any RX error counter clears all of them.
+    std::fill(memory_.begin() + reg::kRxErrorCounter, memory_.begin() + reg::kRxErrorCounter + 0x0C,
+              std::uint8_t{0});
+  }
+  for (std::uint16_t r = reg::kProcessingUnitError; r < reg::kLostLink + 4; ++r) {
+    if (overlaps(first, last, r, 1)) memory_[r] = 0;
+  }
+  for (std::uint16_t r : {reg::kWatchdogCounterProcessData, reg::kWatchdogCounterPdi}) {
+    if (overlaps(first, last, r, 1)) memory_[r] = 0;
+  }
+  for (std::size_t i = 0; i < fmmus_.size(); ++i) {
+    if (!overlaps(first, last, reg::fmmu(i), reg::kFmmuSize)) continue;
+    auto decoded = wire::FmmuConfig::decode(wire::Bytes(&memory_[reg::fmmu(i)], reg::kFmmuSize));
+    // A configuration the FMMU cannot represent (bit numbers > 7) leaves it inactive.
+    fmmus_[i] = decoded ? *decoded : wire::FmmuConfig{};
+  }
+  for (std::size_t i = 0; i < sms_.size(); ++i) {
+    if (!overlaps(first, last, reg::sync_manager(i), reg::kSyncManagerSize)) continue;
+    sync_manager_written(i, sms_[i].enabled);
+  }
+  if (overlaps(first, last, reg::kSiiControl, 2)) sii_command(read_u16(reg::kSiiControl));
+  const std::uint32_t dc_end = dc_system_time_ ? kDcBase + kDcSize : kDcReceiveTimesEnd;
+  if (dc_ && overlaps(first, last, kDcBase, dc_end - kDcBase)) {
+    dc_->on_write(static_cast<std::uint16_t>(std::max<std::uint32_t>(first, kDcBase)),
+                  static_cast<std::uint16_t>(std::min<std::uint32_t>(last, dc_end - 1)), pass);
+  }
+  if (overlaps(first, last, reg::kAlControl, 2)) {
+    if ((memory_[reg::kEscConfiguration] & kEscConfigDeviceEmulation) != 0) {
+      // Device emulation: the ESC itself copies AL control into AL status, error acknowledge bit
+      // included (BWR 0x0120 = 0x0011 reads back as AL status 0x0011 from EK1100, EL2828 and
+      // EL2889 in replay-ek1100-el2828-el2889.pcapng). Firmware on the PDI may still overwrite it.
+      memory_[reg::kAlStatus] = memory_[reg::kAlControl];
+      memory_[reg::kAlStatus + 1] = memory_[reg::kAlControl + 1];
+    }
+    application_->on_al_control(*this, read_u16(reg::kAlControl));
+  }
+}
+
+void Esc::sync_manager_written(std::size_t index, bool was_enabled) {
+  auto& sm = sms_[index];
+  const std::uint16_t base = reg::sync_manager(index);
+  const bool old_repeat = sm.config.activate.repeat_request;
+  const auto old_config = sm.config;
+  sm.config.physical_start = read_u16(base);
+  sm.config.length = read_u16(base + 2);
+  auto control = wire::SmControl::decode(memory_[base + 4]);
+  sm.config.control = control ? *control : wire::SmControl{};
+  sm.config.activate = wire::SmActivate::decode(memory_[base + reg::kSyncManagerActivateOffset]);
+  const bool enable =
+      sm.config.activate.enable && sm.config.length > 0 && control.ok() &&
+      sm.config.physical_start >= kSyncManagerAreaStart &&
+      static_cast<std::size_t>(sm.config.physical_start) + sm.config.length <= memory_.size();
+  if (enable && !was_enabled) {
+    sm.enabled = true;
+    sm.mailbox_full = false;
+    sm.write_open = false;
+    sm.read_open = false;
+    sm.shadow.clear();
+    sm.last_write_ns = now_ns_;
+    sm.config.status = wire::SmStatus{};
+  } else if (!enable && was_enabled) {
+    sm.enabled = false;
+    sm.mailbox_full = false;
+    sm.write_open = false;
+    sm.read_open = false;
+    sm.config.status = wire::SmStatus{};
+  }
+  update_sm_status(index);
+  if (sm.enabled && sm.config.activate.repeat_request != old_repeat &&
+      sm.config.control.mode == wire::SmMode::mailbox) {
+    application_->on_mailbox_repeat(*this, index);
+  }
+  if (sm.enabled != was_enabled ||
+      !(old_config.physical_start == sm.config.physical_start &&
+        old_config.length == sm.config.length && old_config.control == sm.config.control)) {
+    application_->on_sync_manager_changed(*this, index);
+  }
+}
+
+void Esc::update_sm_status(std::size_t index) {
+  auto& sm = sms_[index];
+  sm.config.status.mailbox_full =
+      sm.config.control.mode == wire::SmMode::mailbox && sm.mailbox_full;
+  sm.config.status.write_buffer_open = sm.write_open;
+  sm.config.status.read_buffer_open = sm.read_open;
+  const std::uint16_t base = reg::sync_manager(index);
+  memory_[base + reg::kSyncManagerStatusOffset] = sm.config.status.encode();
+  memory_[base + reg::kSyncManagerPdiControlOffset] = sm.config.pdi_control.encode();
+}
+
+void Esc::refresh_registers_for_read(std::uint32_t address, std::size_t length) {
+  const std::uint32_t first = address;
+  const std::uint32_t last = address + static_cast<std::uint32_t>(length) - 1;
+  const std::uint32_t dc_end = dc_system_time_ ? kDcBase + kDcSize : kDcReceiveTimesEnd;
+  if (dc_ && overlaps(first, last, kDcBase, dc_end - kDcBase)) {
+    dc_->refresh(static_cast<std::uint16_t>(std::max<std::uint32_t>(first, kDcBase)),
+                 static_cast<std::uint16_t>(std::min<std::uint32_t>(last, dc_end - 1)), now_ns_);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// SII EEPROM interface
+
+void Esc::sii_command(std::uint16_t written) {
+  namespace sc = wire::sii_control;
+  std::uint16_t status = read_u16(reg::kSiiControl);
+  // The status bits the master cannot change survive its write.
+  const std::uint16_t fixed = static_cast<std::uint16_t>(
+      (hardware_.sii_reads_8_bytes ? sc::kReadSize8 : 0) |
+      (eeprom_.size() > kOneAddressByteEepromBytes ? sc::kTwoAddressBytes : 0));
+  if (sii_busy_until_ns_ > now_ns_) return;  // commands are ignored while busy
+  const std::uint16_t command = written & sc::kCommandMask;
+  status = static_cast<std::uint16_t>(fixed | (status & sc::kChecksumError));
+  const std::uint32_t word = read_u32(reg::kSiiAddress);
+  switch (command) {
+    case sc::kCommandNop:
+      break;  // clears the error bits
+    case sc::kCommandRead: {
+      const std::size_t n = hardware_.sii_reads_8_bytes ? 8 : 4;
+      for (std::size_t i = 0; i < n; ++i) {
+        const std::size_t byte = static_cast<std::size_t>(word) * 2 + i;
+        memory_[reg::kSiiData + i] = byte < eeprom_.size() ? eeprom_[byte] : 0xFF;
+      }
+      if (static_cast<std::size_t>(word) * 2 >= eeprom_.size()) status |= sc::kAcknowledgeError;
+      break;
+    }
+    case sc::kCommandWrite: {
+      if ((written & sc::kWriteEnable) == 0) {
+        status |= sc::kWriteEnableError;
+        break;
+      }
+      const std::size_t byte = static_cast<std::size_t>(word) * 2;
+      if (byte + 1 >= eeprom_.size()) {
+        status |= sc::kAcknowledgeError;
+        break;
+      }
+      eeprom_[byte] = memory_[reg::kSiiData];
+      eeprom_[byte + 1] = memory_[reg::kSiiData + 1];
+      break;
+    }
+    case sc::kCommandReload: {
+      auto eeprom_word = [&](std::size_t w) -> std::uint16_t {
+        return w * 2 + 1 < eeprom_.size() ? wire::load_le16(&eeprom_[w * 2]) : 0;
+      };
+      wire::store_le16(&memory_[reg::kStationAlias], eeprom_word(4));
+      break;
+    }
+    default:
+      status |= sc::kAcknowledgeError;  // invalid command
+      break;
+  }
+  // The command bits read back only while the command runs: real ESCs show 0x8140 (busy, read)
+  // and then 0x0040 after FPWR 0x0502 = 0x0100 (replay-ek1100-el2828-el2889.pcapng).
+  if (command != sc::kCommandNop && hardware_.sii_busy_ns > 0) {
+    status |= static_cast<std::uint16_t>(sc::kBusy | command);
+    sii_busy_until_ns_ = now_ns_ + hardware_.sii_busy_ns;
+  }
+  status = static_cast<std::uint16_t>(status | (written & sc::kWriteEnable));
+  wire::store_le16(&memory_[reg::kSiiControl], status);
+}
+
+void Esc::sii_finish_if_due() {
+  if (sii_busy_until_ns_ != 0 && now_ns_ >= sii_busy_until_ns_) {
+    sii_busy_until_ns_ = 0;
+    wire::store_le16(
+        &memory_[reg::kSiiControl],
+        static_cast<std::uint16_t>(read_u16(reg::kSiiControl) &
+                                   ~(wire::sii_control::kBusy | wire::sii_control::kCommandMask)));
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Observation
+
+std::uint16_t Esc::station_address() const noexcept {
+  return read_u16(reg::kStationAddress);
+}
+std::uint16_t Esc::station_alias() const noexcept {
+  return read_u16(reg::kStationAlias);
+}
+wire::AlState Esc::al_state() const noexcept {
+  return wire::al_state_from_code(memory_[reg::kAlStatus] & 0x0F).value_or(wire::AlState::init);
+}
+bool Esc::al_error() const noexcept {
+  return (memory_[reg::kAlStatus] & 0x10) != 0;
+}
+std::uint16_t Esc::al_status_code() const noexcept {
+  return read_u16(reg::kAlStatusCode);
+}
+
+std::uint8_t Esc::read_u8(std::uint16_t address) const noexcept {
+  return address < memory_.size() ? memory_[address] : 0;
+}
+std::uint16_t Esc::read_u16(std::uint16_t address) const noexcept {
+  return address + 2u <= memory_.size() ? wire::load_le16(&memory_[address]) : 0;
+}
+std::uint32_t Esc::read_u32(std::uint16_t address) const noexcept {
+  return address + 4u <= memory_.size() ? wire::load_le32(&memory_[address]) : 0;
+}
+std::uint64_t Esc::read_u64(std::uint16_t address) const noexcept {
+  return address + 8u <= memory_.size() ? wire::load_le64(&memory_[address]) : 0;
+}
+
+// ---------------------------------------------------------------------------------------------
+// PDI side
+
+void Esc::pdi_set_al_status(wire::AlState state, bool error, std::uint16_t status_code) {
+  const auto status = static_cast<std::uint16_t>(static_cast<std::uint16_t>(state) |
+                                                 (error ? wire::kAlStatusError : 0));
+  wire::store_le16(&memory_[reg::kAlStatus], status);
+  wire::store_le16(&memory_[reg::kAlStatusCode], status_code);
+}
+
+bool Esc::pdi_mailbox_send(std::size_t index, wire::Bytes message) {
+  if (index >= sms_.size()) return false;
+  auto& sm = sms_[index];
+  if (!sm.enabled || sm.config.control.mode != wire::SmMode::mailbox ||
+      sm.config.control.direction != wire::SmDirection::read || sm.mailbox_full ||
+      message.size() > sm.config.length) {
+    return false;
+  }
+  auto* area = &memory_[sm.config.physical_start];
+  std::memcpy(area, message.data(), message.size());
+  std::memset(area + message.size(), 0, sm.config.length - message.size());
+  last_mailbox_reply_.assign(area, area + sm.config.length);
+  sm.mailbox_full = true;
+  sm.config.status.interrupt_write = true;
+  update_sm_status(index);
+  return true;
+}
+
+std::optional<wire::Bytes> Esc::pdi_mailbox_received(std::size_t index) const {
+  if (index >= sms_.size()) return std::nullopt;
+  const auto& sm = sms_[index];
+  if (!sm.enabled || sm.config.control.mode != wire::SmMode::mailbox ||
+      sm.config.control.direction != wire::SmDirection::write || !sm.mailbox_full) {
+    return std::nullopt;
+  }
+  return wire::Bytes(&memory_[sm.config.physical_start], sm.config.length);
+}
+
+void Esc::pdi_mailbox_release(std::size_t index) {
+  if (index >= sms_.size()) return;
+  auto& sm = sms_[index];
+  if (!sm.mailbox_full) return;
+  sm.mailbox_full = false;
+  sm.config.status.interrupt_write = false;
+  // The firmware read the request completely: the read event shows until the master writes the
+  // next one (SM0 status 0x02 after the EL3004 took a request in
+  // replay-ek1914-el3004-mailbox.pcapng).
+  sm.config.status.interrupt_read = true;
+  update_sm_status(index);
+}
+
+void Esc::pdi_mailbox_repeat(std::size_t index) {
+  if (index >= sms_.size()) return;
+  auto& sm = sms_[index];
+  if (sm.enabled && !last_mailbox_reply_.empty() &&
+      last_mailbox_reply_.size() == sm.config.length) {
+    std::memcpy(&memory_[sm.config.physical_start], last_mailbox_reply_.data(),
+                last_mailbox_reply_.size());
+    sm.mailbox_full = true;
+  }
+  sm.config.pdi_control.repeat_ack = sm.config.activate.repeat_request;
+  update_sm_status(index);
+}
+
+void Esc::pdi_write_buffer(std::size_t index, wire::Bytes data) {
+  if (index >= sms_.size()) return;
+  auto& sm = sms_[index];
+  const std::size_t n = std::min<std::size_t>(data.size(), sm.config.length);
+  if (n == 0 || static_cast<std::size_t>(sm.config.physical_start) + n > memory_.size()) return;
+  std::memcpy(&memory_[sm.config.physical_start], data.data(), n);
+}
+
+wire::Bytes Esc::pdi_read_buffer(std::size_t index) const {
+  if (index >= sms_.size()) return {};
+  const auto& sm = sms_[index];
+  if (static_cast<std::size_t>(sm.config.physical_start) + sm.config.length > memory_.size()) {
+    return {};
+  }
+  return wire::Bytes(&memory_[sm.config.physical_start], sm.config.length);
+}
+
+void Esc::pdi_set_sm_deactivated(std::size_t index, bool deactivated) {
+  if (index >= sms_.size()) return;
+  sms_[index].config.pdi_control.deactivate = deactivated;
+  update_sm_status(index);
+}
+
+void Esc::pdi_write(std::uint16_t address, wire::Bytes data) {
+  if (static_cast<std::size_t>(address) + data.size() > memory_.size()) return;
+  std::memcpy(&memory_[address], data.data(), data.size());
+}
+
+void Esc::pdi_write_u16(std::uint16_t address, std::uint16_t value) {
+  if (static_cast<std::size_t>(address) + 2 > memory_.size()) return;
+  wire::store_le16(&memory_[address], value);
+}
+
+}  // namespace ecat::sim
