@@ -104,12 +104,17 @@ def main():
             f.write(blob)
         count += 1
 
-    if kind == "sii":
+    if kind == "esi":
+        d = os.path.join(shared, "esi")
+        for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
+            with open(os.path.join(d, name), "rb") as f:
+                emit(f.read())
+    elif kind == "sii":
         d = os.path.join(shared, "eeprom")
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
             with open(os.path.join(d, name), "rb") as f:
                 emit(f.read())
-    else:
+    elif kind in ("frame", "mailbox"):
         d = os.path.join(shared, "captures")
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
             with open(os.path.join(d, name), "rb") as f:
