@@ -90,8 +90,11 @@ Result<std::unique_ptr<Link>> open_link(std::string_view spec) {
   if (kind == "udp") return open_udp(spec, rest);
   if (kind == "sim") {
     return Error(Errc::unsupported,
-                 fmt::format("link '{}': the built-in simulator (sim:RING.yaml) is not available "
-                             "yet; run `ecat sim --udp ADDR:PORT` and use udp:ADDR:PORT",
+                 fmt::format("link '{}': the built-in simulator is not available yet at the "
+                             "link layer, which cannot depend on it: open it with "
+                             "ecat::sim::open_backend (<ecat/sim/backend.hpp>), or serve the ring "
+                             "with `ecat sim --ring RING.yaml --udp ADDR:PORT` and use "
+                             "udp:ADDR:PORT",
                              spec));
   }
   return bad_spec(spec, fmt::format("unknown kind '{}'", kind));

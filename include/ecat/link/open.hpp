@@ -14,7 +14,9 @@ namespace ecat::link {
 //   udp:HOST:PORT      EtherCAT over UDP to HOST (IPv4 address or name) at PORT
 //   udp:[IPV6]:PORT    the same with an IPv6 address
 //   udp:HOST           port 34980 (0x88A4); HOST may also be a bare IPv6 address
-// "sim:RING.yaml" is reserved for the built-in simulator and reports that it is not available.
+// "sim:RING.yaml" is reserved for the built-in simulator, which the link layer cannot reach (a
+// lower layer never includes a higher one): ecat::sim::open_backend (<ecat/sim/backend.hpp>)
+// accepts it along with every spec here.
 // A malformed spec is Errc::invalid_argument naming the spec and these forms.
 Result<std::unique_ptr<Link>> open_link(std::string_view spec);
 

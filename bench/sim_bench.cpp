@@ -1,0 +1,266 @@
+// How fast the simulator answers. In process: frames per second through SimServer's function link
+// for 1, 16, 64 and 256 slaves, each frame a cyclic LRW over every slave's process data plus an
+// AL status read. Over a veth pair: a round trip through a SimServer serving a raw link, against a
+// bare echo on the same pair (the cost of the simulator itself). Figures only; nothing asserts.
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstdlib>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+#include <fcntl.h>
+#include <sched.h>
+#include <unistd.h>
+
+#include <ecat/link/raw_link.hpp>
+#include <ecat/sim/device.hpp>
+#include <ecat/sim/server.hpp>
+#include <ecat/wire/frame.hpp>
+#include <ecat/wire/registers.hpp>
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace reg = ecat::wire::reg;
+using ecat::wire::Command;
+
+constexpr std::uint16_t kBytesPerSlave = 2;
+
+std::vector<std::uint8_t> frame_of(std::initializer_list<ecat::wire::DatagramHeader> headers,
+                                   const std::vector<std::vector<std::uint8_t>>& data = {}) {
+  std::array<std::uint8_t, ecat::wire::kMaxFrameSize> buffer{};
+  ecat::wire::FrameBuilder builder(buffer);
+  std::size_t i = 0;
+  for (const auto& h : headers) {
+    (void)builder.add(h, i < data.size() ? ecat::wire::Bytes(data[i]) : ecat::wire::Bytes{});
+    ++i;
+  }
+  const auto frame = builder.finish();
+  return {frame.begin(), frame.end()};
+}
+
+// N generic slaves, stations 0x1001.., each with an FMMU mapping 2 logical bytes onto its RAM.
+std::unique_ptr<ecat::sim::SimServer> configured_server(std::size_t slaves) {
+  auto segment = std::make_unique<ecat::sim::Segment>();
+  for (std::size_t i = 0; i < slaves; ++i) {
+    auto esc = ecat::sim::make_device(ecat::sim::DeviceConfig{});
+    if (!esc.ok() || !segment->add_slave("s" + std::to_string(i), std::move(*esc)).ok()) {
+      return nullptr;
+    }
+  }
+  auto server = std::make_unique<ecat::sim::SimServer>(std::move(segment));
+  for (std::size_t i = 0; i < slaves; ++i) {
+    const auto station = static_cast<std::uint16_t>(0x1001 + i);
+    ecat::wire::DatagramHeader h;
+    h.command = Command::apwr;
+    h.address = ecat::wire::physical_address(
+        ecat::wire::position_adp(static_cast<std::uint16_t>(i)), reg::kStationAddress);
+    h.length = 2;
+    (void)server->exchange(frame_of(
+        {h}, {{static_cast<std::uint8_t>(station), static_cast<std::uint8_t>(station >> 8)}}));
+    ecat::wire::FmmuConfig fmmu;
+    fmmu.logical_start = static_cast<std::uint32_t>(i * kBytesPerSlave);
+    fmmu.length = kBytesPerSlave;
+    fmmu.physical_start = 0x1000;
+    fmmu.type = ecat::wire::FmmuType::read_write;
+    fmmu.active = true;
+    const auto bytes = fmmu.encode();
+    h.command = Command::fpwr;
+    h.address = ecat::wire::physical_address(station, reg::kFmmuBase);
+    h.length = static_cast<std::uint16_t>(bytes.size());
+    (void)server->exchange(frame_of({h}, {{bytes.begin(), bytes.end()}}));
+  }
+  return server;
+}
+
+std::vector<std::uint8_t> cyclic_frame(std::size_t slaves) {
+  ecat::wire::DatagramHeader lrw;
+  lrw.command = Command::lrw;
+  lrw.length = static_cast<std::uint16_t>(slaves * kBytesPerSlave);
+  ecat::wire::DatagramHeader status;
+  status.command = Command::fprd;
+  status.index = 1;
+  status.address = ecat::wire::physical_address(0x1001, reg::kAlStatus);
+  status.length = 2;
+  return frame_of({lrw, status});
+}
+
+void BM_InProcessCyclicFrame(benchmark::State& state) {
+  const auto slaves = static_cast<std::size_t>(state.range(0));
+  auto server = configured_server(slaves);
+  if (!server) {
+    state.SkipWithError("cannot build the segment");
+    return;
+  }
+  auto link = server->function_link();
+  const auto frame = cyclic_frame(slaves);
+  std::uint64_t wrong = 0;
+  const auto expected_wkc = static_cast<std::uint16_t>(3 * slaves);
+  for (auto _ : state) {
+    (void)link->send(frame);
+    auto r = link->receive(0ns);
+    if (!r.ok() || !r->has_value()) {
+      state.SkipWithError("no reply");
+      break;
+    }
+    const auto reply = (*r)->frame;
+    const std::size_t wkc_at =
+        ecat::wire::kFrameHeaderSize + ecat::wire::kDatagramHeaderSize + slaves * kBytesPerSlave;
+    if (ecat::wire::load_le16(reply.data() + wkc_at) != expected_wkc) ++wrong;
+  }
+  state.counters["slaves"] = static_cast<double>(slaves);
+  state.counters["wrong_wkc"] = static_cast<double>(wrong);
+  state.counters["frames/s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_InProcessCyclicFrame)->Arg(1)->Arg(16)->Arg(64)->Arg(256);
+
+// ---- veth ---------------------------------------------------------------------------------------
+
+// Echoes every frame it receives, as fast as the link allows.
+class Echo {
+ public:
+  explicit Echo(ecat::link::Link& link) : link_(link), thread_([this] { run(); }) {}
+  ~Echo() {
+    stop_ = true;
+    link_.interrupt();
+    thread_.join();
+  }
+  Echo(const Echo&) = delete;
+  Echo& operator=(const Echo&) = delete;
+
+ private:
+  void run() {
+    std::array<std::uint8_t, ecat::wire::kMaxFrameSize> copy{};
+    while (!stop_) {
+      auto r = link_.receive(100ms);
+      if (!r.ok()) return;
+      if (!r->has_value()) continue;
+      const auto frame = (*r)->frame;
+      std::copy(frame.begin(), frame.end(), copy.begin());
+      (void)link_.send(ecat::wire::Bytes(copy.data(), frame.size()));
+    }
+  }
+  ecat::link::Link& link_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+// A veth pair "m" / "s" in an anonymous network namespace of this thread; gone when the links
+// close and the thread returns to its original namespace.
+class VethPair {
+ public:
+  VethPair() {
+    if (geteuid() != 0) {
+      problem_ = "needs root to create a veth pair in a private network namespace";
+      return;
+    }
+    original_ = ::open("/proc/thread-self/ns/net", O_RDONLY | O_CLOEXEC);
+    if (original_ < 0 || ::unshare(CLONE_NEWNET) != 0) {
+      problem_ = "network namespaces are not available";
+      return;
+    }
+    if (std::system("ip link add name m type veth peer name s >/dev/null 2>&1 && ip link set "
+                    "dev m up && ip link set dev s up") != 0) {
+      problem_ = "cannot create a veth pair (is `ip` installed?)";
+    }
+  }
+  ~VethPair() {
+    if (original_ >= 0) {
+      (void)::setns(original_, CLONE_NEWNET);
+      ::close(original_);
+    }
+  }
+  VethPair(const VethPair&) = delete;
+  VethPair& operator=(const VethPair&) = delete;
+
+  const std::string& problem() const { return problem_; }
+
+  std::unique_ptr<ecat::link::RawLink> open(const std::string& name, bool responder) {
+    ecat::link::RawLinkOptions options;
+    options.interface = name;
+    options.kernel_filter = true;
+    options.responder = responder;
+    auto link = ecat::link::RawLink::open(options);
+    if (!link.ok()) {
+      problem_ = link.error().describe();
+      return nullptr;
+    }
+    return std::move(*link);
+  }
+
+ private:
+  int original_ = -1;
+  std::string problem_;
+};
+
+void veth_round_trips(benchmark::State& state, ecat::link::Link& master,
+                      const std::vector<std::uint8_t>& frame) {
+  std::int64_t lost = 0;
+  for (auto _ : state) {
+    if (!master.send(frame).ok()) {
+      state.SkipWithError("send failed");
+      break;
+    }
+    auto r = master.receive(1s);
+    if (!r.ok()) {
+      state.SkipWithError(r.error().describe().c_str());
+      break;
+    }
+    if (!r->has_value()) ++lost;
+  }
+  state.counters["lost"] = static_cast<double>(lost);
+  state.SetItemsProcessed(state.iterations());
+}
+
+void BM_VethBareEcho(benchmark::State& state) {
+  VethPair pair;
+  if (!pair.problem().empty()) {
+    state.SkipWithError(pair.problem().c_str());
+    return;
+  }
+  auto master = pair.open("m", false);
+  auto segment = pair.open("s", true);
+  if (!master || !segment) {
+    state.SkipWithError(pair.problem().c_str());
+    return;
+  }
+  const auto frame = cyclic_frame(static_cast<std::size_t>(state.range(0)));
+  {
+    Echo echo(*segment);
+    veth_round_trips(state, *master, frame);
+  }
+}
+BENCHMARK(BM_VethBareEcho)->Arg(16)->Arg(256)->UseRealTime();
+
+void BM_VethSimServer(benchmark::State& state) {
+  VethPair pair;
+  if (!pair.problem().empty()) {
+    state.SkipWithError(pair.problem().c_str());
+    return;
+  }
+  const auto slaves = static_cast<std::size_t>(state.range(0));
+  auto server = configured_server(slaves);
+  auto master = pair.open("m", false);
+  auto segment = pair.open("s", true);
+  if (!server || !master || !segment) {
+    state.SkipWithError(pair.problem().empty() ? "cannot build the segment"
+                                               : pair.problem().c_str());
+    return;
+  }
+  if (auto r = server->serve(std::move(segment)); !r) {
+    state.SkipWithError(r.error().describe().c_str());
+    return;
+  }
+  veth_round_trips(state, *master, cyclic_frame(slaves));
+  server->stop();
+}
+BENCHMARK(BM_VethSimServer)->Arg(16)->Arg(256)->UseRealTime();
+
+}  // namespace
+
+BENCHMARK_MAIN();

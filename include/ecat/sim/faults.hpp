@@ -1,0 +1,300 @@
+// Fault injection for a simulated segment: everything a master's recovery paths must survive,
+// scheduled by exchange count, by segment time or by milestone (upstream-inventory §4.5, plus the
+// wire faults the reference lacks).
+//
+// A Fault is a tree: a leaf FaultEffect (what goes wrong) inside scheduling forms (when). The same
+// vocabulary is spoken by C++ (the builders in ecat::sim::fault), the ring file's `faults:`
+// section and the control channel (JSON) — docs/RING-FILE.md lists every kind and key.
+//
+//   using namespace ecat::sim;
+//   injector.inject(fault::next(fault::disconnect("outputs"), 30), now);
+//   injector.inject(fault::after_milestone(fault::retreat_to_safeop("drive"),
+//                                          fault::healthy_exchanges(100)), now);
+//
+// The FaultInjector installs itself as the Segment's hooks. One "exchange" is one frame the
+// segment processes. Not thread-safe: the SimServer serializes access with its lock.
+#pragma once
+
+#include <array>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/result.hpp>
+#include <ecat/sim/coe_server.hpp>
+#include <ecat/sim/segment.hpp>
+#include <ecat/wire/frame.hpp>
+
+namespace ecat::sim {
+
+enum class FaultKind : std::uint8_t {
+  // ---- Exchange faults: how the segment answers a frame. Sticky, or for the next N exchanges.
+  drop_responses,      // no reply at all: the master times out
+  wkc_offset,          // delta added to every datagram's WKC (clamped to 0..65535)
+  command_wkc_offset,  // delta added to the WKC of datagrams with one command
+  logical_wkc_offset,  // delta added to one slave's share of LRD/LWR/LRW WKCs (PDO faults only)
+  disconnect,          // the slave is cut off: no processing, no WKC, not counted by APxx
+  // ---- Reply faults: the reply altered on its way back (the transport edge). Sticky or next N.
+  truncate_reply,    // the last `bytes` bytes cut off (the reply no longer decodes)
+  unsupported_type,  // the EtherCAT header type set to `frame_type` (not 1: not datagrams)
+  wrong_index,       // the first datagram's index + 1 (the master sees a foreign reply)
+  replay_previous,   // the previous reply is sent instead of this one
+  corrupt_byte,      // the byte at `offset` XOR `mask` (EtherCAT frame offset; clamped)
+  duplicate_reply,   // the reply is sent twice
+  reorder_replies,   // the reply is held back and sent after the next one
+  delay_replies,     // the reply leaves `ns` later
+  // ---- Slave faults: applied once, when the fault activates.
+  retreat_to_safeop,       // OP -> SAFEOP without error (a no-op below OP)
+  power_cycle,             // registers reset, station 0, INIT, SMs/FMMUs off, mailbox rules gone
+  latch_al_error,          // keep the state, set the AL error bit and status `code`
+  mailbox_abort,           // SDO abort `code` for (index, subindex) at `stage`
+  mailbox_protocol_fault,  // corrupt the mailbox response for (index, subindex) at `stage`
+  dc_jump,                 // the slave's DC local clock steps by `ns`
+  // ---- Segment faults: cabling, applied once.
+  link_down,         // the link on `port` of the slave goes down (port 0: towards the master)
+  link_up,           // ... and comes back
+  master_link_down,  // the master's own cable to the first slave
+  master_link_up,
+};
+constexpr std::size_t kFaultKindCount = 23;
+
+enum class FaultClass : std::uint8_t { exchange, reply, slave, segment };
+
+// "drop_responses", "wkc_offset", ... (the names in ring files and control requests).
+std::string_view to_string(FaultKind kind) noexcept;
+std::optional<FaultKind> fault_kind_from_string(std::string_view name) noexcept;
+FaultClass fault_class(FaultKind kind) noexcept;
+// Exchange and reply faults act per exchange (sticky or `next N`); the others act once.
+bool is_per_exchange(FaultKind kind) noexcept;
+
+// What a fault does. Only the fields its kind names are meaningful.
+struct FaultEffect {
+  FaultKind kind = FaultKind::drop_responses;
+  std::string slave;  // the slave's name in the segment
+  // wkc_offset, command_wkc_offset, logical_wkc_offset.
+  std::int64_t delta = 0;
+  wire::Command command = wire::Command::nop;  // command_wkc_offset
+  // latch_al_error (AL status code) and mailbox_abort (SDO abort code).
+  std::uint32_t code = 0;
+  // mailbox_abort, mailbox_protocol_fault.
+  std::uint16_t index = 0;
+  std::uint8_t subindex = 0;
+  MailboxStage stage = MailboxStage::request;
+  ProtocolFault protocol{};
+  // Mailbox rules: removed after firing once. Default: sticky, but once-only as a script step.
+  std::optional<bool> once;
+  std::int64_t ns = 0;          // dc_jump (step), delay_replies (delay, > 0)
+  std::uint32_t bytes = 1;      // truncate_reply
+  std::uint32_t offset = 12;    // corrupt_byte: first datagram's first data byte by default
+  std::uint8_t mask = 0xFF;     // corrupt_byte
+  std::uint8_t frame_type = 0;  // unsupported_type
+  std::uint8_t port = 0;        // link_down, link_up (0..3)
+};
+
+struct Milestone {
+  enum class Kind : std::uint8_t {
+    // Exchanges untouched by faults (no drop, global WKC offset, disconnect, queued or reply
+    // fault) in which every datagram came back with WKC > 0.
+    healthy_exchanges,
+    // In a healthy exchange: an FPRD of the slave's AL status (0x0130) with WKC > 0, OP, no error.
+    healthy_polls,
+    // The master fetched an SDO response of `step` from the slave's mailbox (aborts excluded).
+    mailbox_step,
+  };
+  Kind kind = Kind::healthy_exchanges;
+  std::string slave;
+  MailboxStage step = MailboxStage::upload_init;  // mailbox_step: upload_init ... (not request)
+  std::uint64_t count = 1;
+};
+
+// "healthy_exchanges", "healthy_polls", "mailbox_step".
+std::string_view to_string(Milestone::Kind kind) noexcept;
+
+struct Fault {
+  enum class Form : std::uint8_t {
+    effect,           // `effect` now: per-exchange kinds sticky (or for `exchanges`), others once
+    after_delay,      // steps[0] after `delay` of segment time
+    after_milestone,  // steps[0] after `milestone` is reached (counted from now)
+    script,           // steps in order; exchange steps take one exchange each (or `exchanges`)
+    wait,             // script step: pause for `delay`
+    wait_for,         // script step: pause until `milestone`
+  };
+  Form form = Form::effect;
+  FaultEffect effect;
+  // effect, per-exchange kinds: 0 = sticky (a script step: 1), N = the next N exchanges.
+  std::uint64_t exchanges = 0;
+  std::chrono::nanoseconds delay{0};
+  Milestone milestone;
+  std::vector<Fault> steps;
+};
+
+// Builders. Per-exchange kinds are sticky until clear(); wrap them in next() to limit them.
+namespace fault {
+Fault drop_responses();
+Fault wkc_offset(std::int64_t delta);
+Fault command_wkc_offset(wire::Command command, std::int64_t delta);
+Fault logical_wkc_offset(std::string slave, std::int64_t delta);
+Fault disconnect(std::string slave);
+Fault truncate_reply(std::uint32_t bytes = 1);
+Fault unsupported_type(std::uint8_t frame_type = 0);
+Fault wrong_index();
+Fault replay_previous();
+Fault corrupt_byte(std::uint32_t offset, std::uint8_t mask = 0xFF);
+Fault duplicate_reply();
+Fault reorder_replies();
+Fault delay_replies(std::chrono::nanoseconds delay);
+Fault retreat_to_safeop(std::string slave);
+Fault power_cycle(std::string slave);
+Fault latch_al_error(std::string slave, std::uint16_t code);
+Fault mailbox_abort(std::string slave, std::uint16_t index, std::uint8_t subindex,
+                    std::uint32_t code, MailboxStage stage = MailboxStage::request);
+Fault mailbox_protocol_fault(std::string slave, std::uint16_t index, std::uint8_t subindex,
+                             MailboxStage stage, ProtocolFault protocol);
+Fault dc_jump(std::string slave, std::chrono::nanoseconds step);
+Fault link_down(std::string slave, std::uint8_t port);
+Fault link_up(std::string slave, std::uint8_t port);
+Fault master_link_down();
+Fault master_link_up();
+
+// Scheduling. next() is only valid around per-exchange kinds.
+Fault next(Fault fault, std::uint64_t exchanges = 1);
+Fault after(Fault fault, std::chrono::nanoseconds delay);
+Fault after_milestone(Fault fault, Milestone milestone);
+Fault script(std::vector<Fault> steps);
+Fault wait(std::chrono::nanoseconds delay);
+Fault wait_for(Milestone milestone);
+
+Milestone healthy_exchanges(std::uint64_t count);
+Milestone healthy_polls(std::string slave, std::uint64_t count);
+Milestone mailbox_step(std::string slave, MailboxStage step, std::uint64_t count);
+}  // namespace fault
+
+// "next 30 exchanges disconnect outputs", "mailbox abort 0x06010002 on mbx 0x2000:01 at
+// request", "after 250 ms: drop responses", "script: drop responses; wait for 3 healthy
+// exchanges; power cycle io".
+std::string describe(const FaultEffect& effect);
+std::string describe(const Fault& fault);
+std::string describe(const Milestone& milestone);
+
+// Structural checks that need no segment (next() around a one-shot kind, a wait outside a
+// script, a protocol fault at a stage it cannot apply to, values out of range).
+Result<void> validate(const Fault& fault);
+
+// The JSON form used by the control channel (and, as YAML, by ring files), e.g.
+//   {"kind":"disconnect","slave":"outputs","next":30}
+//   {"after_ms":250,"fault":{"kind":"drop_responses"}}
+//   {"script":[{"kind":"drop_responses"},{"wait_for":{"milestone":"healthy_exchanges",
+//    "count":3}}]}
+std::string to_json(const Fault& fault);
+// Errors name the key path: "fault.script[1].wait_for.count: ...".
+Result<Fault> parse_fault_json(std::string_view json);
+// The command-line form: KIND ARGS... ("disconnect outputs", "mailbox_abort mbx 0x2000:1
+// 0x06010002 upload_segment", "mailbox_protocol_fault mbx 0x2000:1 upload_init sdo_command=0x60").
+Result<Fault> parse_fault_words(std::span<const std::string> words);
+
+struct FaultKindInfo {
+  FaultKind kind;
+  std::string_view arguments;  // command-line arguments after the kind, "" for none
+  std::string_view summary;
+};
+const std::array<FaultKindInfo, kFaultKindCount>& fault_kinds() noexcept;
+
+// ---- Observation --------------------------------------------------------------------------
+
+struct QueuedFaultInfo {
+  std::string description;      // "disconnect outputs"
+  std::uint64_t remaining = 0;  // exchanges it still applies to
+};
+
+struct ScheduledFaultInfo {
+  std::string description;                // the whole scheduled fault or script
+  std::optional<std::int64_t> due_in_ns;  // waiting for time
+  std::string waiting_on;                 // waiting for a milestone: describe(milestone)
+  std::uint64_t remaining = 0;            // ... this many more events
+  std::size_t step = 0;                   // scripts: the next step (0-based)
+};
+
+struct FaultInfo {
+  std::vector<std::string> active;  // sticky faults and standing rules, described
+  std::vector<QueuedFaultInfo> queued;
+  std::vector<ScheduledFaultInfo> scheduled;
+  // The exchange state those add up to for the next exchange.
+  bool drop_responses = false;
+  std::int64_t wkc_offset = 0;
+  std::map<std::string, std::int64_t> command_wkc_offsets;  // "LRW" -> delta
+  std::map<std::string, std::int64_t> logical_wkc_offsets;  // slave -> delta
+  std::vector<std::string> disconnected;
+  std::vector<std::string> links_down;  // "outputs:1", "master"
+};
+
+struct FaultStats {
+  std::uint64_t exchanges = 0;
+  std::uint64_t healthy_exchanges = 0;
+  std::uint64_t responses_dropped = 0;
+  std::uint64_t replies_altered = 0;
+  std::uint64_t faults_activated = 0;  // effects applied or armed
+};
+
+// What the transport should do with a reply (after FaultInjector::shape_reply).
+struct ReplyPlan {
+  std::size_t copies = 1;  // 2 for a duplicate
+  bool hold = false;       // send after the next reply (reorder)
+  std::chrono::nanoseconds delay{0};
+};
+
+class FaultInjector final : public SegmentHooks {
+ public:
+  // Installs itself as `segment`'s hooks and observes every CoE server's mailbox steps. The
+  // segment must outlive the injector, and its slaves must not change while it exists.
+  explicit FaultInjector(Segment& segment);
+  ~FaultInjector() override;
+  FaultInjector(const FaultInjector&) = delete;
+  FaultInjector& operator=(const FaultInjector&) = delete;
+
+  // Activates or schedules a fault at segment time `now_ns`. Fails (and changes nothing) for an
+  // unknown slave, a slave without a mailbox / DC unit / such a port, or a structural error.
+  Result<void> inject(const Fault& fault, std::int64_t now_ns);
+  // Removes every exchange and reply fault, queued and scheduled fault and script, every mailbox
+  // rule, latched AL errors this injector set, and brings links it took down back up. Does not
+  // undo power cycles, retreats or clock jumps (they happened).
+  void clear();
+
+  // Lets time-scheduled faults fire. process_frame() does this too (before_frame).
+  void advance(std::int64_t now_ns);
+  // The earliest segment time a scheduled fault waits for, if any.
+  std::optional<std::int64_t> next_due_ns() const;
+
+  FaultInfo info(std::int64_t now_ns) const;
+  const FaultStats& stats() const noexcept { return stats_; }
+
+  // The transport edge: applies this exchange's reply faults to `reply` (the EtherCAT frame the
+  // segment produced; it may shrink or be replaced) and says how to send it. Call once per reply
+  // of a processed frame. Also remembers the reply for replay_previous.
+  ReplyPlan shape_reply(std::vector<std::uint8_t>& reply);
+
+  // ---- SegmentHooks ----
+  bool before_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) override;
+  bool slave_unreachable(std::size_t index) override;
+  void after_datagram(std::size_t index, std::size_t datagram_number, DatagramInFlight& datagram,
+                      const DatagramEffect& effect) override;
+  void after_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) override;
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+  FaultStats stats_;
+};
+
+// The CoE server of a device built on StandardApplication, or nullptr (no mailbox).
+CoeServer* coe_server_of(Esc& esc) noexcept;
+
+}  // namespace ecat::sim

@@ -1,0 +1,573 @@
+#include <algorithm>
+#include <array>
+#include <cctype>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <map>
+
+#include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
+
+#include <ecat/sim/ring.hpp>
+#include <ecat/sim/wiring.hpp>
+
+#include "sim/fault_spec.hpp"
+#include "sim/spec_tree.hpp"
+
+namespace ecat::sim {
+
+namespace {
+
+using detail::spec_error;
+using detail::SpecContext;
+using detail::SpecNode;
+
+constexpr std::array<std::string_view, 6> kMasterSections{"master",  "link", "slaves",
+                                                          "domains", "dc",   "targets"};
+constexpr std::size_t kMaxFileBytes = 4u << 20;
+constexpr std::size_t kMaxSlaves = 4096;
+constexpr std::size_t kMaxNodes = 200'000;  // after alias expansion: stops "billion laughs"
+constexpr int kMaxDepth = 48;
+
+// ---- YAML -> SpecNode -------------------------------------------------------------------------
+
+class YamlConverter {
+ public:
+  explicit YamlConverter(const SpecContext& context) : context_(context) {}
+
+  Result<SpecNode> convert(const YAML::Node& node, int depth, int parent_line) {
+    if (++nodes_ > kMaxNodes) {
+      return Error(Errc::out_of_range, fmt::format("{}: more than {} YAML nodes (aliases included)",
+                                                   context_.source, kMaxNodes));
+    }
+    SpecNode out;
+    const YAML::Mark mark = node.Mark();
+    out.line = mark.is_null() ? parent_line : mark.line + 1;
+    if (depth > kMaxDepth) {
+      return spec_error(context_, out, "", fmt::format("nested deeper than {} levels", kMaxDepth));
+    }
+    switch (node.Type()) {
+      case YAML::NodeType::Undefined:
+      case YAML::NodeType::Null:
+        out.type = SpecNode::Type::null;
+        return out;
+      case YAML::NodeType::Scalar:
+        out.type = SpecNode::Type::scalar;
+        out.text = node.Scalar();
+        out.quoted = node.Tag() == "!";
+        return out;
+      case YAML::NodeType::Sequence:
+        out.type = SpecNode::Type::sequence;
+        for (const auto& item : node) {
+          auto child = convert(item, depth + 1, out.line);
+          if (!child) return child;
+          out.items.push_back(std::move(*child));
+        }
+        return out;
+      case YAML::NodeType::Map:
+        out.type = SpecNode::Type::mapping;
+        for (const auto& entry : node) {
+          if (!entry.first.IsScalar()) {
+            SpecNode where;
+            where.line = entry.first.Mark().is_null() ? out.line : entry.first.Mark().line + 1;
+            return spec_error(context_, where, "", "a key must be a plain scalar");
+          }
+          std::string key = entry.first.Scalar();
+          auto child = convert(entry.second, depth + 1, out.line);
+          if (!child) return child;
+          if (out.find(key) != nullptr) {
+            return spec_error(context_, *child, key, "duplicate key");
+          }
+          out.entries.emplace_back(std::move(key), std::move(*child));
+        }
+        return out;
+    }
+    return out;
+  }
+
+ private:
+  const SpecContext& context_;
+  std::size_t nodes_ = 0;
+};
+
+Result<SpecNode> parse_yaml(std::string_view text, const SpecContext& context) {
+  try {
+    const YAML::Node root = YAML::Load(std::string(text));
+    YamlConverter converter(context);
+    return converter.convert(root, 0, 0);
+  } catch (const YAML::Exception& e) {
+    SpecNode where;
+    where.line = e.mark.is_null() ? 0 : e.mark.line + 1;
+    return spec_error(context, where, "", fmt::format("YAML syntax error: {}", e.msg),
+                      Errc::malformed);
+  } catch (const std::exception& e) {
+    return Error(Errc::malformed,
+                 fmt::format("{}: cannot read YAML: {}", context.source, e.what()));
+  }
+}
+
+// ---- Ring sections ----------------------------------------------------------------------------
+
+bool valid_name(std::string_view name) {
+  if (name.empty() || name.size() > 64) return false;
+  const auto c0 = static_cast<unsigned char>(name[0]);
+  if (!std::isalpha(c0) && c0 != '_') return false;
+  return std::all_of(name.begin(), name.end(), [](char ch) {
+    const auto c = static_cast<unsigned char>(ch);
+    return std::isalnum(c) || c == '_' || c == '-';
+  });
+}
+
+std::string known_profiles() {
+  std::string known;
+  bool eeprom = false;
+  bool esi = false;
+  for (const auto& p : device_profiles()) {
+    known += (known.empty() ? "" : ", ") + p.name;
+    eeprom = eeprom || p.name == "eeprom";
+    esi = esi || p.name == "esi";
+  }
+  if (!eeprom) known += ", eeprom";
+  if (!esi) known += ", esi";
+  return known;
+}
+
+bool profile_known(const std::string& profile) {
+  if (profile == "eeprom" || profile == "esi") return true;
+  const auto profiles = device_profiles();
+  return std::any_of(profiles.begin(), profiles.end(),
+                     [&](const DeviceProfileInfo& p) { return p.name == profile; });
+}
+
+class RingParser {
+ public:
+  RingParser(SpecContext context, std::string base_dir)
+      : c_(std::move(context)), base_dir_(std::move(base_dir)) {}
+
+  Result<Ring> parse(const SpecNode& root) {
+    Ring ring;
+    ring.source = c_.source;
+    if (root.is_null()) {
+      return spec_error(c_, root, "", "the file is empty (expected a 'simulator:' section)");
+    }
+    if (!root.is_mapping()) {
+      return spec_error(
+          c_, root, "",
+          fmt::format("expected a mapping of sections, found {}", detail::type_name(root)));
+    }
+    const SpecNode* simulator = nullptr;
+    for (const auto& [key, value] : root.entries) {
+      if (key == "simulator") {
+        simulator = &value;
+      } else if (key == "version") {
+        auto v = detail::to_int(c_, value, "version", 1, 1);
+        if (!v) return std::move(v).error();
+      } else if (std::find(kMasterSections.begin(), kMasterSections.end(), key) !=
+                 kMasterSections.end()) {
+        ring.master_sections.push_back(key);
+      } else {
+        std::string master;
+        for (auto s : kMasterSections)
+          master += (master.empty() ? "" : ", ") + std::string(s);
+        return spec_error(c_, value, key,
+                          fmt::format("unknown top-level section (known: version, simulator; "
+                                      "for the master: {})",
+                                      master));
+      }
+    }
+    if (simulator == nullptr) {
+      return spec_error(c_, root, "",
+                        "no 'simulator:' section (the simulator needs simulator.slaves)");
+    }
+    if (auto r = parse_simulator(*simulator, ring); !r) return std::move(r).error();
+    return ring;
+  }
+
+ private:
+  Result<void> parse_simulator(const SpecNode& node, Ring& ring) {
+    const std::string path = "simulator";
+    if (auto r = detail::check_keys(c_, node, path, {"slaves", "wiring", "faults"}); !r) return r;
+    auto slaves = detail::require(c_, node, path, "slaves");
+    if (!slaves) return std::move(slaves).error();
+    const SpecNode& list = **slaves;
+    const std::string slaves_path = "simulator.slaves";
+    if (!list.is_sequence() || list.items.empty()) {
+      return spec_error(c_, list, slaves_path, "expected a non-empty list of slaves");
+    }
+    for (std::size_t i = 0; i < list.items.size(); ++i) {
+      if (auto r = parse_slave(list.items[i], detail::index_path(slaves_path, i), ring); !r) {
+        return r;
+      }
+    }
+    if (const SpecNode* wiring = node.find("wiring")) {
+      const std::string wiring_path = "simulator.wiring";
+      if (!wiring->is_null()) {
+        if (!wiring->is_sequence()) {
+          return spec_error(c_, *wiring, wiring_path, "expected a list of {from, to}");
+        }
+        for (std::size_t i = 0; i < wiring->items.size(); ++i) {
+          if (auto r = parse_wire(wiring->items[i], detail::index_path(wiring_path, i), ring); !r) {
+            return r;
+          }
+        }
+      }
+    }
+    if (const SpecNode* faults = node.find("faults")) {
+      const std::string faults_path = "simulator.faults";
+      if (!faults->is_null()) {
+        if (!faults->is_sequence()) {
+          return spec_error(c_, *faults, faults_path, "expected a list of faults");
+        }
+        for (std::size_t i = 0; i < faults->items.size(); ++i) {
+          const std::string p = detail::index_path(faults_path, i);
+          auto f = detail::parse_fault_node(c_, faults->items[i], p);
+          if (!f) return std::move(f).error();
+          if (auto r = check_fault_slaves(*f, faults->items[i], p, ring); !r) return r;
+          ring.faults.push_back(RingFault{std::move(*f), faults->items[i].line});
+        }
+      }
+    }
+    return ok();
+  }
+
+  Result<void> check_slave_name(const std::string& name, const SpecNode& where,
+                                const std::string& path, const Ring& ring) {
+    if (ring.find(name) != nullptr) return ok();
+    std::string known;
+    const std::size_t shown = std::min<std::size_t>(ring.slaves.size(), 16);
+    for (std::size_t i = 0; i < shown; ++i)
+      known += (i ? ", " : "") + ring.slaves[i].name;
+    if (ring.slaves.size() > shown) known += ", ...";
+    return spec_error(c_, where, path, fmt::format("unknown slave '{}' (known: {})", name, known),
+                      Errc::not_found);
+  }
+
+  Result<void> check_fault_slaves(const Fault& f, const SpecNode& where, const std::string& path,
+                                  const Ring& ring) {
+    if (f.form == Fault::Form::effect && !f.effect.slave.empty()) {
+      if (auto r = check_slave_name(f.effect.slave, where, path, ring); !r) return r;
+    }
+    if ((f.form == Fault::Form::after_milestone || f.form == Fault::Form::wait_for) &&
+        !f.milestone.slave.empty()) {
+      if (auto r = check_slave_name(f.milestone.slave, where, path, ring); !r) return r;
+    }
+    for (const auto& step : f.steps) {
+      if (auto r = check_fault_slaves(step, where, path, ring); !r) return r;
+    }
+    return ok();
+  }
+
+  Result<std::string> file_path(const std::string& file) const {
+    std::filesystem::path p(file);
+    if (p.is_relative() && !base_dir_.empty()) p = std::filesystem::path(base_dir_) / p;
+    return p.lexically_normal().string();
+  }
+
+  Result<void> parse_slave(const SpecNode& node, const std::string& path, Ring& ring) {
+    if (auto r = detail::check_keys(c_, node, path,
+                                    {"name", "profile", "file", "options", "clock", "parent",
+                                     "port", "cable_delay_ns", "timing", "count"});
+        !r) {
+      return r;
+    }
+    RingSlave slave;
+    slave.line = node.line;
+    auto name_node = detail::require(c_, node, path, "name");
+    if (!name_node) return std::move(name_node).error();
+    const std::string name_path = detail::join_path(path, "name");
+    auto name = detail::to_text(c_, **name_node, name_path);
+    if (!name) return std::move(name).error();
+    if (!valid_name(*name)) {
+      return spec_error(c_, **name_node, name_path,
+                        fmt::format("'{}' is not a slave name (letters, digits, '_' and '-', "
+                                    "starting with a letter or '_', at most 64)",
+                                    *name));
+    }
+    auto profile_node = detail::require(c_, node, path, "profile");
+    if (!profile_node) return std::move(profile_node).error();
+    const std::string profile_path = detail::join_path(path, "profile");
+    auto profile = detail::to_text(c_, **profile_node, profile_path);
+    if (!profile) return std::move(profile).error();
+    if (!profile_known(*profile)) {
+      return spec_error(c_, **profile_node, profile_path,
+                        fmt::format("unknown profile '{}' (known: {})", *profile, known_profiles()),
+                        Errc::not_found);
+    }
+    slave.device.profile = *profile;
+    if (const SpecNode* file = node.find("file")) {
+      auto text = detail::to_text(c_, *file, detail::join_path(path, "file"));
+      if (!text) return std::move(text).error();
+      if (text->empty()) return spec_error(c_, *file, detail::join_path(path, "file"), "empty");
+      auto resolved = file_path(*text);
+      if (!resolved) return std::move(resolved).error();
+      slave.device.file = *resolved;
+    } else if (*profile == "eeprom" || *profile == "esi") {
+      return spec_error(c_, node, path,
+                        fmt::format("profile '{}' needs 'file' (the {} to build the device from)",
+                                    *profile, *profile == "eeprom" ? "SII image" : "ESI XML"));
+    }
+    if (const SpecNode* options = node.find("options")) {
+      const std::string options_path = detail::join_path(path, "options");
+      if (!options->is_mapping()) {
+        return spec_error(c_, *options, options_path,
+                          fmt::format("expected a mapping of option: value, found {}",
+                                      detail::type_name(*options)));
+      }
+      for (const auto& [key, value] : options->entries) {
+        auto text = detail::to_text(c_, value, detail::join_path(options_path, key));
+        if (!text) return std::move(text).error();
+        slave.device.options[key] = *text;
+      }
+    }
+    if (const SpecNode* clock = node.find("clock")) {
+      if (auto r = parse_clock(*clock, detail::join_path(path, "clock"), slave.device.clock); !r) {
+        return r;
+      }
+    }
+    if (const SpecNode* timing = node.find("timing")) {
+      const std::string tp = detail::join_path(path, "timing");
+      if (auto r =
+              detail::check_keys(c_, *timing, tp, {"processing_delay_ns", "forwarding_delay_ns"});
+          !r) {
+        return r;
+      }
+      if (const SpecNode* v = timing->find("processing_delay_ns")) {
+        auto ns =
+            detail::to_int(c_, *v, detail::join_path(tp, "processing_delay_ns"), 0, 1'000'000);
+        if (!ns) return std::move(ns).error();
+        slave.timing.processing_delay_ns = *ns;
+      }
+      if (const SpecNode* v = timing->find("forwarding_delay_ns")) {
+        auto ns =
+            detail::to_int(c_, *v, detail::join_path(tp, "forwarding_delay_ns"), 0, 1'000'000);
+        if (!ns) return std::move(ns).error();
+        slave.timing.forwarding_delay_ns = *ns;
+      }
+    }
+    if (const SpecNode* delay = node.find("cable_delay_ns")) {
+      auto ns = detail::to_int(c_, *delay, detail::join_path(path, "cable_delay_ns"), 0, 1'000'000);
+      if (!ns) return std::move(ns).error();
+      slave.cable_delay_ns = *ns;
+    }
+    if (ring.slaves.empty() && (node.find("parent") != nullptr || node.find("port") != nullptr)) {
+      const SpecNode* where = node.find("parent") ? node.find("parent") : node.find("port");
+      return spec_error(c_, *where, path,
+                        "the first slave is cabled to the master: it has no parent or port");
+    }
+    if (const SpecNode* parent = node.find("parent")) {
+      const std::string pp = detail::join_path(path, "parent");
+      auto text = detail::to_text(c_, *parent, pp);
+      if (!text) return std::move(text).error();
+      if (auto r = check_slave_name(*text, *parent, pp, ring); !r) {
+        return spec_error(c_, *parent, pp,
+                          fmt::format("unknown slave '{}': a parent must be listed before its "
+                                      "children",
+                                      *text),
+                          Errc::not_found);
+      }
+      slave.parent = *text;
+    }
+    if (const SpecNode* port = node.find("port")) {
+      auto p = detail::to_int(c_, *port, detail::join_path(path, "port"), 1, 3);
+      if (!p) return std::move(p).error();
+      slave.port = static_cast<std::uint8_t>(*p);
+    }
+    std::int64_t count = 1;
+    if (const SpecNode* count_node = node.find("count")) {
+      auto n = detail::to_int(c_, *count_node, detail::join_path(path, "count"), 1, 1024);
+      if (!n) return std::move(n).error();
+      count = *n;
+    }
+    if (ring.slaves.size() + static_cast<std::size_t>(count) > kMaxSlaves) {
+      return spec_error(c_, node, path, fmt::format("more than {} slaves", kMaxSlaves),
+                        Errc::out_of_range);
+    }
+    for (std::int64_t k = 0; k < count; ++k) {
+      RingSlave copy = slave;
+      copy.name = count == 1 ? *name : fmt::format("{}_{}", *name, k + 1);
+      if (k > 0) {
+        copy.parent.reset();
+        copy.port = 1;
+      }
+      if (ring.find(copy.name) != nullptr) {
+        return spec_error(c_, **name_node, name_path,
+                          fmt::format("a slave named '{}' already exists", copy.name));
+      }
+      // Where it attaches, to report a port taken twice here rather than at build time.
+      if (!ring.slaves.empty()) {
+        std::size_t parent = ring.slaves.size() - 1;
+        if (copy.parent) {
+          for (std::size_t i = 0; i < ring.slaves.size(); ++i) {
+            if (ring.slaves[i].name == *copy.parent) parent = i;
+          }
+        }
+        const auto key = std::make_pair(parent, copy.port);
+        if (auto it = ports_.find(key); it != ports_.end()) {
+          const SpecNode* where = node.find("port") ? node.find("port") : &node;
+          return spec_error(c_, *where, path,
+                            fmt::format("port {} of '{}' is already cabled to '{}'", copy.port,
+                                        ring.slaves[parent].name, it->second));
+        }
+        ports_[key] = copy.name;
+      }
+      ring.slaves.push_back(std::move(copy));
+    }
+    return ok();
+  }
+
+  Result<void> parse_clock(const SpecNode& node, const std::string& path, DcClockModel& clock) {
+    if (auto r = detail::check_keys(c_, node, path,
+                                    {"drift_ppm", "offset_ns", "jitter_ns", "jitter_seed"});
+        !r) {
+      return r;
+    }
+    if (const SpecNode* v = node.find("drift_ppm")) {
+      const std::string p = detail::join_path(path, "drift_ppm");
+      auto ppm = detail::to_double(c_, *v, p);
+      if (!ppm) return std::move(ppm).error();
+      if (std::fabs(*ppm) > 1000.0) {
+        return spec_error(c_, *v, p, fmt::format("{} ppm is out of range (-1000 to 1000)", v->text),
+                          Errc::out_of_range);
+      }
+      clock.drift_ppm = *ppm;
+    }
+    if (const SpecNode* v = node.find("offset_ns")) {
+      auto ns =
+          detail::to_int(c_, *v, detail::join_path(path, "offset_ns"), 0, std::int64_t{1} << 62);
+      if (!ns) return std::move(ns).error();
+      clock.start_offset_ns = *ns;
+    }
+    if (const SpecNode* v = node.find("jitter_ns")) {
+      auto ns = detail::to_int(c_, *v, detail::join_path(path, "jitter_ns"), 0, 1'000'000);
+      if (!ns) return std::move(ns).error();
+      clock.jitter_ns = *ns;
+    }
+    if (const SpecNode* v = node.find("jitter_seed")) {
+      auto seed = detail::to_int(c_, *v, detail::join_path(path, "jitter_seed"), 0,
+                                 std::numeric_limits<std::int64_t>::max());
+      if (!seed) return std::move(seed).error();
+      clock.jitter_seed = static_cast<std::uint64_t>(*seed);
+    }
+    return ok();
+  }
+
+  Result<std::pair<std::string, std::string>> endpoint(const SpecNode& node,
+                                                       const std::string& path, const Ring& ring) {
+    auto text = detail::to_text(c_, node, path);
+    if (!text) return std::move(text).error();
+    const auto dot = text->find('.');
+    if (dot == std::string::npos || dot == 0 || dot + 1 == text->size()) {
+      return spec_error(c_, node, path,
+                        fmt::format("'{}' is not SLAVE.SIGNAL (e.g. outputs.channel_1)", *text));
+    }
+    std::string slave = text->substr(0, dot);
+    if (auto r = check_slave_name(slave, node, path, ring); !r) return std::move(r).error();
+    return std::make_pair(std::move(slave), text->substr(dot + 1));
+  }
+
+  Result<void> parse_wire(const SpecNode& node, const std::string& path, Ring& ring) {
+    if (auto r = detail::check_keys(c_, node, path, {"from", "to"}); !r) return r;
+    auto from_node = detail::require(c_, node, path, "from");
+    if (!from_node) return std::move(from_node).error();
+    auto to_node = detail::require(c_, node, path, "to");
+    if (!to_node) return std::move(to_node).error();
+    auto from = endpoint(**from_node, detail::join_path(path, "from"), ring);
+    if (!from) return std::move(from).error();
+    auto to = endpoint(**to_node, detail::join_path(path, "to"), ring);
+    if (!to) return std::move(to).error();
+    for (const auto& w : ring.wiring) {
+      if (w.to_slave == to->first && w.to_signal == to->second) {
+        return spec_error(c_, **to_node, detail::join_path(path, "to"),
+                          fmt::format("{}.{} is already driven by {}.{} (line {})", to->first,
+                                      to->second, w.from_slave, w.from_signal, w.line));
+      }
+    }
+    ring.wiring.push_back(RingWire{from->first, from->second, to->first, to->second, node.line});
+    return ok();
+  }
+
+  SpecContext c_;
+  std::string base_dir_;
+  std::map<std::pair<std::size_t, std::uint8_t>, std::string> ports_;
+};
+
+}  // namespace
+
+const RingSlave* Ring::find(std::string_view name) const noexcept {
+  for (const auto& s : slaves) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+std::span<const std::string_view> ring_master_sections() noexcept {
+  return kMasterSections;
+}
+
+Result<Ring> parse_ring(std::string_view text, std::string source, std::string base_dir) {
+  SpecContext context{std::move(source)};
+  if (text.size() > kMaxFileBytes) {
+    return Error(Errc::out_of_range,
+                 fmt::format("{}: larger than {} bytes", context.source, kMaxFileBytes));
+  }
+  auto root = parse_yaml(text, context);
+  if (!root) return std::move(root).error();
+  return RingParser(context, std::move(base_dir)).parse(*root);
+}
+
+Result<Ring> load_ring(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    return Error(Errc::invalid_argument, fmt::format("{}: is a directory, not a ring file", path));
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return Error(std::filesystem::exists(path, ec) ? Errc::permission_denied : Errc::not_found,
+                 fmt::format("{}: cannot open the ring file", path));
+  }
+  std::string text;
+  char chunk[65536];
+  while (in.read(chunk, sizeof chunk) || in.gcount() > 0) {
+    text.append(chunk, static_cast<std::size_t>(in.gcount()));
+    if (text.size() > kMaxFileBytes) {
+      return Error(Errc::out_of_range,
+                   fmt::format("{}: larger than {} bytes", path, kMaxFileBytes));
+    }
+  }
+  const std::string base = std::filesystem::path(path).parent_path().string();
+  return parse_ring(text, path, base);
+}
+
+Result<std::unique_ptr<Segment>> build_segment(const Ring& ring) {
+  auto segment = std::make_unique<Segment>();
+  const auto where = [&](const RingSlave& s, std::size_t i) {
+    return fmt::format("{}:{}: simulator.slaves[{}] ({})", ring.source, s.line, i, s.name);
+  };
+  for (std::size_t i = 0; i < ring.slaves.size(); ++i) {
+    const RingSlave& s = ring.slaves[i];
+    auto esc = make_device(s.device);
+    if (!esc) return Error(esc.error().code(), where(s, i) + ": " + esc.error().describe());
+    Attachment attachment;
+    if (s.parent) attachment.parent = segment->find(*s.parent);
+    attachment.parent_port = s.port;
+    attachment.cable_delay_ns = s.cable_delay_ns;
+    auto added = segment->add_slave(s.name, std::move(*esc), attachment, s.timing);
+    if (!added) return Error(added.error().code(), where(s, i) + ": " + added.error().describe());
+  }
+  for (std::size_t i = 0; i < ring.wiring.size(); ++i) {
+    const RingWire& w = ring.wiring[i];
+    auto wired = wire_signals(*segment, w.from_slave, w.from_signal, w.to_slave, w.to_signal);
+    if (!wired) {
+      return Error(wired.error().code(),
+                   fmt::format("{}:{}: simulator.wiring[{}] ({}.{} -> {}.{}): {}", ring.source,
+                               w.line, i, w.from_slave, w.from_signal, w.to_slave, w.to_signal,
+                               wired.error().describe()));
+    }
+  }
+  return segment;
+}
+
+}  // namespace ecat::sim

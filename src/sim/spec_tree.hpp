@@ -1,0 +1,84 @@
+// A small document tree shared by the ring file (YAML) and the control channel (JSON), so that
+// both speak one fault vocabulary and report errors the same way: "ring.yaml:12: slaves[3].port:
+// ..." for files, "fault.slave: ..." for one-line requests.
+//
+// Private to src/sim: the public API never exposes yaml-cpp or this tree.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <initializer_list>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include <ecat/result.hpp>
+
+namespace ecat::sim::detail {
+
+struct SpecEntry;
+
+struct SpecNode {
+  enum class Type : std::uint8_t { null, scalar, sequence, mapping };
+
+  Type type = Type::null;
+  std::string text;     // scalar: as written (numbers too)
+  bool quoted = false;  // scalar written as a quoted string
+  std::vector<SpecNode> items;
+  std::vector<SpecEntry> entries;  // mapping, in document order
+  int line = 0;                    // 1-based; 0 = unknown
+
+  bool is_null() const noexcept { return type == Type::null; }
+  bool is_scalar() const noexcept { return type == Type::scalar; }
+  bool is_sequence() const noexcept { return type == Type::sequence; }
+  bool is_mapping() const noexcept { return type == Type::mapping; }
+  const SpecNode* find(std::string_view key) const noexcept;
+};
+
+// One key of a mapping. (Not std::pair: a pair cannot hold the still incomplete SpecNode.)
+struct SpecEntry {
+  SpecEntry(std::string k, SpecNode v) : key(std::move(k)), value(std::move(v)) {}
+  std::string key;
+  SpecNode value;
+};
+
+std::string_view type_name(const SpecNode& node) noexcept;
+
+// Where a document came from, for messages: `source` is the file name ("ring.yaml"), or empty for
+// a control request (which is one line: no line numbers either).
+struct SpecContext {
+  std::string source;
+};
+
+// "ring.yaml:12: slaves[3].profile: unknown profile" / "fault.kind: unknown fault kind".
+Error spec_error(const SpecContext& context, const SpecNode& node, std::string_view path,
+                 std::string_view message, Errc code = Errc::invalid_argument);
+
+// Reads a mapping strictly: every key must be one of `known` (else "unknown key").
+Result<void> check_keys(const SpecContext& context, const SpecNode& node, std::string_view path,
+                        std::initializer_list<std::string_view> known);
+Result<const SpecNode*> require(const SpecContext& context, const SpecNode& node,
+                                std::string_view path, std::string_view key);
+
+// Scalar conversions. Integers accept decimal, 0x hex and a leading minus; the range is checked.
+Result<std::int64_t> to_int(const SpecContext& context, const SpecNode& node, std::string_view path,
+                            std::int64_t min, std::int64_t max);
+Result<double> to_double(const SpecContext& context, const SpecNode& node, std::string_view path);
+Result<bool> to_bool(const SpecContext& context, const SpecNode& node, std::string_view path);
+Result<std::string> to_text(const SpecContext& context, const SpecNode& node,
+                            std::string_view path);
+
+std::string join_path(std::string_view path, std::string_view key);
+std::string index_path(std::string_view path, std::size_t index);
+
+// Parses one JSON value (RFC 8259; the whole text must be one value with optional whitespace).
+// Depth and size are bounded, so hostile input costs little.
+Result<SpecNode> parse_json(std::string_view text, std::size_t max_depth = 32);
+
+// Writes `text` as a JSON string literal (with quotes).
+void append_json_string(std::string& out, std::string_view text);
+std::string json_string(std::string_view text);
+
+}  // namespace ecat::sim::detail
