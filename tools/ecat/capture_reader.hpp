@@ -1,6 +1,6 @@
-// Reading packet captures (pcap and pcapng, through libpcap) and finding the EtherCAT frames in
-// them: raw EtherCAT (EtherType 0x88A4, optionally VLAN-tagged) and EtherCAT over UDP/IPv4
-// (port 0x88A4 on either side), on Ethernet and Linux cooked (SLL, SLL2) link types.
+// Reading packet captures (pcap and pcapng, through libpcap) for `ecat decode`; the EtherCAT frames
+// in them are found by ecat::capture::extract_ethercat (raw EtherCAT, optionally VLAN-tagged, and
+// EtherCAT over UDP/IPv4, on Ethernet and Linux cooked SLL/SLL2 link types).
 #pragma once
 
 #include <cstdint>
@@ -9,6 +9,7 @@
 #include <string>
 #include <string_view>
 
+#include <ecat/capture/capture_file.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/frame.hpp>
 
@@ -48,20 +49,12 @@ class CaptureReader {
   std::uint64_t count_ = 0;
 };
 
-enum class Encapsulation : std::uint8_t { ethernet, udp };
-std::string_view to_string(Encapsulation encapsulation) noexcept;
-
-struct EtherCatPacket {
-  Encapsulation encapsulation = Encapsulation::ethernet;
-  bool vlan = false;
-  std::optional<wire::MacAddress> source;  // absent when the link layer has no 6-byte address
-  wire::Bytes frame;                       // EtherCAT frame header + datagrams (+ padding)
-};
-
-bool link_type_supported(int link_type) noexcept;
-
-// The EtherCAT frame a packet carries, or std::nullopt when it carries none (other protocols,
-// packets too short to tell).
-std::optional<EtherCatPacket> extract_ethercat(int link_type, wire::Bytes packet) noexcept;
+// Finding the EtherCAT frame in a captured packet lives in the library (the simulator's capture
+// tools use it too).
+using capture::Encapsulation;
+using capture::EtherCatPacket;
+using capture::extract_ethercat;
+using capture::link_type_supported;
+using capture::to_string;
 
 }  // namespace ecat::tool
