@@ -185,6 +185,15 @@ constexpr std::size_t kMaxEepromBytes = 64 * 1024;
 constexpr std::uint16_t kDcSystemTimeFirst = 0x0910;
 constexpr std::uint16_t kDcLast = 0x09FF;
 
+// Nanoseconds from `from` to `to`: 0 when `to` is earlier, at most about 31 years (damaged
+// captures may hold any timestamps; the arithmetic must not overflow).
+std::int64_t elapsed_ns(std::int64_t from, std::int64_t to) noexcept {
+  constexpr std::uint64_t kLimit = std::uint64_t{1} << 60;
+  if (to <= from) return 0;
+  const std::uint64_t d = static_cast<std::uint64_t>(to) - static_cast<std::uint64_t>(from);
+  return static_cast<std::int64_t>(std::min(d, kLimit));
+}
+
 bool sm_is_mailbox(std::uint8_t control) {
   return (control & 0x03) == 0x02;
 }
@@ -454,7 +463,7 @@ void ProfileBuilder::observe_read(std::size_t slave, std::uint16_t ado, wire::By
   auto covers = [&](std::uint32_t a) { return a >= first && a <= last; };
   if (covers(reg::kSiiControl)) s.sii_8_bytes = (s.shadow[reg::kSiiControl] & 0x40) != 0;
   if (covers(reg::kSiiControl + 1) && s.sii_command_ns) {
-    const std::int64_t since = time_ns - *s.sii_command_ns;
+    const std::int64_t since = elapsed_ns(*s.sii_command_ns, time_ns);
     if ((s.shadow[reg::kSiiControl + 1] & 0x80) != 0) {
       s.sii_busy_lo = std::max(s.sii_busy_lo, since);
       s.sii_busy_seen = true;

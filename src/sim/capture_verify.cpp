@@ -61,6 +61,15 @@ constexpr std::array<VerifyRule, 11> kRules{{
      "which depend on firmware timing"},
 }};
 
+// Nanoseconds from `from` to `to`: 0 when `to` is earlier, at most about 31 years (damaged
+// captures may hold any timestamps; the arithmetic must not overflow).
+std::int64_t elapsed_ns(std::int64_t from, std::int64_t to) noexcept {
+  constexpr std::uint64_t kLimit = std::uint64_t{1} << 60;
+  if (to <= from) return 0;
+  const std::uint64_t d = static_cast<std::uint64_t>(to) - static_cast<std::uint64_t>(from);
+  return static_cast<std::int64_t>(std::min(d, kLimit));
+}
+
 std::string hex(wire::Bytes bytes, std::size_t max = 64) {
   std::string out;
   for (std::size_t i = 0; i < bytes.size() && i < max; ++i) {
@@ -352,7 +361,7 @@ Result<VerifyReport> Verifier::run() {
   for (std::size_t x = 0; x < trace_.exchanges.size(); ++x) {
     const auto& e = trace_.exchanges[x];
     const CaptureFrame& rq = trace_.frames[e.request];
-    now = std::max(now, options_.start_ns + (rq.timestamp_ns - t0));
+    now = std::max(now, options_.start_ns + elapsed_ns(t0, rq.timestamp_ns));
     for (std::size_t s = 0; s < segment_.size(); ++s) {
       before[s] = segment_.esc(s).read_u16(reg::kAlStatus);
     }
