@@ -7,6 +7,7 @@
 //   ecat sim fault clear | list [--json] | kinds
 //   ecat sim set SLAVE.SIGNAL VALUE | get SLAVE.SIGNAL | release SLAVE.SIGNAL
 //   ecat sim profiles
+//   ecat sim profile CAPTURE | verify CAPTURE   (tools/ecat/cmd_sim_verify.cpp)
 //
 // The client commands find the running simulator's control socket on their own when only one
 // runs (or take --control PATH). Exit codes: 0 done, 1 the simulator refused the request, 2 bad
@@ -32,6 +33,7 @@
 #include <ecat/sim/server.hpp>
 
 #include "command.hpp"
+#include "sim_verify_commands.hpp"
 
 namespace ecat::tool {
 namespace {
@@ -100,6 +102,8 @@ Result<std::unique_ptr<link::Link>> open_served_link(const Options& o) {
   link::RawLinkOptions options;
   options.interface = o.interface;
   options.responder = true;
+  // Only EtherCAT frames reach the simulator: a shared network costs it nothing.
+  options.kernel_filter = true;
   auto link = link::RawLink::open(options);
   if (!link) return std::move(link).error();
   return std::unique_ptr<link::Link>(std::move(*link));
@@ -464,6 +468,9 @@ Command setup(CLI::App& parent) {
   add_control(release_cmd);
   release_cmd->add_option("SLAVE.SIGNAL", o->target)->required();
   auto* profiles_cmd = app->add_subcommand("profiles", "List the device profiles");
+  // Profiles rebuilt from captures, and the simulator proven against them.
+  const Command profile_cmd = add_sim_profile_command(*app, "profile");
+  const Command verify_cmd = add_sim_verify_command(*app, "verify");
 
   return {app, [=] {
             if (status_cmd->parsed()) return status(*o);
@@ -475,6 +482,8 @@ Command setup(CLI::App& parent) {
             if (get_cmd->parsed()) return signal_request(*o, "signal.get");
             if (release_cmd->parsed()) return signal_request(*o, "signal.clear");
             if (profiles_cmd->parsed()) return profiles();
+            if (profile_cmd.app->parsed()) return profile_cmd.run();
+            if (verify_cmd.app->parsed()) return verify_cmd.run();
             return serve(*o);
           }};
 }
