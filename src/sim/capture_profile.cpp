@@ -89,8 +89,14 @@ CaptureTrace pair_capture_frames(std::vector<CaptureFrame> frames,
       match = std::find_if(open.begin(), open.end(),
                            [&](const Open& o) { return o.signature == *signature; });
     }
-    const bool reply = directions[i] == FrameDirection::slave ||
-                       (directions[i] == FrameDirection::unknown && match != open.end());
+    // By content, a byte-identical copy of an open request is its retry (a segment that nobody
+    // answered returns frames unchanged, but then nothing comes back to a capture either).
+    const bool identical =
+        match != open.end() &&
+        trace.frames[trace.exchanges[match->exchange].request].frame == frames[i].frame;
+    const bool reply =
+        directions[i] == FrameDirection::slave ||
+        (directions[i] == FrameDirection::unknown && match != open.end() && !identical);
     frames[i].from_master = !reply;
     const std::size_t index = trace.frames.size();
     trace.frames.push_back(std::move(frames[i]));

@@ -356,19 +356,27 @@ TEST(Pairing, RepliesFindTheirRequestsRetriesAndLostFramesAreKept) {
 
 TEST(Pairing, UnknownDirectionsArePairedByContent) {
   std::vector<CaptureFrame> frames;
-  for (std::uint8_t i : {1, 1, 2}) {
+  // BRD 1, its reply (WKC 2), BRD 2, an identical copy of BRD 2 (a retry, not a reply).
+  for (auto [index, wkc] : {std::pair{1, 0}, {1, 2}, {2, 0}, {2, 0}}) {
     CaptureFrame f;
     f.number = frames.size() + 1;
-    f.frame = encode_frame({{Command::brd, i, 0, {0}, 0}});
+    f.frame = encode_frame({{Command::brd,
+                             static_cast<std::uint8_t>(index),
+                             0,
+                             {0},
+                             static_cast<std::uint16_t>(wkc)}});
     frames.push_back(f);
   }
   const CaptureTrace t =
-      pair_capture_frames(frames, std::vector<FrameDirection>(3, FrameDirection::unknown), "x");
-  ASSERT_EQ(t.exchanges.size(), 2u);
+      pair_capture_frames(frames, std::vector<FrameDirection>(4, FrameDirection::unknown), "x");
+  ASSERT_EQ(t.exchanges.size(), 3u);
   EXPECT_EQ(t.exchanges[0].reply, std::optional<std::size_t>(1));
   EXPECT_TRUE(t.frames[0].from_master);
   EXPECT_FALSE(t.frames[1].from_master);
+  EXPECT_TRUE(t.frames[3].from_master);
   EXPECT_FALSE(t.exchanges[1].reply);
+  EXPECT_FALSE(t.exchanges[2].reply);
+  EXPECT_TRUE(t.exchanges[2].after_last_reply);
 }
 
 // ---- Comparison rules ---------------------------------------------------------------------------

@@ -1,6 +1,5 @@
-// `ecat sim verify` / `ecat sim profile` (registered as `sim-verify` / `sim-profile` until they
-// hang under `ecat sim`; the test finds whichever exists): summary line format and exit codes on
-// captures the test writes itself, and the figures on the shared real-device captures.
+// `ecat sim verify` / `ecat sim profile`: summary line format and exit codes on captures the test
+// writes itself, and the figures on the shared real-device captures.
 #include <cstdint>
 #include <cstdlib>
 #include <filesystem>
@@ -88,10 +87,8 @@ class SimVerifyTool : public ::testing::Test {
     dir_ = fs::temp_directory_path() /
            fmt::format("ecat-sim-verify-test-{}-{}", ::getpid(), info->name());
     fs::create_directories(dir_);
-    // `ecat sim verify` once `ecat sim` carries it, `ecat sim-verify` before.
-    const bool nested = run("sim --help").out.find("\n  verify ") != std::string::npos;
-    verify_ = nested ? "sim verify" : "sim-verify";
-    profile_ = nested ? "sim profile" : "sim-profile";
+    verify_ = "sim verify";
+    profile_ = "sim profile";
   }
   void TearDown() override {
     std::error_code ignored;

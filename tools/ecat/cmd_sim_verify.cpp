@@ -1,19 +1,18 @@
 // Proving the simulator against captures of real segments:
 //
-//   ecat sim-profile CAPTURE [--out DIR] [--json]
+//   ecat sim profile CAPTURE [--out DIR] [--json]
 //     rebuilds the slaves a capture shows (SII images, ESC hardware, CoE objects) and writes one
 //     SII .bin per slave, ring.yaml and profile.json into DIR (default: the capture's name
 //     without extension, in the current folder). Exit 0 written, 1 nothing could be written,
 //     2 the capture cannot be read.
 //
-//   ecat sim-verify CAPTURE [--ring FILE] [--json]
+//   ecat sim verify CAPTURE [--ring FILE] [--json]
 //     replays the master's requests of CAPTURE against a simulated segment (the ring file, or
 //     the profile rebuilt from the capture itself) and compares every reply; the last line is
 //     "datagrams=N wkc_match=A/B data_match=C/D". Exit 0 when every WKC matches and at least
 //     99 % of the compared data does, 1 otherwise, 2 when the capture or ring cannot be read.
 //
-// These are registered as top-level commands until `ecat sim` carries them as `sim profile` /
-// `sim verify` (see sim_verify_commands.hpp).
+// `ecat sim` (cmd_sim.cpp) carries them through sim_verify_commands.hpp.
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -157,19 +156,5 @@ Command add_sim_verify_command(CLI::App& parent, const std::string& name) {
   app->add_flag("--json", options->json, "Print the report as JSON");
   return {app, [options] { return run_verify(*options); }};
 }
-
-namespace {
-
-Command setup_profile(CLI::App& parent) {
-  return add_sim_profile_command(parent, "sim-profile");
-}
-Command setup_verify(CLI::App& parent) {
-  return add_sim_verify_command(parent, "sim-verify");
-}
-
-const bool profile_registered = register_command(&setup_profile);
-const bool verify_registered = register_command(&setup_verify);
-
-}  // namespace
 
 }  // namespace ecat::tool

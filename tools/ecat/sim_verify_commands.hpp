@@ -1,11 +1,9 @@
 // `profile` and `verify`: rebuilding simulator profiles from captures and proving the simulator
 // against them (tools/ecat/cmd_sim_verify.cpp). Each adds its subcommand under `parent` and
-// returns it with the function that runs it, so `ecat sim` can carry them:
+// returns it with the function that runs it; `ecat sim` (cmd_sim.cpp) carries them:
 //
 //   auto verify = add_sim_verify_command(*sim_app, "verify");
 //   ... if (verify.app->parsed()) return verify.run();
-//
-// Until then they are registered as the top-level commands `sim-profile` and `sim-verify`.
 #pragma once
 
 #include <string>

@@ -78,7 +78,8 @@ Result<CaptureTrace> load_capture_trace(const std::string& path);
 // The same for a capture already opened (e.g. CaptureFile::from_bytes); `source` names it.
 Result<CaptureTrace> load_capture_trace(capture::CaptureFile& file, std::string source);
 
-// Pairs frames that are already in memory (directions as known; `unknown` is decided by content).
+// Pairs frames that are already in memory (directions as known; `unknown` is decided by content:
+// a frame matching an open request is its reply unless it is a byte-identical copy, a retry).
 // A reply belongs to the oldest open request with the same datagrams (command, index, length,
 // station or logical address, register offset); a request that is repeated with the same
 // datagrams before it was answered counts as unanswered (a master's retry after a lost frame).
