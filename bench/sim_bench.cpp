@@ -235,7 +235,7 @@ void BM_VethBareEcho(benchmark::State& state) {
     veth_round_trips(state, *master, frame);
   }
 }
-BENCHMARK(BM_VethBareEcho)->Arg(16)->Arg(256)->UseRealTime();
+BENCHMARK(BM_VethBareEcho)->Arg(1)->Arg(16)->Arg(64)->Arg(256)->UseRealTime();
 
 void BM_VethSimServer(benchmark::State& state) {
   VethPair pair;
@@ -259,7 +259,7 @@ void BM_VethSimServer(benchmark::State& state) {
   veth_round_trips(state, *master, cyclic_frame(slaves));
   server->stop();
 }
-BENCHMARK(BM_VethSimServer)->Arg(16)->Arg(256)->UseRealTime();
+BENCHMARK(BM_VethSimServer)->Arg(1)->Arg(16)->Arg(64)->Arg(256)->UseRealTime();
 
 }  // namespace
 

@@ -17,6 +17,9 @@
 #include <ecat/wire/registers.hpp>
 #include <ecat/wire/sii.hpp>
 
+#include "sim/devices/applications.hpp"
+#include "sim/devices/profiles.hpp"
+
 namespace ecat::sim {
 
 namespace reg = wire::reg;
@@ -1175,55 +1178,17 @@ Result<CaptureProfile> build_capture_profile(const CaptureTrace& trace) {
 // ---------------------------------------------------------------------------------------------
 // Devices
 
+namespace {}  // namespace
+
 namespace {
 
-// Firmware of a device without a microcontroller: the ESC's device emulation answers AL control
-// by itself, so there is nothing to do.
-class EmulatedDevice : public Application {
- public:
-  void on_al_control(Esc& esc, std::uint16_t control) override {
-    (void)esc;
-    (void)control;
+// The captured objects as the dictionary presets a ring file can also carry.
+std::vector<ObjectPreset> object_presets(const CaptureSlaveProfile& slave) {
+  std::vector<ObjectPreset> out;
+  for (const auto& [key, o] : slave.objects) {
+    out.push_back(ObjectPreset{o.index, o.subindex, o.value, o.downloaded, o.abort_code});
   }
-};
-
-// A CoE entry for a captured object: typed by its size (strings for the standard string
-// objects), writable when the slave accepted a download, refusing with the captured abort code.
-ObjectEntry captured_entry(const CapturedObject& o) {
-  const std::uint16_t access = o.downloaded ? kAccessReadWrite : kAccessRead;
-  ObjectEntry e;
-  const bool text = o.index == 0x1008 || o.index == 0x1009 || o.index == 0x100A;
-  if (text) {
-    e = make_string_entry(o.subindex, fmt::format("SubIndex {:03}", o.subindex),
-                          std::string(o.value.begin(), o.value.end()), access);
-  } else {
-    switch (o.value.size()) {
-      case 1:
-        e = make_entry(o.subindex, "", DataType::unsigned8, access, o.value);
-        break;
-      case 2:
-        e = make_entry(o.subindex, "", DataType::unsigned16, access, o.value);
-        break;
-      case 4:
-        e = make_entry(o.subindex, "", DataType::unsigned32, access, o.value);
-        break;
-      case 8:
-        e = make_entry(o.subindex, "", DataType::unsigned64, access, o.value);
-        break;
-      default:
-        e = make_octet_entry(o.subindex, "", o.value, access);
-        break;
-    }
-    e.name = fmt::format("SubIndex {:03}", o.subindex);
-  }
-  if (o.abort_code) {
-    const std::uint32_t code = *o.abort_code;
-    e.on_read = [code](ObjectEntry&, const AccessContext&) { return SdoStatus::abort(code); };
-    e.on_write = [code](const ObjectEntry&, wire::Bytes, const AccessContext&) {
-      return SdoStatus::abort(code);
-    };
-  }
-  return e;
+  return out;
 }
 
 }  // namespace
@@ -1231,40 +1196,14 @@ ObjectEntry captured_entry(const CapturedObject& o) {
 Result<std::unique_ptr<Esc>> make_capture_device(const CaptureSlaveProfile& slave) {
   std::unique_ptr<Application> application;
   if (slave.device_emulation && slave.objects.empty()) {
-    application = std::make_unique<EmulatedDevice>();
+    application = std::make_unique<devices::NoFirmware>();
   } else {
     StandardConfig config;
     if (auto decoded = wire::decode_sii(slave.sii)) config.sii = decoded->image;
     if (config.sii.standard_mailbox.present()) {
       add_sii_process_data(config.dictionary, config.sii);
     }
-    std::map<std::uint16_t, std::vector<const CapturedObject*>> by_index;
-    for (const auto& [key, o] : slave.objects)
-      by_index[key.first].push_back(&o);
-    for (const auto& [index, objects] : by_index) {
-      OdObject* existing = config.dictionary.find(index);
-      if (existing != nullptr) {
-        for (const CapturedObject* o : objects) {
-          if (ObjectEntry* e = existing->entry(o->subindex); e != nullptr && !o->abort_code) {
-            e->value = o->value;
-            if (o->downloaded) e->access |= kAccessReadWrite;
-          }
-        }
-        continue;
-      }
-      const bool var = objects.size() == 1 && objects.front()->subindex == 0;
-      if (var) {
-        config.dictionary.add(
-            make_var(index, fmt::format("Object {:04X}", index), captured_entry(*objects.front())));
-      } else {
-        std::vector<ObjectEntry> entries;
-        for (const CapturedObject* o : objects) {
-          if (o->subindex != 0) entries.push_back(captured_entry(*o));
-        }
-        config.dictionary.add(
-            make_record(index, fmt::format("Object {:04X}", index), std::move(entries)));
-      }
-    }
+    devices::apply_object_presets(config.dictionary, object_presets(slave));
     application = std::make_unique<StandardApplication>(std::move(config));
   }
   EscHardware hardware = slave.hardware;
@@ -1405,6 +1344,43 @@ std::string capture_profile_json(const CaptureProfile& profile) {
   return out;
 }
 
+namespace {
+
+// One slave of ring.yaml: the `eeprom` profile with everything the capture showed beyond the SII
+// image (docs/RING-FILE.md), so that the ring answers as build_capture_segment does.
+std::string ring_slave_yaml(const CaptureSlaveProfile& s, const std::string& file) {
+  const EscHardware& hw = s.hardware;
+  std::string out =
+      fmt::format("    - name: {}\n      profile: eeprom\n      file: {}\n", s.name, file);
+  if (s.device_emulation && s.objects.empty()) out += "      options: {firmware: none}\n";
+  wire::EscFeatures features = hw.features;
+  features.dc_supported = hw.dc_supported;
+  features.dc_64bit = hw.dc_supported;
+  out += fmt::format(
+      "      esc: {{type: {:#04x}, revision: {:#04x}, build: {:#06x}, fmmus: {}, "
+      "sync_managers: {}, ram_kib: {}, ports: {:#04x}, features: {:#06x}, sii_busy_ns: {}, "
+      "sii_read_bytes: {}}}\n",
+      hw.type, hw.revision, hw.build, hw.fmmu_count, hw.sync_manager_count, hw.ram_size_kib,
+      hw.ports.encode(), features.encode(), hw.sii_busy_ns, hw.sii_reads_8_bytes ? 8 : 4);
+  std::string start;
+  if (s.station_preset && s.station) start += fmt::format("station: {:#06x}", *s.station);
+  if (s.initial_al_status) {
+    start += fmt::format("{}al_status: {:#06x}", start.empty() ? "" : ", ", *s.initial_al_status);
+  }
+  if (!start.empty()) out += fmt::format("      start: {{{}}}\n", start);
+  if (!s.objects.empty()) out += "      objects:\n";
+  for (const auto& [key, o] : s.objects) {
+    out += fmt::format("        - {{index: {:#06x}, subindex: {}", o.index, o.subindex);
+    if (!o.value.empty()) out += fmt::format(", value: \"{}\"", hex(o.value));
+    if (o.downloaded) out += ", writable: true";
+    if (o.abort_code) out += fmt::format(", abort: {:#010x}", *o.abort_code);
+    out += "}\n";
+  }
+  return out;
+}
+
+}  // namespace
+
 Result<std::vector<std::string>> write_capture_profile(const CaptureProfile& profile,
                                                        const std::string& dir) {
   namespace fs = std::filesystem;
@@ -1426,9 +1402,9 @@ Result<std::vector<std::string>> write_capture_profile(const CaptureProfile& pro
   };
   std::string ring = fmt::format(
       "# Rebuilt by `ecat sim profile` from the capture {}.\n"
-      "# Each slave is its SII image as far as the capture shows it (profile.json lists what was\n"
-      "# observed, inferred or assumed). The ESC hardware and captured CoE objects are in\n"
-      "# profile.json; `ecat sim verify CAPTURE` rebuilds them exactly.\n"
+      "# Each slave is its SII image as far as the capture shows it, with the ESC hardware, start\n"
+      "# state and CoE objects the capture showed (profile.json lists what was observed,\n"
+      "# inferred or assumed, and why).\n"
       "version: 1\n"
       "simulator:\n",
       profile.source);
@@ -1440,7 +1416,7 @@ Result<std::vector<std::string>> write_capture_profile(const CaptureProfile& pro
         !ok) {
       return ok.error();
     }
-    ring += fmt::format("    - {{name: {}, profile: eeprom, file: {}}}\n", s.name, file);
+    ring += ring_slave_yaml(s, file);
   }
   // A ring needs at least one slave; an empty segment has only the JSON summary.
   if (!profile.slaves.empty()) {

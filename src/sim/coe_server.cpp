@@ -340,7 +340,16 @@ std::vector<CoeServer::Response> CoeServer::handle_sdo(Esc& esc, wire::Bytes dat
         } else if constexpr (std::is_same_v<T, wire::SdoUploadSegmentRequest>) {
           return {upload_segment(esc, m.toggle)};
         } else if constexpr (std::is_same_v<T, wire::SdoInitiateDownloadRequest>) {
-          return {download_init(esc, m)};
+          Response response = download_init(esc, m);
+          // The 4 bytes after index/subindex are reserved in the response. Beckhoff firmware
+          // answers with the request's bytes there (the EL3004 in
+          // replay-ek1914-el3004-mailbox.pcapng echoes the downloaded value), so do the same.
+          constexpr std::size_t kReserved = wire::kCoeHeaderSize + 4;
+          if (!response.abort && response.data.size() >= kReserved + 4 &&
+              data.size() >= kReserved + 4) {
+            std::copy_n(data.begin() + kReserved, 4, response.data.begin() + kReserved);
+          }
+          return {std::move(response)};
         } else if constexpr (std::is_same_v<T, wire::SdoDownloadSegmentRequest>) {
           return {download_segment(esc, m)};
         } else if constexpr (std::is_same_v<T, wire::SdoAbort>) {

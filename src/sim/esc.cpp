@@ -843,8 +843,10 @@ bool Esc::pdi_mailbox_send(std::size_t index, wire::Bytes message) {
     return false;
   }
   auto* area = &memory_[sm.config.physical_start];
+  // Only the message is written: the rest of the buffer keeps what earlier replies left there,
+  // as in real ESC RAM (the EL3004's mailbox reads in replay-ek1914-el3004-mailbox.pcapng show
+  // the tails of earlier, longer replies after a short one).
   std::memcpy(area, message.data(), message.size());
-  std::memset(area + message.size(), 0, sm.config.length - message.size());
   last_mailbox_reply_.assign(area, area + sm.config.length);
   sm.mailbox_full = true;
   sm.config.status.interrupt_write = true;

@@ -17,31 +17,42 @@ namespace ecat::sim {
 
 namespace {
 
-constexpr std::array<std::string_view, kFaultKindCount> kKindNames{
-    "drop_responses",
-    "wkc_offset",
-    "command_wkc_offset",
-    "logical_wkc_offset",
-    "disconnect",
-    "truncate_reply",
-    "unsupported_type",
-    "wrong_index",
-    "replay_previous",
-    "corrupt_byte",
-    "duplicate_reply",
-    "reorder_replies",
-    "delay_replies",
-    "retreat_to_safeop",
-    "power_cycle",
-    "latch_al_error",
-    "mailbox_abort",
-    "mailbox_protocol_fault",
-    "dc_jump",
-    "link_down",
-    "link_up",
-    "master_link_down",
-    "master_link_up",
-};
+// One row per kind, in enum order: the name ring files, control requests and the command line
+// use, the command-line arguments, and what it does.
+constexpr std::array<FaultKindInfo, kFaultKindCount> kKinds{{
+    {FaultKind::drop_responses, "drop_responses", "",
+     "no reply to the frame (the master times out)"},
+    {FaultKind::wkc_offset, "wkc_offset", "DELTA", "add DELTA to every datagram's WKC"},
+    {FaultKind::command_wkc_offset, "command_wkc_offset", "COMMAND DELTA",
+     "add DELTA to the WKC of one command"},
+    {FaultKind::logical_wkc_offset, "logical_wkc_offset", "SLAVE DELTA",
+     "add DELTA to the slave's share of logical WKCs"},
+    {FaultKind::disconnect, "disconnect", "SLAVE", "cut the slave off (no processing, no WKC)"},
+    {FaultKind::truncate_reply, "truncate_reply", "[BYTES]",
+     "cut the last BYTES (1) bytes off the reply"},
+    {FaultKind::unsupported_type, "unsupported_type", "[TYPE]",
+     "set the EtherCAT header type to TYPE (0)"},
+    {FaultKind::wrong_index, "wrong_index", "", "add 1 to the first datagram's index in the reply"},
+    {FaultKind::replay_previous, "replay_previous", "", "send the previous reply instead"},
+    {FaultKind::corrupt_byte, "corrupt_byte", "[OFFSET [MASK]]",
+     "XOR the reply byte at OFFSET (12) with MASK (0xFF)"},
+    {FaultKind::duplicate_reply, "duplicate_reply", "", "send the reply twice"},
+    {FaultKind::reorder_replies, "reorder_replies", "", "send the reply after the next one"},
+    {FaultKind::delay_replies, "delay_replies", "MS", "send the reply MS milliseconds later"},
+    {FaultKind::retreat_to_safeop, "retreat_to_safeop", "SLAVE", "OP -> SAFEOP without an error"},
+    {FaultKind::power_cycle, "power_cycle", "SLAVE", "power cycle the slave"},
+    {FaultKind::latch_al_error, "latch_al_error", "SLAVE CODE",
+     "set the AL error bit with status CODE"},
+    {FaultKind::mailbox_abort, "mailbox_abort", "SLAVE INDEX:SUB CODE [STAGE]",
+     "abort SDO transfers of INDEX:SUB with CODE at STAGE (request)"},
+    {FaultKind::mailbox_protocol_fault, "mailbox_protocol_fault",
+     "SLAVE INDEX:SUB STAGE KIND[=VALUE]", "corrupt mailbox responses for INDEX:SUB at STAGE"},
+    {FaultKind::dc_jump, "dc_jump", "SLAVE NS", "step the slave's DC clock by NS nanoseconds"},
+    {FaultKind::link_down, "link_down", "SLAVE PORT", "take the link on the slave's PORT down"},
+    {FaultKind::link_up, "link_up", "SLAVE PORT", "bring the link on the slave's PORT up"},
+    {FaultKind::master_link_down, "master_link_down", "", "take the master's link down"},
+    {FaultKind::master_link_up, "master_link_up", "", "bring the master's link up"},
+}};
 
 constexpr std::array<ProtocolFaultKind, 9> kProtocolKinds{
     ProtocolFaultKind::drop_response,   ProtocolFaultKind::counter_mismatch,
@@ -96,6 +107,57 @@ std::string list_names(auto&& range) {
     out += std::string(to_string(item));
   }
   return out;
+}
+
+std::string unknown_kind(std::string_view name) {
+  std::string known;
+  for (const auto& k : kKinds)
+    known += (known.empty() ? "" : ", ") + std::string(k.name);
+  return fmt::format("unknown fault kind '{}' (known: {})", name, known);
+}
+
+// A command-line argument of a kind ("SLAVE", "INDEX:SUB", "[STAGE]"): kKinds lists them in
+// order; a token opening with '[' starts the optional tail ("[OFFSET [MASK]]").
+struct Argument {
+  std::string_view name;
+  bool optional = false;
+};
+
+std::vector<Argument> arguments_of(FaultKind kind) {
+  std::vector<Argument> out;
+  std::string_view args = kKinds[static_cast<std::size_t>(kind)].arguments;
+  bool optional = false;
+  while (!args.empty()) {
+    const auto space = args.find(' ');
+    std::string_view token = args.substr(0, space);
+    args = space == std::string_view::npos ? std::string_view() : args.substr(space + 1);
+    if (token.empty()) continue;
+    if (token.front() == '[') {
+      optional = true;
+      token.remove_prefix(1);
+    }
+    while (!token.empty() && token.back() == ']' && token.find('[') == std::string_view::npos) {
+      token.remove_suffix(1);
+    }
+    out.push_back({token, optional});
+  }
+  return out;
+}
+
+// The mapping keys an argument fills: its name in lower case, two for the combined ones.
+std::vector<std::string> argument_keys(std::string_view argument) {
+  if (argument == "INDEX:SUB") return {"index", "subindex"};
+  if (argument == "KIND[=VALUE]") return {"protocol", "value"};
+  std::string key(argument);
+  std::transform(key.begin(), key.end(), key.begin(),
+                 [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  return {key};
+}
+
+// The largest `value` a protocol fault takes: a nibble for the mailbox type and CoE service.
+std::uint8_t protocol_value_max(ProtocolFaultKind kind) {
+  return kind == ProtocolFaultKind::mailbox_type || kind == ProtocolFaultKind::coe_service ? 15
+                                                                                           : 255;
 }
 
 bool protocol_stage_valid(ProtocolFaultKind kind, MailboxStage stage) {
@@ -161,12 +223,12 @@ bool needs_slave(FaultKind kind) {
 
 std::string_view to_string(FaultKind kind) noexcept {
   const auto i = static_cast<std::size_t>(kind);
-  return i < kKindNames.size() ? kKindNames[i] : std::string_view("?");
+  return i < kKinds.size() ? kKinds[i].name : std::string_view("?");
 }
 
 std::optional<FaultKind> fault_kind_from_string(std::string_view name) noexcept {
-  for (std::size_t i = 0; i < kKindNames.size(); ++i) {
-    if (kKindNames[i] == name) return static_cast<FaultKind>(i);
+  for (const auto& k : kKinds) {
+    if (k.name == name) return k.kind;
   }
   return std::nullopt;
 }
@@ -222,36 +284,7 @@ std::string_view to_string(Milestone::Kind kind) noexcept {
 }
 
 const std::array<FaultKindInfo, kFaultKindCount>& fault_kinds() noexcept {
-  static const std::array<FaultKindInfo, kFaultKindCount> kInfo{{
-      {FaultKind::drop_responses, "", "no reply to the frame (the master times out)"},
-      {FaultKind::wkc_offset, "DELTA", "add DELTA to every datagram's WKC"},
-      {FaultKind::command_wkc_offset, "COMMAND DELTA", "add DELTA to the WKC of one command"},
-      {FaultKind::logical_wkc_offset, "SLAVE DELTA",
-       "add DELTA to the slave's share of logical WKCs"},
-      {FaultKind::disconnect, "SLAVE", "cut the slave off (no processing, no WKC)"},
-      {FaultKind::truncate_reply, "[BYTES]", "cut the last BYTES (1) bytes off the reply"},
-      {FaultKind::unsupported_type, "[TYPE]", "set the EtherCAT header type to TYPE (0)"},
-      {FaultKind::wrong_index, "", "add 1 to the first datagram's index in the reply"},
-      {FaultKind::replay_previous, "", "send the previous reply instead"},
-      {FaultKind::corrupt_byte, "[OFFSET [MASK]]",
-       "XOR the reply byte at OFFSET (12) with MASK (0xFF)"},
-      {FaultKind::duplicate_reply, "", "send the reply twice"},
-      {FaultKind::reorder_replies, "", "send the reply after the next one"},
-      {FaultKind::delay_replies, "MS", "send the reply MS milliseconds later"},
-      {FaultKind::retreat_to_safeop, "SLAVE", "OP -> SAFEOP without an error"},
-      {FaultKind::power_cycle, "SLAVE", "power cycle the slave"},
-      {FaultKind::latch_al_error, "SLAVE CODE", "set the AL error bit with status CODE"},
-      {FaultKind::mailbox_abort, "SLAVE INDEX:SUB CODE [STAGE]",
-       "abort SDO transfers of INDEX:SUB with CODE at STAGE (request)"},
-      {FaultKind::mailbox_protocol_fault, "SLAVE INDEX:SUB STAGE KIND[=VALUE]",
-       "corrupt mailbox responses for INDEX:SUB at STAGE"},
-      {FaultKind::dc_jump, "SLAVE NS", "step the slave's DC clock by NS nanoseconds"},
-      {FaultKind::link_down, "SLAVE PORT", "take the link on the slave's PORT down"},
-      {FaultKind::link_up, "SLAVE PORT", "bring the link on the slave's PORT up"},
-      {FaultKind::master_link_down, "", "take the master's link down"},
-      {FaultKind::master_link_up, "", "bring the master's link up"},
-  }};
-  return kInfo;
+  return kKinds;
 }
 
 // ---- Builders -----------------------------------------------------------------------------
@@ -544,11 +577,9 @@ Result<void> validate_effect(const FaultEffect& e) {
         return bad(fmt::format("{} cannot apply at stage {}", to_string(e.protocol.kind),
                                to_string(e.stage)));
       }
-      if ((e.protocol.kind == ProtocolFaultKind::mailbox_type ||
-           e.protocol.kind == ProtocolFaultKind::coe_service) &&
-          e.protocol.value > 15) {
-        return bad(
-            fmt::format("{} value {} exceeds 15", to_string(e.protocol.kind), e.protocol.value));
+      if (e.protocol.value > protocol_value_max(e.protocol.kind)) {
+        return bad(fmt::format("{} value {} exceeds {}", to_string(e.protocol.kind),
+                               e.protocol.value, protocol_value_max(e.protocol.kind)));
       }
       break;
     case FaultKind::link_down:
@@ -776,91 +807,88 @@ Result<std::string> slave_name(const SpecContext& c, const SpecNode& node,
   return text;
 }
 
+// Reads `key` of `node` with `read(value node, its path)`; when the key is absent, `fallback`,
+// or an error without one.
+template <class T, class Read>
+Result<T> read_key(const SpecContext& c, const SpecNode& node, const std::string& path,
+                   std::string_view key, std::optional<T> fallback, Read&& read) {
+  const SpecNode* value = node.find(key);
+  if (value == nullptr) {
+    if (fallback) return *fallback;
+    return spec_error(c, node, path, fmt::format("missing key '{}'", key));
+  }
+  return read(*value, join_path(path, key));
+}
+
 template <class T>
 Result<T> int_key(const SpecContext& c, const SpecNode& node, const std::string& path,
                   std::string_view key, std::int64_t min, std::int64_t max,
                   std::optional<T> fallback = std::nullopt) {
-  const SpecNode* value = node.find(key);
-  if (value == nullptr) {
-    if (fallback) return *fallback;
-    return spec_error(c, node, path, fmt::format("missing key '{}'", key));
-  }
-  auto v = to_int(c, *value, join_path(path, key), min, max);
-  if (!v) return std::move(v).error();
-  return static_cast<T>(*v);
+  return read_key<T>(c, node, path, key, fallback,
+                     [&](const SpecNode& value, const std::string& p) -> Result<T> {
+                       auto v = to_int(c, value, p, min, max);
+                       if (!v) return std::move(v).error();
+                       return static_cast<T>(*v);
+                     });
 }
 
 Result<MailboxStage> stage_key(const SpecContext& c, const SpecNode& node, const std::string& path,
                                std::string_view key, std::optional<MailboxStage> fallback) {
-  const SpecNode* value = node.find(key);
-  if (value == nullptr) {
-    if (fallback) return *fallback;
-    return spec_error(c, node, path, fmt::format("missing key '{}'", key));
-  }
-  const std::string p = join_path(path, key);
-  auto text = to_text(c, *value, p);
-  if (!text) return std::move(text).error();
-  const auto stage = stage_from_string(*text);
-  if (!stage) {
-    return spec_error(c, *value, p,
-                      fmt::format("unknown stage '{}' (known: {})", *text, list_names(kStages)));
-  }
-  return *stage;
+  return read_key<MailboxStage>(
+      c, node, path, key, fallback,
+      [&](const SpecNode& value, const std::string& p) -> Result<MailboxStage> {
+        auto text = to_text(c, value, p);
+        if (!text) return std::move(text).error();
+        const auto stage = stage_from_string(*text);
+        if (!stage) {
+          return spec_error(
+              c, value, p,
+              fmt::format("unknown stage '{}' (known: {})", *text, list_names(kStages)));
+        }
+        return *stage;
+      });
 }
 
-std::vector<std::string_view> effect_keys(FaultKind kind) {
-  std::vector<std::string_view> keys{"kind"};
-  if (is_per_exchange(kind)) keys.push_back("next");
-  if (needs_slave(kind)) keys.push_back("slave");
-  switch (kind) {
-    case FaultKind::wkc_offset:
-    case FaultKind::logical_wkc_offset:
-      keys.push_back("delta");
-      break;
-    case FaultKind::command_wkc_offset:
-      keys.insert(keys.end(), {"command", "delta"});
-      break;
-    case FaultKind::truncate_reply:
-      keys.push_back("bytes");
-      break;
-    case FaultKind::unsupported_type:
-      keys.push_back("type");
-      break;
-    case FaultKind::corrupt_byte:
-      keys.insert(keys.end(), {"offset", "mask"});
-      break;
-    case FaultKind::delay_replies:
-      keys.push_back("ms");
-      break;
-    case FaultKind::latch_al_error:
-      keys.push_back("code");
-      break;
-    case FaultKind::mailbox_abort:
-      keys.insert(keys.end(), {"index", "subindex", "stage", "code", "once"});
-      break;
-    case FaultKind::mailbox_protocol_fault:
-      keys.insert(keys.end(), {"index", "subindex", "stage", "protocol", "value", "once"});
-      break;
-    case FaultKind::dc_jump:
-      keys.push_back("ns");
-      break;
-    case FaultKind::link_down:
-    case FaultKind::link_up:
-      keys.push_back("port");
-      break;
-    default:
-      break;
+// The when of a scheduling form: `after_ms` / `wait_ms` set the delay, `after_milestone` /
+// `wait_for` the milestone.
+Result<void> parse_trigger(const SpecContext& c, const SpecNode& node, const std::string& path,
+                           std::string_view form, Fault& f) {
+  const SpecNode& value = *node.find(form);
+  const std::string p = join_path(path, form);
+  if (form == "after_ms" || form == "wait_ms") {
+    auto d = to_ms(c, value, p, false);
+    if (!d) return std::move(d).error();
+    f.delay = *d;
+  } else {
+    auto m = parse_milestone_node(c, value, p);
+    if (!m) return std::move(m).error();
+    f.milestone = std::move(*m);
+  }
+  return ok();
+}
+
+// The keys of an effect mapping: its kind, `next` for per-exchange kinds, one per command-line
+// argument (two for INDEX:SUB and KIND[=VALUE]) and `once` for the mailbox rules.
+std::vector<std::string> effect_keys(FaultKind kind) {
+  std::vector<std::string> keys{"kind"};
+  if (is_per_exchange(kind)) keys.emplace_back("next");
+  for (const auto& argument : arguments_of(kind)) {
+    const auto names = argument_keys(argument.name);
+    keys.insert(keys.end(), names.begin(), names.end());
+  }
+  if (kind == FaultKind::mailbox_abort || kind == FaultKind::mailbox_protocol_fault) {
+    keys.emplace_back("once");
   }
   return keys;
 }
 
 Result<void> check_keys_list(const SpecContext& c, const SpecNode& node, const std::string& path,
-                             const std::vector<std::string_view>& known) {
+                             const std::vector<std::string>& known) {
   for (const auto& [key, value] : node.entries) {
     if (std::find(known.begin(), known.end(), key) != known.end()) continue;
     std::string list;
-    for (auto k : known)
-      list += (list.empty() ? "" : ", ") + std::string(k);
+    for (const auto& k : known)
+      list += (list.empty() ? "" : ", ") + k;
     return spec_error(c, value, join_path(path, key), fmt::format("unknown key (known: {})", list));
   }
   return ok();
@@ -874,11 +902,7 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
   if (!kind_text) return std::move(kind_text).error();
   const auto kind = fault_kind_from_string(*kind_text);
   if (!kind) {
-    std::string known;
-    for (auto name : kKindNames)
-      known += (known.empty() ? "" : ", ") + std::string(name);
-    return spec_error(c, *kind_node, kind_path,
-                      fmt::format("unknown fault kind '{}' (known: {})", *kind_text, known));
+    return spec_error(c, *kind_node, kind_path, unknown_kind(*kind_text));
   }
   if (auto r = check_keys_list(c, node, path, effect_keys(*kind)); !r) return std::move(r).error();
   Fault f = make(*kind);
@@ -973,9 +997,8 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
         }
         e.protocol.kind = *protocol;
         if (protocol_has_value(*protocol)) {
-          const bool nibble = *protocol == ProtocolFaultKind::mailbox_type ||
-                              *protocol == ProtocolFaultKind::coe_service;
-          ECAT_TRY(value, int_key<std::uint8_t>(c, node, path, "value", 0, nibble ? 15 : 255));
+          ECAT_TRY(value,
+                   int_key<std::uint8_t>(c, node, path, "value", 0, protocol_value_max(*protocol)));
           e.protocol.value = *value;
         } else if (const SpecNode* v = node.find("value")) {
           return spec_error(c, *v, join_path(path, "value"),
@@ -1057,17 +1080,8 @@ Result<Fault> parse_at(const SpecContext& c, const SpecNode& node, const std::st
     }
     if (auto r = check_keys(c, node, path, {form}); !r) return std::move(r).error();
     Fault f;
-    if (form == "wait_ms") {
-      f.form = Fault::Form::wait;
-      auto d = to_ms(c, *node.find(form), join_path(path, form), false);
-      if (!d) return std::move(d).error();
-      f.delay = *d;
-    } else {
-      f.form = Fault::Form::wait_for;
-      auto m = parse_milestone_node(c, *node.find(form), join_path(path, form));
-      if (!m) return std::move(m).error();
-      f.milestone = std::move(*m);
-    }
+    f.form = form == "wait_ms" ? Fault::Form::wait : Fault::Form::wait_for;
+    if (auto r = parse_trigger(c, node, path, form, f); !r) return std::move(r).error();
     return f;
   }
   if (form == "script") {
@@ -1089,17 +1103,8 @@ Result<Fault> parse_at(const SpecContext& c, const SpecNode& node, const std::st
   // after_ms / after_milestone
   if (auto r = check_keys(c, node, path, {form, "fault"}); !r) return std::move(r).error();
   Fault f;
-  if (form == "after_ms") {
-    f.form = Fault::Form::after_delay;
-    auto d = to_ms(c, *node.find(form), join_path(path, form), false);
-    if (!d) return std::move(d).error();
-    f.delay = *d;
-  } else {
-    f.form = Fault::Form::after_milestone;
-    auto m = parse_milestone_node(c, *node.find(form), join_path(path, form));
-    if (!m) return std::move(m).error();
-    f.milestone = std::move(*m);
-  }
+  f.form = form == "after_ms" ? Fault::Form::after_delay : Fault::Form::after_milestone;
+  if (auto r = parse_trigger(c, node, path, form, f); !r) return std::move(r).error();
   auto child_node = require(c, node, path, "fault");
   if (!child_node) return std::move(child_node).error();
   auto child = parse_at(c, **child_node, join_path(path, "fault"), in_script, depth + 1);
@@ -1194,49 +1199,25 @@ Result<Fault> parse_fault_words(std::span<const std::string> words) {
   }
   const auto kind = fault_kind_from_string(words[0]);
   if (!kind) {
-    std::string known;
-    for (auto name : kKindNames)
-      known += (known.empty() ? "" : ", ") + std::string(name);
-    return Error(Errc::invalid_argument,
-                 fmt::format("unknown fault kind '{}' (known: {})", words[0], known));
+    return Error(Errc::invalid_argument, unknown_kind(words[0]));
   }
   const auto& info = fault_kinds()[static_cast<std::size_t>(*kind)];
   const auto usage = [&] {
     return fmt::format("usage: {}{}{}", words[0], info.arguments.empty() ? "" : " ",
                        info.arguments);
   };
-  // Argument names in order; a trailing "[...]" group is optional.
-  std::vector<std::string> names;
+  const auto arguments = arguments_of(*kind);
   std::size_t required = 0;
-  {
-    // "SLAVE INDEX:SUB CODE [STAGE]", "[OFFSET [MASK]]": a token opening with '[' starts the
-    // optional tail.
-    std::string_view args = info.arguments;
-    bool optional = false;
-    while (!args.empty()) {
-      const auto space = args.find(' ');
-      std::string_view token = args.substr(0, space);
-      args = space == std::string_view::npos ? std::string_view() : args.substr(space + 1);
-      if (token.empty()) continue;
-      if (token.front() == '[') {
-        optional = true;
-        token.remove_prefix(1);
-      }
-      while (!token.empty() && token.back() == ']' && token.find('[') == std::string_view::npos) {
-        token.remove_suffix(1);
-      }
-      names.emplace_back(token);
-      if (!optional) ++required;
-    }
-  }
+  for (const auto& argument : arguments)
+    required += argument.optional ? 0 : 1;
   const std::size_t given = words.size() - 1;
-  if (given < required || given > names.size()) {
-    return Error(
-        Errc::invalid_argument,
-        fmt::format("{}: expected {} argument{}, got {} ({})", words[0],
-                    required == names.size() ? fmt::format("{}", required)
-                                             : fmt::format("{} to {}", required, names.size()),
-                    names.size() == 1 ? "" : "s", given, usage()));
+  if (given < required || given > arguments.size()) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("{}: expected {} argument{}, got {} ({})", words[0],
+                             required == arguments.size()
+                                 ? fmt::format("{}", required)
+                                 : fmt::format("{} to {}", required, arguments.size()),
+                             arguments.size() == 1 ? "" : "s", given, usage()));
   }
   SpecNode node;
   node.type = SpecNode::Type::mapping;
@@ -1248,26 +1229,24 @@ Result<Fault> parse_fault_words(std::span<const std::string> words) {
   };
   node.entries.emplace_back("kind", scalar(words[0]));
   for (std::size_t i = 0; i < given; ++i) {
-    const std::string& name = names[i];
+    const std::string_view name = arguments[i].name;
     const std::string& word = words[i + 1];
-    if (name == "INDEX:SUB") {
-      const auto colon = word.find(':');
-      if (colon == std::string::npos) {
-        return Error(
-            Errc::invalid_argument,
-            fmt::format("{}: '{}' is not INDEX:SUB (e.g. 0x2000:1) ({})", words[0], word, usage()));
-      }
-      node.entries.emplace_back("index", scalar(word.substr(0, colon)));
-      node.entries.emplace_back("subindex", scalar(word.substr(colon + 1)));
-    } else if (name == "KIND[=VALUE]") {
-      const auto eq = word.find('=');
-      node.entries.emplace_back("protocol", scalar(word.substr(0, eq)));
-      if (eq != std::string::npos) node.entries.emplace_back("value", scalar(word.substr(eq + 1)));
-    } else {
-      std::string key = name;
-      std::transform(key.begin(), key.end(), key.begin(),
-                     [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
-      node.entries.emplace_back(key, scalar(word));
+    const auto keys = argument_keys(name);
+    if (keys.size() == 1) {
+      node.entries.emplace_back(keys[0], scalar(word));
+      continue;
+    }
+    // INDEX:SUB and KIND[=VALUE]: two keys in one word (the second optional after '=').
+    const char separator = name == "INDEX:SUB" ? ':' : '=';
+    const auto split = word.find(separator);
+    if (split == std::string::npos && separator == ':') {
+      return Error(
+          Errc::invalid_argument,
+          fmt::format("{}: '{}' is not INDEX:SUB (e.g. 0x2000:1) ({})", words[0], word, usage()));
+    }
+    node.entries.emplace_back(keys[0], scalar(word.substr(0, split)));
+    if (split != std::string::npos) {
+      node.entries.emplace_back(keys[1], scalar(word.substr(split + 1)));
     }
   }
   auto fault = detail::parse_fault_node(detail::SpecContext{}, node, words[0]);
@@ -1286,6 +1265,30 @@ struct ResolvedMilestone {
   std::size_t slave = 0;
   MailboxStage step = MailboxStage::upload_init;
 };
+
+// The part the abort and protocol fault rules share: which object, at which stage, how often.
+template <class Rule>
+Rule mailbox_rule(const FaultEffect& e, bool once) {
+  Rule rule;
+  rule.index = e.index;
+  rule.subindex = e.subindex;
+  rule.stage = e.stage;
+  rule.once = once;
+  return rule;
+}
+
+// A standing mailbox rule as the effect that installed it (for info()).
+template <class Rule>
+FaultEffect rule_effect(FaultKind kind, std::string slave, const Rule& rule) {
+  FaultEffect e;
+  e.kind = kind;
+  e.slave = std::move(slave);
+  e.index = rule.index;
+  e.subindex = rule.subindex;
+  e.stage = rule.stage;
+  e.once = rule.once;
+  return e;
+}
 
 std::size_t stage_slot(MailboxStage stage) {
   return static_cast<std::size_t>(stage);
@@ -1358,6 +1361,7 @@ struct FaultInjector::Impl {
       delay_ns = 0;
     }
     void add(const FaultEffect& e, std::size_t slave) {
+      if (fault_class(e.kind) == FaultClass::reply) reply_faults = true;
       switch (e.kind) {
         case FaultKind::drop_responses:
           drop = true;
@@ -1378,35 +1382,27 @@ struct FaultInjector::Impl {
           break;
         case FaultKind::truncate_reply:
           truncate = std::max(truncate, e.bytes);
-          reply_faults = true;
           break;
         case FaultKind::unsupported_type:
           frame_type = e.frame_type;
-          reply_faults = true;
           break;
         case FaultKind::wrong_index:
           wrong_index = true;
-          reply_faults = true;
           break;
         case FaultKind::replay_previous:
           replay = true;
-          reply_faults = true;
           break;
         case FaultKind::corrupt_byte:
           corrupt.emplace_back(e.offset, e.mask);
-          reply_faults = true;
           break;
         case FaultKind::duplicate_reply:
           duplicate = true;
-          reply_faults = true;
           break;
         case FaultKind::reorder_replies:
           reorder = true;
-          reply_faults = true;
           break;
         case FaultKind::delay_replies:
           delay_ns = std::max(delay_ns, e.ns);
-          reply_faults = true;
           break;
         default:
           break;
@@ -1534,22 +1530,14 @@ struct FaultInjector::Impl {
         break;
       }
       case FaultKind::mailbox_abort: {
-        SdoAbortRule rule;
-        rule.index = e.index;
-        rule.subindex = e.subindex;
-        rule.stage = e.stage;
+        auto rule = mailbox_rule<SdoAbortRule>(e, e.once.value_or(false));
         rule.code = e.code;
-        rule.once = e.once.value_or(false);
         if (CoeServer* coe = coe_server_of(segment.esc(slave))) coe->add_abort_rule(rule);
         break;
       }
       case FaultKind::mailbox_protocol_fault: {
-        ProtocolFaultRule rule;
-        rule.index = e.index;
-        rule.subindex = e.subindex;
-        rule.stage = e.stage;
+        auto rule = mailbox_rule<ProtocolFaultRule>(e, e.once.value_or(in_script));
         rule.fault = e.protocol;
-        rule.once = e.once.value_or(in_script);
         if (CoeServer* coe = coe_server_of(segment.esc(slave))) coe->add_protocol_fault(rule);
         break;
       }
@@ -1849,25 +1837,13 @@ FaultInfo FaultInjector::info(std::int64_t now_ns) const {
     Esc& esc = s.segment.esc(i);
     if (const CoeServer* coe = coe_server_of(esc)) {
       for (const auto& rule : coe->abort_rules()) {
-        FaultEffect e;
-        e.kind = FaultKind::mailbox_abort;
-        e.slave = s.segment.name(i);
-        e.index = rule.index;
-        e.subindex = rule.subindex;
-        e.stage = rule.stage;
+        FaultEffect e = rule_effect(FaultKind::mailbox_abort, s.segment.name(i), rule);
         e.code = rule.code;
-        e.once = rule.once;
         info.active.push_back(describe(e));
       }
       for (const auto& rule : coe->protocol_faults()) {
-        FaultEffect e;
-        e.kind = FaultKind::mailbox_protocol_fault;
-        e.slave = s.segment.name(i);
-        e.index = rule.index;
-        e.subindex = rule.subindex;
-        e.stage = rule.stage;
+        FaultEffect e = rule_effect(FaultKind::mailbox_protocol_fault, s.segment.name(i), rule);
         e.protocol = rule.fault;
-        e.once = rule.once;
         info.active.push_back(describe(e));
       }
     }

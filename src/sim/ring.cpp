@@ -93,7 +93,9 @@ class YamlConverter {
   std::size_t nodes_ = 0;
 };
 
-Result<SpecNode> parse_yaml(std::string_view text, const SpecContext& context) {
+}  // namespace
+
+Result<SpecNode> detail::parse_yaml(std::string_view text, const SpecContext& context) {
   try {
     const YAML::Node root = YAML::Load(std::string(text));
     YamlConverter converter(context);
@@ -108,6 +110,8 @@ Result<SpecNode> parse_yaml(std::string_view text, const SpecContext& context) {
                  fmt::format("{}: cannot read YAML: {}", context.source, e.what()));
   }
 }
+
+namespace {
 
 // ---- Ring sections ----------------------------------------------------------------------------
 
@@ -267,9 +271,10 @@ class RingParser {
   }
 
   Result<void> parse_slave(const SpecNode& node, const std::string& path, Ring& ring) {
-    if (auto r = detail::check_keys(c_, node, path,
-                                    {"name", "profile", "file", "options", "clock", "parent",
-                                     "port", "cable_delay_ns", "timing", "count"});
+    if (auto r =
+            detail::check_keys(c_, node, path,
+                               {"name", "profile", "file", "options", "clock", "esc", "start",
+                                "objects", "parent", "port", "cable_delay_ns", "timing", "count"});
         !r) {
       return r;
     }
@@ -325,6 +330,32 @@ class RingParser {
     if (const SpecNode* clock = node.find("clock")) {
       if (auto r = parse_clock(*clock, detail::join_path(path, "clock"), slave.device.clock); !r) {
         return r;
+      }
+    }
+    if (const SpecNode* esc = node.find("esc")) {
+      if (auto r = parse_esc(*esc, detail::join_path(path, "esc"), slave.device.esc); !r) return r;
+    }
+    if (const SpecNode* start = node.find("start")) {
+      if (auto r = parse_start(*start, detail::join_path(path, "start"), slave.device.start); !r) {
+        return r;
+      }
+    }
+    if (const SpecNode* objects = node.find("objects")) {
+      const std::string op = detail::join_path(path, "objects");
+      if (*profile != "eeprom") {
+        return spec_error(
+            c_, *objects, op,
+            fmt::format("profile '{}' takes no objects (only 'eeprom' does)", *profile));
+      }
+      if (!objects->is_sequence()) {
+        return spec_error(
+            c_, *objects, op,
+            fmt::format("expected a list of objects, found {}", detail::type_name(*objects)));
+      }
+      for (std::size_t i = 0; i < objects->items.size(); ++i) {
+        auto o = parse_object(objects->items[i], detail::index_path(op, i));
+        if (!o) return std::move(o).error();
+        slave.device.objects.push_back(std::move(*o));
       }
     }
     if (const SpecNode* timing = node.find("timing")) {
@@ -414,6 +445,131 @@ class RingParser {
         ports_[key] = copy.name;
       }
       ring.slaves.push_back(std::move(copy));
+    }
+    return ok();
+  }
+
+  // Sets `out` from the integer at `key` of `node`, when present.
+  template <class T>
+  Result<void> optional_int(const SpecNode& node, const std::string& path, std::string_view key,
+                            std::int64_t min, std::int64_t max, std::optional<T>& out) {
+    const SpecNode* v = node.find(key);
+    if (v == nullptr) return ok();
+    auto n = detail::to_int(c_, *v, detail::join_path(path, key), min, max);
+    if (!n) return std::move(n).error();
+    out = static_cast<T>(*n);
+    return ok();
+  }
+
+  Result<void> parse_esc(const SpecNode& node, const std::string& path, EscPreset& esc) {
+    if (auto r =
+            detail::check_keys(c_, node, path,
+                               {"type", "revision", "build", "fmmus", "sync_managers", "ram_kib",
+                                "ports", "features", "sii_busy_ns", "sii_read_bytes"});
+        !r) {
+      return r;
+    }
+    // 16 FMMUs / SyncManagers is the register map's limit (0x0600.., 0x0800..).
+    for (auto r : {optional_int(node, path, "type", 0, 0xFF, esc.type),
+                   optional_int(node, path, "revision", 0, 0xFF, esc.revision),
+                   optional_int(node, path, "build", 0, 0xFFFF, esc.build),
+                   optional_int(node, path, "fmmus", 1, 16, esc.fmmu_count),
+                   optional_int(node, path, "sync_managers", 1, 16, esc.sync_manager_count),
+                   optional_int(node, path, "ram_kib", 0, 60, esc.ram_size_kib),
+                   optional_int(node, path, "ports", 0, 0xFF, esc.ports),
+                   optional_int(node, path, "features", 0, 0xFFFF, esc.features),
+                   optional_int(node, path, "sii_busy_ns", 0, 1'000'000'000, esc.sii_busy_ns),
+                   optional_int(node, path, "sii_read_bytes", 4, 8, esc.sii_read_bytes)}) {
+      if (!r) return r;
+    }
+    if (esc.sii_read_bytes && *esc.sii_read_bytes != 4 && *esc.sii_read_bytes != 8) {
+      const std::string p = detail::join_path(path, "sii_read_bytes");
+      return spec_error(c_, *node.find("sii_read_bytes"), p,
+                        fmt::format("{} bytes: an SII interface reads 4 or 8", *esc.sii_read_bytes),
+                        Errc::out_of_range);
+    }
+    return ok();
+  }
+
+  Result<ObjectPreset> parse_object(const SpecNode& node, const std::string& path) {
+    if (auto r =
+            detail::check_keys(c_, node, path, {"index", "subindex", "value", "writable", "abort"});
+        !r) {
+      return std::move(r).error();
+    }
+    ObjectPreset o;
+    auto index = detail::require(c_, node, path, "index");
+    if (!index) return std::move(index).error();
+    auto i = detail::to_int(c_, **index, detail::join_path(path, "index"), 0, 0xFFFF);
+    if (!i) return std::move(i).error();
+    o.index = static_cast<std::uint16_t>(*i);
+    std::optional<std::uint8_t> sub;
+    if (auto r = optional_int(node, path, "subindex", 0, 0xFF, sub); !r)
+      return std::move(r).error();
+    o.subindex = sub.value_or(0);
+    if (const SpecNode* value = node.find("value")) {
+      const std::string vp = detail::join_path(path, "value");
+      auto text = detail::to_text(c_, *value, vp);
+      if (!text) return std::move(text).error();
+      auto bytes = hex_bytes(*text);
+      if (!bytes) return spec_error(c_, *value, vp, bytes.error().message());
+      o.value = std::move(*bytes);
+    }
+    if (const SpecNode* writable = node.find("writable")) {
+      auto b = detail::to_bool(c_, *writable, detail::join_path(path, "writable"));
+      if (!b) return std::move(b).error();
+      o.writable = *b;
+    }
+    if (auto r = optional_int(node, path, "abort", 0, 0xFFFFFFFF, o.abort_code); !r) {
+      return std::move(r).error();
+    }
+    if (o.value.empty() && !o.abort_code) {
+      return spec_error(c_, node, path, "an object needs a 'value' or an 'abort' code");
+    }
+    return o;
+  }
+
+  // "02000000" or "02 00 00 00": the bytes as on the wire.
+  static Result<std::vector<std::uint8_t>> hex_bytes(std::string_view text) {
+    std::vector<std::uint8_t> out;
+    int high = -1;
+    for (std::size_t k = 0; k < text.size(); ++k) {
+      const char ch = text[k];
+      if (ch == ' ') continue;
+      const int v = std::isxdigit(static_cast<unsigned char>(ch)) == 0 ? -1
+                    : ch <= '9'                                        ? ch - '0'
+                                : (std::tolower(ch) - 'a' + 10);
+      if (v < 0) {
+        return Error(Errc::invalid_argument,
+                     fmt::format("'{}' at offset {} is not a hex digit (bytes as hex: "
+                                 "\"02000000\")",
+                                 ch, k));
+      }
+      if (high < 0) {
+        high = v;
+      } else {
+        out.push_back(static_cast<std::uint8_t>(high << 4 | v));
+        high = -1;
+      }
+      if (out.size() > 4096) return Error(Errc::out_of_range, "more than 4096 bytes");
+    }
+    if (high >= 0) return Error(Errc::invalid_argument, "an odd number of hex digits");
+    return out;
+  }
+
+  Result<void> parse_start(const SpecNode& node, const std::string& path, StartState& start) {
+    if (auto r = detail::check_keys(c_, node, path, {"station", "al_status"}); !r) return r;
+    if (auto r = optional_int(node, path, "station", 0, 0xFFFF, start.station); !r) return r;
+    if (auto r = optional_int(node, path, "al_status", 0, 0xFFFF, start.al_status); !r) return r;
+    if (start.al_status) {
+      const auto state = static_cast<std::uint8_t>(*start.al_status & 0x0F);
+      if (state != 1 && state != 2 && state != 3 && state != 4 && state != 8) {
+        return spec_error(c_, *node.find("al_status"), detail::join_path(path, "al_status"),
+                          fmt::format("0x{:04X} holds no AL state (INIT 1, PREOP 2, BOOT 3, "
+                                      "SAFEOP 4, OP 8; + 0x10 for the error flag)",
+                                      *start.al_status),
+                          Errc::out_of_range);
+      }
     }
     return ok();
   }
@@ -513,7 +669,7 @@ Result<Ring> parse_ring(std::string_view text, std::string source, std::string b
     return Error(Errc::out_of_range,
                  fmt::format("{}: larger than {} bytes", context.source, kMaxFileBytes));
   }
-  auto root = parse_yaml(text, context);
+  auto root = detail::parse_yaml(text, context);
   if (!root) return std::move(root).error();
   return RingParser(context, std::move(base_dir)).parse(*root);
 }

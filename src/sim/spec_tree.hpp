@@ -73,6 +73,10 @@ Result<std::string> to_text(const SpecContext& context, const SpecNode& node,
 std::string join_path(std::string_view path, std::string_view key);
 std::string index_path(std::string_view path, std::size_t index);
 
+// Parses YAML (yaml-cpp) into the tree, bounding size, depth and alias expansion; syntax errors
+// carry the line. (Defined in ring.cpp, next to the bounds it shares with the ring reader.)
+Result<SpecNode> parse_yaml(std::string_view text, const SpecContext& context);
+
 // Parses one JSON value (RFC 8259; the whole text must be one value with optional whitespace).
 // Depth and size are bounded, so hostile input costs little.
 Result<SpecNode> parse_json(std::string_view text, std::size_t max_depth = 32);

@@ -17,6 +17,7 @@
 #include <ecat/sim/capture_profile.hpp>
 #include <ecat/sim/capture_verify.hpp>
 #include <ecat/sim/esc.hpp>
+#include <ecat/sim/ring.hpp>
 #include <ecat/sim/segment.hpp>
 #include <ecat/wire/frame.hpp>
 #include <ecat/wire/registers.hpp>
@@ -448,6 +449,9 @@ TEST(Verify, TimeAndWiringDependentRegistersAreLeftOut) {
   EXPECT_EQ(r.exclusions.at("dc_time"), 1u);
   EXPECT_EQ(r.exclusions.at("error_counters"), 1u);
   EXPECT_EQ(r.exclusions.at("watchdog"), 1u);
+  // What the rules hid: bits that differed.
+  EXPECT_EQ(r.differences_left_out.at("dc_time"), 1u);
+  EXPECT_EQ(r.differences_left_out.at("error_counters"), 1u);
   ASSERT_EQ(r.mismatches.size(), 1u);
   EXPECT_EQ(r.mismatches[0].detail, "data at 0x0315 (byte 21): expected 0x09, got 0x00");
 }
@@ -462,6 +466,8 @@ TEST(Verify, SiiBusyDifferencesAndReservedBitsAreLeftOut) {
   const VerifyReport r = s.verify();
   EXPECT_EQ(r.exclusions.at("reserved"), 2u);
   EXPECT_EQ(r.exclusions.at("sii_busy"), 1u);
+  EXPECT_EQ(r.differences_left_out.at("reserved"), 1u);  // only the first differs there
+  EXPECT_EQ(r.differences_left_out.at("sii_busy"), 1u);
   EXPECT_EQ(r.summary_line(), "datagrams=4 wkc_match=4/4 data_match=1/2");
 }
 
@@ -583,9 +589,24 @@ TEST(Profile, WritesSiiImagesRingAndJson) {
   EXPECT_EQ(std::filesystem::file_size(dir / "slave0.bin"), 2048u);
   const auto ring = test::read_file(dir / "ring.yaml");
   const std::string text(ring.begin(), ring.end());
-  EXPECT_NE(text.find("    - {name: slave1, profile: eeprom, file: slave1.bin}\n"),
+  EXPECT_NE(text.find("    - name: slave1\n      profile: eeprom\n      file: slave1.bin\n"),
             std::string::npos)
       << text;
+  // The ESC facts and the start state the capture showed travel with the image.
+  EXPECT_NE(text.find("      esc: {type: 0x"), std::string::npos) << text;
+  auto ring_file = load_ring((dir / "ring.yaml").string());
+  ASSERT_TRUE(ring_file.ok()) << ring_file.error().describe();
+  ASSERT_EQ(ring_file->slaves.size(), 2u);
+  const EscPreset& esc = ring_file->slaves[1].device.esc;
+  ASSERT_TRUE(esc.type && esc.fmmu_count && esc.sync_manager_count && esc.features && esc.ports &&
+              esc.sii_read_bytes && esc.sii_busy_ns);
+  const EscHardware& hw = profile->slaves[1].hardware;
+  EXPECT_EQ(*esc.type, hw.type);
+  EXPECT_EQ(*esc.fmmu_count, hw.fmmu_count);
+  EXPECT_EQ(*esc.sync_manager_count, hw.sync_manager_count);
+  EXPECT_EQ(*esc.ports, hw.ports.encode());
+  EXPECT_EQ(*esc.sii_read_bytes, hw.sii_reads_8_bytes ? 8 : 4);
+  EXPECT_EQ(*esc.sii_busy_ns, hw.sii_busy_ns);
   const auto json = test::read_file(dir / "profile.json");
   EXPECT_NE(std::string(json.begin(), json.end()).find("\"slave_count\": 2"), std::string::npos);
 }
@@ -636,6 +657,25 @@ TEST_P(SharedCapture, ProfileBuildsAndTheSimulatorAnswersLikeTheRealSegment) {
   EXPECT_TRUE(report->passed());
   for (const auto& m : report->mismatches)
     ADD_FAILURE() << m.frame << ": " << m.detail;
+
+  // The ring file `ecat sim profile` writes answers exactly as the profile itself.
+  if (profile->slaves.empty()) return;
+  const auto dir = std::filesystem::path(ECAT_BINARY_DIR) /
+                   (std::string("capture_ring_") + std::string(e.file).substr(0, 12));
+  std::filesystem::remove_all(dir);
+  ASSERT_TRUE(write_capture_profile(*profile, dir.string()).ok());
+  auto ring = load_ring((dir / "ring.yaml").string());
+  ASSERT_TRUE(ring.ok()) << ring.error().describe();
+  auto ring_segment = build_segment(*ring);
+  ASSERT_TRUE(ring_segment.ok()) << ring_segment.error().describe();
+  auto through_ring = verify_capture(*trace, **ring_segment);
+  ASSERT_TRUE(through_ring.ok());
+  EXPECT_EQ(through_ring->wkc_matched, e.wkc_compared);
+  EXPECT_EQ(through_ring->data_compared, e.data_compared);
+  EXPECT_EQ(through_ring->data_matched, e.data_matched);
+  for (const auto& m : through_ring->mismatches)
+    ADD_FAILURE() << "through ring.yaml: " << m.frame << ": " << m.detail;
+  std::filesystem::remove_all(dir);
 }
 
 std::string capture_test_name(const ::testing::TestParamInfo<Expected>& param) {

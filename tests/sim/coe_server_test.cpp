@@ -780,6 +780,30 @@ TEST(MailboxCounter, EchoModeAnswersWithTheRequestCounter) {
   EXPECT_EQ(m.sdo(wire::SdoInitiateUploadRequest{0x2000, 1, false})->header.counter, 6);
 }
 
+// The initiate download response echoes the request's 4 data bytes in its reserved field, as
+// Beckhoff firmware does (the EL2828 in replay-ek1100-el2828-el2889.pcapng answers
+// 60 08 f0 00 01 00 00 00 to a download of 1). Byte 14.. of SM1: 6 mailbox + 2 CoE + 4 + 4.
+TEST(SdoDownload, ResponseEchoesTheRequestDataBytes) {
+  Master m;
+  wire::SdoInitiateDownloadRequest req;
+  req.index = 0x2000;
+  req.subindex = 3;
+  req.expedited = true;
+  req.data = {0x2A, 0, 0, 0};
+  ASSERT_TRUE(m.write(m.encode(MailboxType::coe, *wire::encode_sdo(req), 1)));
+  auto raw = m.read_raw();
+  ASSERT_TRUE(raw);
+  EXPECT_EQ((*raw)[8] >> 5, 3) << "initiate download response";
+  EXPECT_EQ(Bytes(raw->begin() + 12, raw->begin() + 16), (Bytes{0x2A, 0, 0, 0}));
+  // An aborted download has no such field: its bytes carry the abort code.
+  req.index = 0x7777;
+  ASSERT_TRUE(m.write(m.encode(MailboxType::coe, *wire::encode_sdo(req), 2)));
+  raw = m.read_raw();
+  ASSERT_TRUE(raw);
+  EXPECT_EQ((*raw)[8] >> 5, 4) << "abort";
+  EXPECT_EQ(wire::load_le32(&(*raw)[12]), 0x06020000u);
+}
+
 TEST(MailboxCounter, RepeatedRequestIsAnsweredAgainNotExecutedAgain) {
   Master m;
   int writes = 0;

@@ -220,6 +220,33 @@ TEST(Wiring, RefusesWhatCannotBeWired) {
   EXPECT_FALSE(wire_signals(segment, "outputs", "channel_1", "plain", "x").ok());
 }
 
+// Generic slaves have the DC system time unit (SII word 0 enables SYNC out and latch in), so DC
+// tests can use them: the system time answers, runs with segment time and takes a write.
+TEST(Generic, HasTheDcSystemTimeUnit) {
+  Segment segment;
+  test::add_device(segment, "a", test::profile("generic"));
+  test::add_device(segment, "b", test::profile("generic"));
+  SimMaster m(segment);
+  m.assign_stations();
+  EXPECT_EQ(sii_of(segment.esc(0)).pdi_control, 0x0C08);
+  EXPECT_EQ(segment.esc(0).read_u8(wire::reg::kEscConfiguration) & 0x0C, 0x0C);
+  const auto fp = [&](std::size_t pos, std::uint16_t ado) { return test::fp(m.station(pos), ado); };
+  auto t1 = m.exchange(wire::Command::fprd, fp(0, 0x0910), Bytes(8, 0));
+  EXPECT_EQ(t1.wkc, 1);
+  m.wait(1'000'000);
+  auto t2 = m.exchange(wire::Command::fprd, fp(0, 0x0910), Bytes(8, 0));
+  ASSERT_EQ(t2.wkc, 1);
+  const auto elapsed =
+      static_cast<std::int64_t>(wire::load_le64(t2.data.data()) - wire::load_le64(t1.data.data()));
+  EXPECT_GE(elapsed, 1'000'000);
+  EXPECT_LE(elapsed, 1'020'000);  // the frames' own 10 µs and the hop times
+  // FRMW of the reference time: the first reads it, the second takes it.
+  auto frmw = m.exchange(wire::Command::frmw, fp(0, 0x0910), Bytes(8, 0));
+  EXPECT_EQ(frmw.wkc, 2);
+  auto brd = m.exchange(wire::Command::brd, wire::physical_address(0, 0x0918), Bytes(4, 0));
+  EXPECT_EQ(brd.wkc, 2);
+}
+
 // ---- EL3202 ---------------------------------------------------------------------------------
 
 class El3202 : public ::testing::Test {

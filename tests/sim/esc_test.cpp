@@ -536,6 +536,16 @@ TEST(SyncManagerMailbox, ReplyIsReadOnceThenTheMailboxIsEmpty) {
   EXPECT_EQ(again.wkc, 1);
   EXPECT_EQ(again.data, request);
   EXPECT_TRUE(segment.esc(0).sync_manager(1).config.pdi_control.repeat_ack);
+
+  // A shorter reply overwrites only its own bytes: the rest of the buffer still holds the tail
+  // of the earlier one, as real ESC RAM does (replay-ek1914-el3004-mailbox.pcapng).
+  const std::vector<std::uint8_t> short_reply{0xA0, 0xA1, 0xA2, 0xA3, 0xA4, 0xA5, 0xA6, 0xA7};
+  ASSERT_TRUE(segment.esc(0).pdi_mailbox_send(1, short_reply));
+  auto tail = exchange(segment, Command::aprd, ap(0x1080), std::vector<std::uint8_t>(128));
+  ASSERT_EQ(tail.wkc, 1);
+  std::vector<std::uint8_t> expected = request;
+  std::copy(short_reply.begin(), short_reply.end(), expected.begin());
+  EXPECT_EQ(tail.data, expected);
 }
 
 TEST(SyncManagerConfiguration, StartAndLengthOnlyChangeWhileDisabled) {

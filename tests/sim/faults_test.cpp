@@ -694,6 +694,48 @@ TEST(FaultForms, CommandLineWords) {
   EXPECT_THAT(f.error().message(), HasSubstr("unknown fault kind 'nonsense'"));
 }
 
+// The keys a JSON/YAML effect takes and the command-line arguments come from one table: every
+// argument of `ecat sim fault kinds` is a key (INDEX:SUB two, KIND[=VALUE] two).
+TEST(FaultForms, KeysAndWordsFollowTheArgumentTable) {
+  const auto message = [](std::string_view json) {
+    auto r = parse_fault_json(json);
+    EXPECT_FALSE(r.ok()) << json;
+    return r.ok() ? std::string() : r.error().message();
+  };
+  EXPECT_EQ(message(R"({"kind":"mailbox_abort","slave":"a","index":1,"code":1,"x":1})"),
+            "fault.x: unknown key (known: kind, slave, index, subindex, code, stage, once)");
+  EXPECT_EQ(message(R"({"kind":"mailbox_protocol_fault","slave":"a","x":1})"),
+            "fault.x: unknown key (known: kind, slave, index, subindex, stage, protocol, value, "
+            "once)");
+  EXPECT_EQ(message(R"({"kind":"corrupt_byte","x":1})"),
+            "fault.x: unknown key (known: kind, next, offset, mask)");
+  EXPECT_EQ(message(R"({"kind":"mailbox_protocol_fault","slave":"a","index":1,"subindex":0,)"
+                    R"("stage":"upload_init","protocol":"coe_service","value":16})"),
+            "fault.value: 16 is out of range (0 to 15)");
+  // Words: the same keys filled in order, optional tails left out.
+  const std::vector<std::string> words{"mailbox_protocol_fault", "mbx", "0x2000:2", "upload_init",
+                                       "sdo_command=0x61"};
+  auto f = parse_fault_words(words);
+  ASSERT_TRUE(f.ok()) << f.error().describe();
+  EXPECT_EQ(f->effect.index, 0x2000);
+  EXPECT_EQ(f->effect.subindex, 2);
+  EXPECT_EQ(f->effect.protocol.kind, ProtocolFaultKind::sdo_command);
+  EXPECT_EQ(f->effect.protocol.value, 0x61);
+  const std::vector<std::string> partial{"corrupt_byte", "20"};
+  auto c = parse_fault_words(partial);
+  ASSERT_TRUE(c.ok()) << c.error().describe();
+  EXPECT_EQ(c->effect.offset, 20u);
+  EXPECT_EQ(c->effect.mask, 0xFF);
+  const std::vector<std::string> no_colon{"mailbox_abort", "mbx", "0x2000", "0x06010002"};
+  auto bad = parse_fault_words(no_colon);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.error().message(),
+            "mailbox_abort: '0x2000' is not INDEX:SUB (e.g. 0x2000:1) (usage: mailbox_abort SLAVE "
+            "INDEX:SUB CODE [STAGE])");
+  for (const auto& k : fault_kinds())
+    EXPECT_EQ(k.name, to_string(k.kind));
+}
+
 TEST(FaultForms, KindTableIsComplete) {
   const auto& kinds = fault_kinds();
   for (std::size_t i = 0; i < kinds.size(); ++i) {

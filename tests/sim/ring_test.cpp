@@ -14,6 +14,7 @@
 #include <ecat/sim/device.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
+#include <ecat/sim/standard_application.hpp>
 
 namespace ecat::sim {
 namespace {
@@ -74,6 +75,108 @@ simulator:
   EXPECT_EQ(ring->slaves[4].name, "rep_3");
   EXPECT_EQ(ring->slaves[4].line, 14);
   EXPECT_FALSE(ring->slaves[2].parent.has_value());
+}
+
+TEST(RingParse, EscPresetsAndStartStateShapeTheEsc) {
+  auto ring = parse_ring(R"(simulator:
+  slaves:
+    - name: a
+      profile: generic
+      esc: {type: 0x14, revision: 0x03, build: 0x0102, fmmus: 3, sync_managers: 4, ram_kib: 1,
+            ports: 0x0F, features: 0x0180, sii_busy_ns: 700000, sii_read_bytes: 4}
+      start: {station: 0x1001, al_status: 0x0008}
+    - {name: b, profile: generic}
+)",
+                         "ring.yaml");
+  ASSERT_TRUE(ring.ok()) << ring.error().describe();
+  const EscPreset& preset = ring->slaves[0].device.esc;
+  EXPECT_EQ(preset.type, 0x14);
+  EXPECT_EQ(preset.sii_busy_ns, 700000);
+  EXPECT_EQ(preset.sii_read_bytes, 4);
+  EXPECT_EQ(ring->slaves[0].device.start.station, 0x1001);
+  EXPECT_TRUE(ring->slaves[1].device.esc.empty());
+  auto segment = build_segment(*ring);
+  ASSERT_TRUE(segment.ok()) << segment.error().describe();
+  const Esc& a = (*segment)->esc(0);
+  EXPECT_EQ(a.read_u8(0x0000), 0x14);
+  EXPECT_EQ(a.read_u8(0x0001), 0x03);
+  EXPECT_EQ(a.read_u16(0x0002), 0x0102);
+  EXPECT_EQ(a.read_u8(0x0004), 3);
+  EXPECT_EQ(a.read_u8(0x0005), 4);
+  EXPECT_EQ(a.read_u8(0x0006), 1);
+  EXPECT_EQ(a.read_u8(0x0007), 0x0F);
+  // Bit 2 clear: no DC unit at all (and bit 3, 64-bit DC, goes with it).
+  EXPECT_EQ(a.read_u16(0x0008), 0x0180);
+  EXPECT_EQ((*segment)->esc(0).dc(), nullptr);
+  EXPECT_EQ(a.read_u16(0x0502) & 0x0040, 0);  // 4-byte SII reads
+  EXPECT_EQ(a.hardware().sii_busy_ns, 700000);
+  EXPECT_EQ(a.station_address(), 0x1001);
+  EXPECT_EQ(a.al_state(), wire::AlState::op);
+  EXPECT_EQ(a.read_u16(0x0120), 0x0008);
+  // Without presets the profile's own ESC: 8 FMMUs, DC, 8-byte reads, station 0, INIT.
+  const Esc& b = (*segment)->esc(1);
+  EXPECT_EQ(b.read_u8(0x0004), 8);
+  EXPECT_NE((*segment)->esc(1).dc(), nullptr);
+  EXPECT_EQ(b.read_u16(0x0502) & 0x0040, 0x0040);
+  EXPECT_EQ(b.station_address(), 0);
+  EXPECT_EQ(b.al_state(), wire::AlState::init);
+}
+
+TEST(RingParse, EepromObjectsAndFirmwareNone) {
+  if (!has_profile("EL3202")) GTEST_SKIP() << "no EL3202 profile";
+  const fs::path dir = fs::temp_directory_path() / fmt::format("ecat-ring-obj-{}", ::getpid());
+  fs::create_directories(dir);
+  {
+    DeviceConfig config;
+    config.profile = "EL3202";
+    auto device = make_device(config);
+    ASSERT_TRUE(device.ok());
+    const auto image = (*device)->eeprom();
+    std::ofstream(dir / "rtd.bin", std::ios::binary)
+        .write(reinterpret_cast<const char*>(image.data()),
+               static_cast<std::streamsize>(image.size()));
+  }
+  std::ofstream(dir / "r.yaml") << R"(simulator:
+  slaves:
+    - name: rtd
+      profile: eeprom
+      file: rtd.bin
+      objects:
+        - {index: 0x1018, subindex: 4, value: "78563412"}
+        - {index: 0x2000, value: "34 12", writable: true}
+        - {index: 0x2001, subindex: 1, abort: 0x06010000}
+        - {index: 0x2001, subindex: 2, value: "01"}
+    - {name: bare, profile: eeprom, file: rtd.bin, options: {firmware: none}}
+)";
+  auto ring = load_ring((dir / "r.yaml").string());
+  ASSERT_TRUE(ring.ok()) << ring.error().describe();
+  ASSERT_EQ(ring->slaves[0].device.objects.size(), 4u);
+  EXPECT_EQ(ring->slaves[0].device.objects[1].value, (std::vector<std::uint8_t>{0x34, 0x12}));
+  EXPECT_EQ(ring->slaves[0].device.objects[2].abort_code, 0x06010000u);
+  auto segment = build_segment(*ring);
+  ASSERT_TRUE(segment.ok()) << segment.error().describe();
+  auto* app = dynamic_cast<StandardApplication*>(&(*segment)->esc(0).application());
+  ASSERT_NE(app, nullptr);
+  const ObjectDictionary& od = app->dictionary();
+  ASSERT_NE(od.find(0x1018, 4), nullptr);
+  EXPECT_EQ(od.find(0x1018, 4)->value, (std::vector<std::uint8_t>{0x78, 0x56, 0x34, 0x12}));
+  ASSERT_NE(od.find(0x2000, 0), nullptr);
+  EXPECT_EQ(od.find(0x2000, 0)->value, (std::vector<std::uint8_t>{0x34, 0x12}));
+  EXPECT_EQ(od.find(0x2000, 0)->access & kAccessReadWrite, kAccessReadWrite);
+  ASSERT_NE(od.find(0x2001, 1), nullptr);
+  ASSERT_NE(od.find(0x2001, 2), nullptr);
+  EXPECT_EQ(od.find(0x2001, 2)->access & kAccessReadWrite, kAccessRead);
+  // firmware=none: the ESC alone, no StandardApplication.
+  EXPECT_EQ(dynamic_cast<StandardApplication*>(&(*segment)->esc(1).application()), nullptr);
+  DeviceConfig bad;
+  bad.profile = "eeprom";
+  bad.file = (dir / "rtd.bin").string();
+  bad.options["firmware"] = "custom";
+  auto refused = make_device(bad);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().message(),
+            "profile 'eeprom': firmware 'custom' is not 'standard' or 'none'");
+  fs::remove_all(dir);
 }
 
 TEST(RingParse, ReadsWiringFaultsAndAcceptsMasterSections) {
@@ -172,7 +275,7 @@ TEST(RingErrors, Slaves) {
             "ring.yaml:4: simulator.slaves[1].name: a slave named 'a' already exists");
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, colour: 1}\n"),
             "ring.yaml:3: simulator.slaves[0].colour: unknown key (known: name, profile, file, "
-            "options, clock, parent, port, cable_delay_ns, timing, count)");
+            "options, clock, esc, start, objects, parent, port, cable_delay_ns, timing, count)");
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, parent: a}\n"),
             "ring.yaml:3: simulator.slaves[0]: the first slave is cabled to the master: it has "
             "no parent or port");
@@ -208,6 +311,39 @@ TEST(RingErrors, Slaves) {
             "ring.yaml:3: simulator.slaves[0].count: 0 is out of range (1 to 1024)");
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, count: x}\n"),
             "ring.yaml:3: simulator.slaves[0].count: 'x' is not an integer (decimal or 0x hex)");
+}
+
+TEST(RingErrors, EscStartAndObjects) {
+  EXPECT_EQ(
+      error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: {fmmus: 17}}\n"),
+      "ring.yaml:3: simulator.slaves[0].esc.fmmus: 17 is out of range (1 to 16)");
+  EXPECT_EQ(
+      error_of(
+          "simulator:\n  slaves:\n    - {name: a, profile: generic, esc: {sii_read_bytes: 6}}\n"),
+      "ring.yaml:3: simulator.slaves[0].esc.sii_read_bytes: 6 bytes: an SII interface reads 4 or "
+      "8");
+  EXPECT_EQ(
+      error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: {colour: 1}}\n"),
+      "ring.yaml:3: simulator.slaves[0].esc.colour: unknown key (known: type, revision, "
+      "build, fmmus, sync_managers, ram_kib, ports, features, sii_busy_ns, sii_read_bytes)");
+  EXPECT_EQ(
+      error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, start: {al_status: 5}}\n"),
+      "ring.yaml:3: simulator.slaves[0].start.al_status: 0x0005 holds no AL state (INIT 1, PREOP "
+      "2, BOOT 3, SAFEOP 4, OP 8; + 0x10 for the error flag)");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, objects: []}\n"),
+            "ring.yaml:3: simulator.slaves[0].objects: profile 'generic' takes no objects (only "
+            "'eeprom' does)");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: eeprom, file: a.bin, "
+                     "objects: [{index: 0x2000, value: \"12 3\"}]}\n"),
+            "ring.yaml:3: simulator.slaves[0].objects[0].value: an odd number of hex digits");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: eeprom, file: a.bin, "
+                     "objects: [{index: 0x2000, value: \"0g\"}]}\n"),
+            "ring.yaml:3: simulator.slaves[0].objects[0].value: 'g' at offset 1 is not a hex digit "
+            "(bytes as hex: \"02000000\")");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: eeprom, file: a.bin, "
+                     "objects: [{index: 0x2000}]}\n"),
+            "ring.yaml:3: simulator.slaves[0].objects[0]: an object needs a 'value' or an 'abort' "
+            "code");
 }
 
 TEST(RingErrors, WiringAndFaults) {

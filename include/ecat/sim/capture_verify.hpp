@@ -67,6 +67,9 @@ struct VerifyReport {
   std::size_t data_matched = 0;
   std::map<wire::Command, CommandTally> per_command;
   std::map<std::string, std::size_t> exclusions;  // rule id -> datagrams it applied to
+  // rule id -> datagrams in which it left out bits that differed (without the rule they would
+  // be mismatches): what each rule actually hides.
+  std::map<std::string, std::size_t> differences_left_out;
   std::vector<DatagramMismatch> mismatches;
 
   double data_ratio() const noexcept {

@@ -202,6 +202,7 @@ Result<Fault> parse_fault_words(std::span<const std::string> words);
 
 struct FaultKindInfo {
   FaultKind kind;
+  std::string_view name;       // "drop_responses" (what to_string(kind) returns)
   std::string_view arguments;  // command-line arguments after the kind, "" for none
   std::string_view summary;
 };

@@ -1,6 +1,7 @@
 // Firmware shared by several profiles (private to the simulator).
 #pragma once
 
+#include <ecat/sim/device.hpp>
 #include <ecat/sim/standard_application.hpp>
 
 #include "sim/devices/cia402.hpp"
@@ -8,6 +9,16 @@
 namespace ecat::sim::devices {
 
 // A device whose signals are the entries its default PDO layout maps (EEPROM images, ESI files).
+// No firmware at all: a device whose ESC answers AL control by device emulation (couplers,
+// simple I/O terminals without a microcontroller).
+class NoFirmware : public DeviceApplication {
+ public:
+  void on_al_control(Esc& esc, std::uint16_t control) override {
+    (void)esc;
+    (void)control;
+  }
+};
+
 class PdoSignalDevice : public StandardApplication {
  public:
   explicit PdoSignalDevice(StandardConfig config);

@@ -1,6 +1,8 @@
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <charconv>
+#include <map>
 #include <set>
 
 #include <fmt/format.h>
@@ -128,6 +130,7 @@ Result<std::unique_ptr<Esc>> build_device(const DeviceConfig& config, EscHardwar
                  fmt::format("profile '{}': cannot encode its SII image: {}", config.profile,
                              eeprom.error().describe()));
   }
+  config.esc.apply(hardware);
   auto esc = std::make_unique<Esc>(hardware, std::move(*eeprom), std::move(application));
   if (auto* dc = esc->dc()) dc->set_clock(config.clock);
   return esc;
@@ -137,6 +140,7 @@ Result<std::unique_ptr<Esc>> build_device_from_eeprom(const DeviceConfig& config
                                                       EscHardware hardware,
                                                       std::vector<std::uint8_t> eeprom,
                                                       std::unique_ptr<Application> application) {
+  config.esc.apply(hardware);
   auto esc = std::make_unique<Esc>(hardware, std::move(eeprom), std::move(application));
   if (auto* dc = esc->dc()) dc->set_clock(config.clock);
   return esc;
@@ -184,6 +188,37 @@ std::string signal_type_name(const ObjectEntry& entry) {
 
 namespace {
 
+// A CoE entry for a preset: typed by its size (strings for the standard string objects),
+// writable when the device accepted a download, refusing with the abort code it answered.
+ObjectEntry preset_entry(const ObjectPreset& o) {
+  const std::uint16_t access = o.writable ? kAccessReadWrite : kAccessRead;
+  ObjectEntry e;
+  const bool text = o.index == 0x1008 || o.index == 0x1009 || o.index == 0x100A;
+  if (text) {
+    e = make_string_entry(o.subindex, fmt::format("SubIndex {:03}", o.subindex),
+                          std::string(o.value.begin(), o.value.end()), access);
+  } else {
+    // Unsigned integers of the standard sizes, octet strings otherwise.
+    constexpr std::array<std::pair<std::size_t, DataType>, 4> kBySize{{{1, DataType::unsigned8},
+                                                                       {2, DataType::unsigned16},
+                                                                       {4, DataType::unsigned32},
+                                                                       {8, DataType::unsigned64}}};
+    const auto sized = std::find_if(kBySize.begin(), kBySize.end(),
+                                    [&](const auto& p) { return p.first == o.value.size(); });
+    e = sized != kBySize.end() ? make_entry(o.subindex, "", sized->second, access, o.value)
+                               : make_octet_entry(o.subindex, "", o.value, access);
+    e.name = fmt::format("SubIndex {:03}", o.subindex);
+  }
+  if (o.abort_code) {
+    const std::uint32_t code = *o.abort_code;
+    e.on_read = [code](ObjectEntry&, const AccessContext&) { return SdoStatus::abort(code); };
+    e.on_write = [code](const ObjectEntry&, wire::Bytes, const AccessContext&) {
+      return SdoStatus::abort(code);
+    };
+  }
+  return e;
+}
+
 std::string snake_case(std::string_view text) {
   std::string out;
   bool gap = false;
@@ -201,6 +236,34 @@ std::string snake_case(std::string_view text) {
 }
 
 }  // namespace
+
+void apply_object_presets(ObjectDictionary& od, const std::vector<ObjectPreset>& presets) {
+  std::map<std::uint16_t, std::vector<const ObjectPreset*>> by_index;
+  for (const auto& o : presets)
+    by_index[o.index].push_back(&o);
+  for (const auto& [index, objects] : by_index) {
+    OdObject* existing = od.find(index);
+    if (existing != nullptr) {
+      for (const ObjectPreset* o : objects) {
+        if (ObjectEntry* e = existing->entry(o->subindex); e != nullptr && !o->abort_code) {
+          e->value = o->value;
+          if (o->writable) e->access |= kAccessReadWrite;
+        }
+      }
+      continue;
+    }
+    const bool var = objects.size() == 1 && objects.front()->subindex == 0;
+    if (var) {
+      od.add(make_var(index, fmt::format("Object {:04X}", index), preset_entry(*objects.front())));
+    } else {
+      std::vector<ObjectEntry> entries;
+      for (const ObjectPreset* o : objects) {
+        if (o->subindex != 0) entries.push_back(preset_entry(*o));
+      }
+      od.add(make_record(index, fmt::format("Object {:04X}", index), std::move(entries)));
+    }
+  }
+}
 
 std::vector<GeneratedSignal> signals_from_layout(const ObjectDictionary& od,
                                                  const std::vector<ProcessDataSyncManager>& sms) {
@@ -246,6 +309,31 @@ std::vector<GeneratedSignal> signals_from_layout(const ObjectDictionary& od,
 }
 
 }  // namespace ecat::sim::devices
+
+namespace ecat::sim {
+
+bool EscPreset::empty() const noexcept {
+  return !type && !revision && !build && !fmmu_count && !sync_manager_count && !ram_size_kib &&
+         !ports && !features && !sii_busy_ns && !sii_read_bytes;
+}
+
+void EscPreset::apply(EscHardware& hw) const {
+  if (type) hw.type = *type;
+  if (revision) hw.revision = *revision;
+  if (build) hw.build = *build;
+  if (fmmu_count) hw.fmmu_count = *fmmu_count;
+  if (sync_manager_count) hw.sync_manager_count = *sync_manager_count;
+  if (ram_size_kib) hw.ram_size_kib = *ram_size_kib;
+  if (ports) hw.ports = wire::PortDescriptor::decode(*ports);
+  if (features) {
+    hw.features = wire::EscFeatures::decode(*features);
+    hw.dc_supported = hw.features.dc_supported;
+  }
+  if (sii_busy_ns) hw.sii_busy_ns = *sii_busy_ns;
+  if (sii_read_bytes) hw.sii_reads_8_bytes = *sii_read_bytes == 8;
+}
+
+}  // namespace ecat::sim
 
 namespace ecat::sim::devices {
 

@@ -4,7 +4,9 @@
 // PDOs (an EL2004's four 1-bit RxPDOs make 1 byte), as a master computes them. An image declaring
 // CoE gets an object dictionary with 0x1000, 0x1008, 0x1018 and the PDO mapping and assignment
 // objects built from its PDOs (writable in PREOP when its CoE details offer PDO assignment or
-// configuration). Signals: one per mapped entry (see signals_from_layout).
+// configuration), plus the ring's object presets. Signals: one per mapped entry (see
+// signals_from_layout). Option firmware=none: no firmware at all, for devices whose ESC answers
+// AL control by device emulation (the SII's ESC configuration must say so).
 #include <fstream>
 #include <iterator>
 
@@ -16,7 +18,14 @@
 namespace ecat::sim::devices {
 
 Result<std::unique_ptr<Esc>> make_eeprom_device(const DeviceConfig& config) {
-  if (auto ok = check_options(config, {}); !ok) return ok.error();
+  if (auto ok = check_options(config, {"firmware"}); !ok) return ok.error();
+  const auto firmware = config.options.find("firmware");
+  const bool no_firmware = firmware != config.options.end() && firmware->second == "none";
+  if (firmware != config.options.end() && !no_firmware && firmware->second != "standard") {
+    return Error(Errc::invalid_argument,
+                 fmt::format("profile 'eeprom': firmware '{}' is not 'standard' or 'none'",
+                             firmware->second));
+  }
   if (config.file.empty()) {
     return Error(Errc::invalid_argument, "profile 'eeprom' needs file=<path of an SII image>");
   }
@@ -45,11 +54,16 @@ Result<std::unique_ptr<Esc>> make_eeprom_device(const DeviceConfig& config) {
   cfg.dc.supported = !sii.dc.empty();
   const std::uint32_t serial_before = cfg.sii.identity.serial;
   if (auto ok = apply_common_options(config, cfg); !ok) return ok.error();
+  // After the common options: a ring's preset of 0x1018:04 is what the device answers.
+  apply_object_presets(cfg.dictionary, config.objects);
   if (cfg.sii.identity.serial != serial_before && eeprom.size() >= 0x20) {
     // The serial number lives outside the checksummed words: patch the image itself.
     wire::store_le32(&eeprom[2 * wire::sii_word::kSerialNumber], cfg.sii.identity.serial);
   }
   const EscHardware hw = hardware_for(sii, 4);
+  if (no_firmware) {
+    return build_device_from_eeprom(config, hw, std::move(eeprom), std::make_unique<NoFirmware>());
+  }
   return build_device_from_eeprom(config, hw, std::move(eeprom),
                                   std::make_unique<PdoSignalDevice>(std::move(cfg)));
 }

@@ -9,6 +9,8 @@
 
 namespace ecat::sim {
 
+namespace reg = wire::reg;
+
 namespace {
 
 // A device with an AL state machine and an identity, nothing else: for ESC-level tests and as a
@@ -38,6 +40,10 @@ Result<std::unique_ptr<Esc>> make_generic(const DeviceConfig& config) {
   }
   image.identity = {*vendor, *product, *revision, *serial};
   image.strings = {"Generic"};
+  // PDI control 0x08 (a microcontroller runs the AL state machine) and ESC configuration 0x0C
+  // (SYNC out and latch in units on): with DC units off the system time unit stays powered down
+  // (0x0910.. answer with WKC 0), so DC tests could not use generic slaves. As the servo profile.
+  image.pdi_control = 0x0C08;
   return devices::build_device(config, EscHardware{}, image,
                                std::make_unique<GenericApplication>());
 }
@@ -75,7 +81,17 @@ constexpr Profile kProfiles[] = {
 
 Result<std::unique_ptr<Esc>> make_device(const DeviceConfig& config) {
   for (const auto& p : kProfiles) {
-    if (config.profile == p.name) return p.make(config);
+    if (config.profile != p.name) continue;
+    auto esc = p.make(config);
+    if (!esc) return esc;
+    if (config.start.station) (*esc)->pdi_write_u16(reg::kStationAddress, *config.start.station);
+    if (config.start.al_status) {
+      // AL control as the master left it: the requested state the status shows.
+      const std::uint16_t status = *config.start.al_status;
+      (*esc)->pdi_write_u16(reg::kAlStatus, status);
+      (*esc)->pdi_write_u16(reg::kAlControl, static_cast<std::uint16_t>(status & 0x0F));
+    }
+    return esc;
   }
   std::string known;
   for (const auto& p : kProfiles)

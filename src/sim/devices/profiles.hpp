@@ -112,6 +112,11 @@ struct GeneratedSignal {
 std::vector<GeneratedSignal> signals_from_layout(const ObjectDictionary& od,
                                                  const std::vector<ProcessDataSyncManager>& sms);
 
+// Sets the preset entries that exist (their value; writable when the preset says so; an entry
+// with an abort code keeps its value) and adds objects for the others: one VAR for a lone
+// subindex 0, else a RECORD of the non-zero subindices, each entry typed by its size.
+void apply_object_presets(ObjectDictionary& od, const std::vector<ObjectPreset>& presets);
+
 // "bool", "i16", "u32", "f32", ... for an entry's type.
 std::string signal_type_name(const ObjectEntry& entry);
 
