@@ -33,6 +33,8 @@ enum class Errc : std::uint8_t {
   sdo_abort,          // a CoE SDO transfer was aborted (abort code attached)
   mailbox_error,      // a mailbox exchange failed (protocol error, counter, unexpected reply)
   expired,            // realtime work was dropped because it became stale before it was sent
+  not_ready,          // no value yet (process data before the first valid cycle)
+  stale,              // a value exists but is older than its freshness window allows
   internal,           // a bug in ecat: please report it
 };
 
@@ -46,6 +48,25 @@ class Error {
   Errc code() const noexcept { return code_; }
   const std::string& message() const noexcept { return message_; }
   const Error* cause() const noexcept { return cause_.get(); }
+
+  // A number that goes with the code, for callers that branch on it: the AL status code of an
+  // Errc::al_error, the abort code of an Errc::sdo_abort, the mailbox error detail of an
+  // Errc::mailbox_error. code_value() searches the cause chain for the first error with `code`.
+  Error&& with_value(std::uint32_t value) && {
+    value_ = value;
+    return std::move(*this);
+  }
+  Error& with_value(std::uint32_t value) & {
+    value_ = value;
+    return *this;
+  }
+  const std::optional<std::uint32_t>& value() const noexcept { return value_; }
+  std::optional<std::uint32_t> code_value(Errc code) const noexcept {
+    for (const Error* e = this; e != nullptr; e = e->cause()) {
+      if (e->code() == code && e->value()) return e->value();
+    }
+    return std::nullopt;
+  }
 
   // Wraps this error as the cause of a new error that says what was being attempted:
   //   sii_error.context(Errc::io_error, "reading SII of slave 3")
@@ -64,6 +85,7 @@ class Error {
   Errc code_;
   std::string message_;
   std::shared_ptr<const Error> cause_;
+  std::optional<std::uint32_t> value_;
 };
 
 // A value of type T or an Error. Deliberately small: construct from either, test with ok() or
@@ -73,11 +95,10 @@ class [[nodiscard]] Result {
  public:
   using value_type = T;
 
-  template <class U = T,
-            std::enable_if_t<std::is_constructible_v<T, U&&> &&
-                                 !std::is_same_v<std::decay_t<U>, Error> &&
-                                 !std::is_same_v<std::decay_t<U>, Result>,
-                             int> = 0>
+  template <class U = T, std::enable_if_t<std::is_constructible_v<T, U&&> &&
+                                              !std::is_same_v<std::decay_t<U>, Error> &&
+                                              !std::is_same_v<std::decay_t<U>, Result>,
+                                          int> = 0>
   Result(U&& value) : v_(std::in_place_index<0>, std::forward<U>(value)) {}  // NOLINT
   Result(Error error) : v_(std::in_place_index<1>, std::move(error)) {}      // NOLINT
 
@@ -127,7 +148,9 @@ class [[nodiscard]] Result<void> {
 };
 
 // Convenience for `return ecat::ok();` in functions returning Result<void>.
-inline Result<void> ok() { return {}; }
+inline Result<void> ok() {
+  return {};
+}
 
 namespace detail {
 [[noreturn]] void result_misuse(const char* what, const Error* error) noexcept;

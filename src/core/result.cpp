@@ -24,6 +24,8 @@ std::string_view to_string(Errc code) noexcept {
     case Errc::sdo_abort: return "SDO abort";
     case Errc::mailbox_error: return "mailbox error";
     case Errc::expired: return "expired";
+    case Errc::not_ready: return "not ready";
+    case Errc::stale: return "stale";
     case Errc::internal: return "internal error";
   }
   return "unknown error";

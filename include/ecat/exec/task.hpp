@@ -15,10 +15,13 @@
 // exception escaping a task is a bug and terminates.
 #pragma once
 
+#include <chrono>
+#include <condition_variable>
 #include <coroutine>
 #include <cstddef>
 #include <exception>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -208,6 +211,28 @@ Task<std::vector<T>> when_all(EventLoop& loop, std::vector<Task<T>> tasks) {
   for (auto& r : state.results)
     out.push_back(std::move(*r));
   co_return out;
+}
+
+// Runs `task` on the loop (which runs on another thread) and blocks the calling thread until the
+// task finishes or `timeout` passes: the bridge from application threads to the control loop.
+// Returns nullopt on timeout (the task keeps running to its end; its result is dropped). Must not
+// be called on the loop thread (it would wait for itself).
+template <class T>
+std::optional<T> run_blocking(EventLoop& loop, Task<T> task, std::chrono::nanoseconds timeout) {
+  struct Shared {
+    std::mutex mutex;
+    std::condition_variable done;
+    std::optional<T> value;
+  };
+  auto shared = std::make_shared<Shared>();
+  spawn(loop, std::move(task), [shared](T&& value) {
+    std::lock_guard lock(shared->mutex);
+    shared->value.emplace(std::move(value));
+    shared->done.notify_all();
+  });
+  std::unique_lock lock(shared->mutex);
+  shared->done.wait_for(lock, timeout, [&] { return shared->value.has_value(); });
+  return std::move(shared->value);
 }
 
 }  // namespace ecat::exec
