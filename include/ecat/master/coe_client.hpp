@@ -1,0 +1,110 @@
+// CANopen over EtherCAT, the master's side: SDO upload and download (expedited, normal and
+// segmented; single entries and complete access) and the SDO information service, over a slave's
+// Mailbox, from tasks on the control thread.
+//
+//   auto value = co_await master::upload<std::uint16_t>(mailbox, 0x6041, 0);
+//   auto done = co_await master::download_sdo(mailbox, 0x1C12, 0, {1, 0, 0x01, 0x16},
+//                                             {.complete_access = true});
+//
+// A transfer holds the mailbox for its whole length, so transfers from several tasks to one slave
+// queue behind each other, and transfers to different slaves run side by side (sharing frames).
+//
+// Every reply is checked as hostile input: command, index and subindex, toggle bit, sizes. A
+// reply that breaks the protocol fails the transfer (Errc::mailbox_error, or Errc::malformed for
+// bytes that do not decode) with a message naming what was wrong, and the master then aborts the
+// transfer on the slave's side. An SDO abort from the slave fails it with Errc::sdo_abort:
+//   "SDO upload 0x6041:00 of slave 0x1001 aborted: 0x06020000 object does not exist in the object
+//    dictionary"
+// and the abort code is sdo_abort_code(error).
+#pragma once
+
+#include <chrono>
+#include <concepts>
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <type_traits>
+#include <vector>
+
+#include <ecat/exec/task.hpp>
+#include <ecat/master/mailbox.hpp>
+#include <ecat/result.hpp>
+#include <ecat/wire/sdo_info.hpp>
+
+namespace ecat::master {
+
+struct SdoOptions {
+  // Transfer the whole object (subindex 0 or 1 only). Starting at subindex 0 the value begins with
+  // subindex 0 padded to 16 bits (see wire::split_complete_access).
+  bool complete_access = false;
+  // For each mailbox exchange of the transfer (a segmented transfer has several).
+  std::chrono::nanoseconds timeout = std::chrono::seconds(1);
+  // Uploads announcing more than this fail before their segments are fetched.
+  std::size_t max_upload_size = 16 * 1024 * 1024;
+};
+
+// The value of index:subindex (with complete access: of the object from subindex on).
+exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::uint16_t index,
+                                                         std::uint8_t subindex,
+                                                         SdoOptions options = {});
+
+// Writes `data`: expedited for 1..4 bytes (without complete access), otherwise normal, with
+// segments when the value does not fit one mailbox.
+exec::Task<Result<void>> download_sdo(Mailbox& mailbox, std::uint16_t index, std::uint8_t subindex,
+                                      std::vector<std::uint8_t> data, SdoOptions options = {});
+
+// The SDO abort code of an Errc::sdo_abort error (searching its causes), or nullopt.
+std::optional<std::uint32_t> sdo_abort_code(const Error& error) noexcept;
+
+// ---- Typed helpers for integral values (little-endian, exactly sizeof(T) bytes) -------------
+
+namespace detail {
+Error typed_size_mismatch(std::uint16_t station, std::uint16_t index, std::uint8_t subindex,
+                          std::size_t got, std::size_t expected);
+}  // namespace detail
+
+template <class T>
+concept SdoIntegral = std::integral<T> && !std::same_as<T, bool>;
+
+template <SdoIntegral T>
+exec::Task<Result<T>> upload(Mailbox& mailbox, std::uint16_t index, std::uint8_t subindex,
+                             SdoOptions options = {}) {
+  auto bytes = co_await upload_sdo(mailbox, index, subindex, options);
+  if (!bytes) co_return bytes.error();
+  if (bytes->size() != sizeof(T)) {
+    co_return detail::typed_size_mismatch(mailbox.station(), index, subindex, bytes->size(),
+                                          sizeof(T));
+  }
+  using Raw = std::make_unsigned_t<T>;
+  Raw raw = 0;
+  for (std::size_t i = 0; i < sizeof(T); ++i)
+    raw = static_cast<Raw>(raw | static_cast<Raw>(Raw{(*bytes)[i]} << (8 * i)));
+  co_return static_cast<T>(raw);
+}
+
+template <SdoIntegral T>
+exec::Task<Result<void>> download(Mailbox& mailbox, std::uint16_t index, std::uint8_t subindex,
+                                  T value, SdoOptions options = {}) {
+  std::vector<std::uint8_t> bytes(sizeof(T));
+  const auto raw = static_cast<std::make_unsigned_t<T>>(value);
+  for (std::size_t i = 0; i < sizeof(T); ++i)
+    bytes[i] = static_cast<std::uint8_t>(raw >> (8 * i));
+  co_return co_await download_sdo(mailbox, index, subindex, std::move(bytes), options);
+}
+
+// ---- SDO information service -------------------------------------------------------------------
+
+// The object indices of a list (for OdListType::number_of_objects: the lengths of lists 1..5).
+exec::Task<Result<std::vector<std::uint16_t>>> od_list(Mailbox& mailbox, wire::OdListType type,
+                                                       SdoOptions options = {});
+exec::Task<Result<wire::ObjectDescriptionResponse>> object_description(Mailbox& mailbox,
+                                                                       std::uint16_t index,
+                                                                       SdoOptions options = {});
+// `value_info`: wire::kValueInfo* flags (unit, default, minimum, maximum value).
+exec::Task<Result<wire::EntryDescriptionResponse>> entry_description(Mailbox& mailbox,
+                                                                     std::uint16_t index,
+                                                                     std::uint8_t subindex,
+                                                                     std::uint8_t value_info,
+                                                                     SdoOptions options = {});
+
+}  // namespace ecat::master

@@ -1,0 +1,496 @@
+#include <algorithm>
+#include <string>
+#include <utility>
+#include <variant>
+
+#include <fmt/format.h>
+
+#include <ecat/master/coe_client.hpp>
+#include <ecat/wire/coe.hpp>
+#include <ecat/wire/sdo_abort.hpp>
+
+namespace ecat::master {
+
+namespace {
+
+std::string object_name(std::uint16_t index, std::uint8_t subindex) {
+  return fmt::format("0x{:04X}:{:02X}", index, subindex);
+}
+
+std::string hex_bytes(wire::Bytes bytes) {
+  std::string out;
+  for (std::size_t i = 0; i < bytes.size() && i < 16; ++i)
+    out += fmt::format("{}{:02x}", i == 0 ? "" : " ", bytes[i]);
+  if (bytes.size() > 16) out += " ...";
+  return out;
+}
+
+// The index and subindex a message names, when it names one.
+std::optional<std::pair<std::uint16_t, std::uint8_t>> named_object(const wire::SdoMessage& m) {
+  if (const auto* r = std::get_if<wire::SdoInitiateUploadResponse>(&m)) {
+    return std::pair{r->index, r->subindex};
+  }
+  if (const auto* r = std::get_if<wire::SdoInitiateDownloadResponse>(&m)) {
+    return std::pair{r->index, r->subindex};
+  }
+  return std::nullopt;
+}
+
+std::optional<wire::CoeService> coe_service_of(const MailboxMessage& message) {
+  if (message.header.type != wire::MailboxType::coe) return std::nullopt;
+  auto coe = wire::decode_coe_header(message.data);
+  if (!coe) return std::nullopt;
+  return coe->service;
+}
+
+// Replies to an SDO request: everything but what is recognisably someone else's (a late
+// initiate response naming another object, SDO information traffic). Whatever else arrives is
+// taken as the reply and checked, so a broken reply fails the transfer instead of timing it out.
+Mailbox::ReplyFilter sdo_filter(std::uint16_t index, std::uint8_t subindex) {
+  return [index, subindex](const MailboxMessage& message) {
+    const auto service = coe_service_of(message);
+    if (service == wire::CoeService::sdo_information) return false;
+    if (service != wire::CoeService::sdo_response) return true;
+    auto sdo = wire::decode_sdo(message.data);
+    if (!sdo) return true;
+    const auto named = named_object(*sdo);
+    return !named || (named->first == index && named->second == subindex);
+  };
+}
+
+bool info_filter(const MailboxMessage& message) {
+  return coe_service_of(message) != wire::CoeService::sdo_response;
+}
+
+// One transfer: the mailbox, the object, and the words for errors.
+class Transfer {
+ public:
+  Transfer(Mailbox& mailbox, std::string what, std::uint16_t index, std::uint8_t subindex,
+           const SdoOptions& options)
+      : mailbox_(mailbox),
+        what_(std::move(what)),
+        index_(index),
+        subindex_(subindex),
+        options_(options) {}
+
+  const std::string& what() const noexcept { return what_; }
+
+  // Sends `request` and returns the SDO reply; a slave's abort becomes Errc::sdo_abort.
+  exec::Task<Result<wire::SdoMessage>> exchange(const Mailbox::Guard& guard,
+                                                const wire::SdoMessage& request) {
+    auto data = wire::encode_sdo(request);
+    if (!data) co_return data.error().context(Errc::invalid_argument, what_);
+    auto reply = co_await mailbox_.exchange(guard, wire::MailboxType::coe, std::move(*data),
+                                            options_.timeout, sdo_filter(index_, subindex_), what_);
+    if (!reply) {
+      // The slave may still be inside the transfer: tell it to give up (best effort).
+      if (reply.error().code() == Errc::timeout) {
+        co_await abort(guard, wire::SdoAbortCode::protocol_timeout);
+      }
+      co_return reply.error();
+    }
+    co_return parse(*reply);
+  }
+
+  // A protocol violation by the slave: the transfer is aborted on its side too.
+  exec::Task<Error> violation(const Mailbox::Guard& guard, Errc code, std::string problem,
+                              wire::SdoAbortCode abort_code) {
+    co_await abort(guard, abort_code);
+    co_return Error(code, fmt::format("{}: {}", what_, problem));
+  }
+
+ private:
+  Result<wire::SdoMessage> parse(const MailboxMessage& reply) {
+    const auto station = mailbox_.station();
+    if (reply.header.type != wire::MailboxType::coe) {
+      return Error(Errc::mailbox_error,
+                   fmt::format("{}: slave {:#06x} answered with a {} mailbox (type {}) instead of "
+                               "CoE",
+                               what_, station, wire::to_string(reply.header.type),
+                               static_cast<unsigned>(reply.header.type)));
+    }
+    auto coe = wire::decode_coe_header(reply.data);
+    if (!coe) {
+      return coe.error().context(
+          Errc::malformed, fmt::format("{}: the reply of slave {:#06x} has no complete CoE header "
+                                       "({} bytes of mailbox data)",
+                                       what_, station, reply.data.size()));
+    }
+    if (coe->service != wire::CoeService::sdo_response) {
+      return Error(Errc::mailbox_error,
+                   fmt::format("{}: slave {:#06x} answered with CoE service {} ({}), expected 3 "
+                               "(SDO response)",
+                               what_, station, static_cast<unsigned>(coe->service),
+                               wire::to_string(coe->service)));
+    }
+    auto message = wire::decode_sdo(reply.data);
+    if (!message) {
+      return message.error().context(
+          Errc::malformed, fmt::format("{}: slave {:#06x} sent an SDO response that does not "
+                                       "decode ({})",
+                                       what_, station, hex_bytes(reply.data)));
+    }
+    if (const auto* a = std::get_if<wire::SdoAbort>(&*message)) {
+      return Error(Errc::sdo_abort, fmt::format("{} aborted: 0x{:08X} {}", what_, a->code,
+                                                wire::sdo_abort_text(a->code)))
+          .with_value(a->code);
+    }
+    return std::move(*message);
+  }
+
+  exec::Task<void> abort(const Mailbox::Guard& guard, wire::SdoAbortCode code) {
+    wire::SdoAbort request{index_, subindex_, static_cast<std::uint32_t>(code),
+                           wire::SdoDirection::request};
+    auto data = wire::encode_sdo(request);
+    if (!data) co_return;
+    (void)co_await mailbox_.send(guard, wire::MailboxType::coe, std::move(*data), options_.timeout,
+                                 what_ + ": aborting the transfer");
+  }
+
+  Mailbox& mailbox_;
+  std::string what_;
+  std::uint16_t index_;
+  std::uint8_t subindex_;
+  SdoOptions options_;
+};
+
+std::string transfer_name(const char* direction, const Mailbox& mailbox, std::uint16_t index,
+                          std::uint8_t subindex, bool complete_access) {
+  return fmt::format("SDO {} {} of slave {:#06x}{}", direction, object_name(index, subindex),
+                     mailbox.station(), complete_access ? " (complete access)" : "");
+}
+
+Result<void> check_complete_access(const std::string& what, std::uint8_t subindex,
+                                   const SdoOptions& options) {
+  if (options.complete_access && subindex > 1) {
+    return Error(
+        Errc::invalid_argument,
+        fmt::format("{}: complete access starts at subindex 0 or 1, not {}", what, subindex));
+  }
+  return ok();
+}
+
+}  // namespace
+
+namespace detail {
+Error typed_size_mismatch(std::uint16_t station, std::uint16_t index, std::uint8_t subindex,
+                          std::size_t got, std::size_t expected) {
+  return Error(Errc::malformed,
+               fmt::format("SDO upload {} of slave {:#06x}: the slave sent {} bytes, expected {}",
+                           object_name(index, subindex), station, got, expected));
+}
+}  // namespace detail
+
+std::optional<std::uint32_t> sdo_abort_code(const Error& error) noexcept {
+  return error.code_value(Errc::sdo_abort);
+}
+
+exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::uint16_t index,
+                                                         std::uint8_t subindex,
+                                                         SdoOptions options) {
+  Transfer transfer(mailbox,
+                    transfer_name("upload", mailbox, index, subindex, options.complete_access),
+                    index, subindex, options);
+  const std::string& what = transfer.what();
+  if (auto valid = check_complete_access(what, subindex, options); !valid) {
+    co_return valid.error();
+  }
+  auto guard = co_await mailbox.lock();
+  auto reply = co_await transfer.exchange(
+      guard, wire::SdoInitiateUploadRequest{index, subindex, options.complete_access});
+  if (!reply) co_return reply.error();
+  const auto* init = std::get_if<wire::SdoInitiateUploadResponse>(&*reply);
+  if (init == nullptr) {
+    co_return co_await transfer.violation(
+        guard, Errc::mailbox_error,
+        fmt::format("the slave answered with an SDO {} instead of an initiate upload response",
+                    wire::to_string(*reply)),
+        wire::SdoAbortCode::command_specifier_unknown);
+  }
+  if (init->index != index || init->subindex != subindex) {
+    co_return co_await transfer.violation(
+        guard, Errc::mailbox_error,
+        fmt::format("the initiate upload response names {} instead",
+                    object_name(init->index, init->subindex)),
+        wire::SdoAbortCode::general_error);
+  }
+  std::vector<std::uint8_t> value = init->data;
+  if (init->expedited) co_return value;
+
+  const bool sized = init->size_indicated;
+  const std::size_t size = init->complete_size;
+  if (sized && size > options.max_upload_size) {
+    co_return co_await transfer.violation(
+        guard, Errc::out_of_range,
+        fmt::format("the slave announces {} bytes, more than SdoOptions::max_upload_size ({})",
+                    size, options.max_upload_size),
+        wire::SdoAbortCode::out_of_memory);
+  }
+  if (sized && value.size() >= size) {
+    value.resize(size);  // slaves may pad a normal response; the size says what counts
+    co_return value;
+  }
+  if (!sized) co_return value;  // a normal response without a size carries the whole value
+
+  bool toggle = false;
+  for (std::size_t segment = 1;; ++segment) {
+    auto seg_reply = co_await transfer.exchange(guard, wire::SdoUploadSegmentRequest{toggle});
+    if (!seg_reply) co_return seg_reply.error();
+    const auto* seg = std::get_if<wire::SdoUploadSegmentResponse>(&*seg_reply);
+    if (seg == nullptr) {
+      co_return co_await transfer.violation(
+          guard, Errc::mailbox_error,
+          fmt::format("the slave answered segment {} with an SDO {} instead of an upload segment "
+                      "response",
+                      segment, wire::to_string(*seg_reply)),
+          wire::SdoAbortCode::command_specifier_unknown);
+    }
+    if (seg->toggle != toggle) {
+      co_return co_await transfer.violation(
+          guard, Errc::mailbox_error,
+          fmt::format("upload segment {} carries toggle bit {}, expected {}", segment,
+                      seg->toggle ? 1 : 0, toggle ? 1 : 0),
+          wire::SdoAbortCode::toggle_bit_not_changed);
+    }
+    value.insert(value.end(), seg->data.begin(), seg->data.end());
+    const std::size_t limit = sized ? size : options.max_upload_size;
+    if (value.size() > limit) {
+      co_return co_await transfer.violation(
+          guard, Errc::malformed,
+          sized ? fmt::format("the slave sent {} bytes by segment {}, more than the {} it "
+                              "announced",
+                              value.size(), segment, size)
+                : fmt::format("the slave sent {} bytes by segment {}, more than "
+                              "SdoOptions::max_upload_size ({})",
+                              value.size(), segment, options.max_upload_size),
+          wire::SdoAbortCode::general_error);
+    }
+    if (seg->last) break;
+    toggle = !toggle;
+  }
+  if (sized && value.size() != size) {
+    co_return Error(Errc::malformed, fmt::format("{}: the slave announced {} bytes and sent {}",
+                                                 what, size, value.size()));
+  }
+  co_return value;
+}
+
+exec::Task<Result<void>> download_sdo(Mailbox& mailbox, std::uint16_t index, std::uint8_t subindex,
+                                      std::vector<std::uint8_t> data, SdoOptions options) {
+  Transfer transfer(mailbox,
+                    transfer_name("download", mailbox, index, subindex, options.complete_access),
+                    index, subindex, options);
+  const std::string& what = transfer.what();
+  if (auto valid = check_complete_access(what, subindex, options); !valid) {
+    co_return valid.error();
+  }
+  const std::size_t capacity = mailbox.max_request_data();
+  if (capacity < wire::kSdoFixedSize) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: the mailbox (SM0 of {} bytes) is too small for SDO transfers "
+                                "(at least 16 bytes)",
+                                what, mailbox.config().out_size));
+  }
+  if (data.size() > 0xFFFFFFFFu) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: {} bytes exceed the 32-bit SDO size", what, data.size()));
+  }
+  wire::SdoInitiateDownloadRequest init;
+  init.index = index;
+  init.subindex = subindex;
+  init.complete_access = options.complete_access;
+  std::size_t sent = 0;
+  if (!options.complete_access && !data.empty() && data.size() <= wire::kSdoMaxExpeditedData) {
+    init.expedited = true;
+    init.data = data;
+    sent = data.size();
+  } else {
+    init.complete_size = static_cast<std::uint32_t>(data.size());
+    sent = std::min(data.size(), capacity - wire::kSdoFixedSize);
+    init.data.assign(data.begin(), data.begin() + static_cast<std::ptrdiff_t>(sent));
+  }
+
+  auto guard = co_await mailbox.lock();
+  auto reply = co_await transfer.exchange(guard, init);
+  if (!reply) co_return reply.error();
+  const auto* response = std::get_if<wire::SdoInitiateDownloadResponse>(&*reply);
+  if (response == nullptr) {
+    co_return co_await transfer.violation(
+        guard, Errc::mailbox_error,
+        fmt::format("the slave answered with an SDO {} instead of an initiate download response",
+                    wire::to_string(*reply)),
+        wire::SdoAbortCode::command_specifier_unknown);
+  }
+  if (response->index != index || response->subindex != subindex) {
+    co_return co_await transfer.violation(
+        guard, Errc::mailbox_error,
+        fmt::format("the initiate download response names {} instead",
+                    object_name(response->index, response->subindex)),
+        wire::SdoAbortCode::general_error);
+  }
+
+  // A segment: CoE header, command byte, then the data.
+  const std::size_t segment_capacity = capacity - wire::kCoeHeaderSize - 1;
+  bool toggle = false;
+  for (std::size_t segment = 1; sent < data.size(); ++segment) {
+    const std::size_t n = std::min(segment_capacity, data.size() - sent);
+    wire::SdoDownloadSegmentRequest request;
+    request.toggle = toggle;
+    request.last = sent + n == data.size();
+    request.data.assign(data.begin() + static_cast<std::ptrdiff_t>(sent),
+                        data.begin() + static_cast<std::ptrdiff_t>(sent + n));
+    auto seg_reply = co_await transfer.exchange(guard, request);
+    if (!seg_reply) co_return seg_reply.error();
+    const auto* seg = std::get_if<wire::SdoDownloadSegmentResponse>(&*seg_reply);
+    if (seg == nullptr) {
+      co_return co_await transfer.violation(
+          guard, Errc::mailbox_error,
+          fmt::format("the slave answered segment {} with an SDO {} instead of a download "
+                      "segment response",
+                      segment, wire::to_string(*seg_reply)),
+          wire::SdoAbortCode::command_specifier_unknown);
+    }
+    if (seg->toggle != toggle) {
+      co_return co_await transfer.violation(
+          guard, Errc::mailbox_error,
+          fmt::format("download segment response {} carries toggle bit {}, expected {}", segment,
+                      seg->toggle ? 1 : 0, toggle ? 1 : 0),
+          wire::SdoAbortCode::toggle_bit_not_changed);
+    }
+    sent += n;
+    toggle = !toggle;
+  }
+  co_return ok();
+}
+
+// ---- SDO information ------------------------------------------------------------------------
+
+namespace {
+
+exec::Task<Result<wire::SdoInfoMessage>> info_exchange(Mailbox& mailbox,
+                                                       const wire::SdoInfoMessage& request,
+                                                       const std::string& what,
+                                                       const SdoOptions& options) {
+  auto data = wire::encode_sdo_info(request);
+  if (!data) co_return data.error().context(Errc::invalid_argument, what);
+  auto guard = co_await mailbox.lock();
+  auto reply = co_await mailbox.exchange(guard, wire::MailboxType::coe, std::move(*data),
+                                         options.timeout, info_filter, what);
+  wire::SdoInfoReassembler reassembler;
+  for (std::size_t fragment = 1;; ++fragment) {
+    if (!reply) co_return reply.error();
+    if (reply->header.type != wire::MailboxType::coe) {
+      co_return Error(Errc::mailbox_error,
+                      fmt::format("{}: slave {:#06x} answered with a {} mailbox (type {}) instead "
+                                  "of CoE",
+                                  what, mailbox.station(), wire::to_string(reply->header.type),
+                                  static_cast<unsigned>(reply->header.type)));
+    }
+    auto coe = wire::decode_coe_header(reply->data);
+    if (!coe) {
+      co_return coe.error().context(
+          Errc::malformed, fmt::format("{}: the reply of slave {:#06x} has no complete CoE "
+                                       "header",
+                                       what, mailbox.station()));
+    }
+    if (coe->service != wire::CoeService::sdo_information) {
+      co_return Error(Errc::mailbox_error,
+                      fmt::format("{}: slave {:#06x} answered with CoE service {} ({}), expected "
+                                  "8 (SDO information)",
+                                  what, mailbox.station(), static_cast<unsigned>(coe->service),
+                                  wire::to_string(coe->service)));
+    }
+    auto status = reassembler.add(reply->data);
+    if (!status) {
+      co_return status.error().context(
+          Errc::malformed,
+          fmt::format("{}: fragment {} from slave {:#06x}", what, fragment, mailbox.station()));
+    }
+    if (*status == wire::SdoInfoReassembler::Status::complete) break;
+    reply = co_await mailbox.receive(guard, options.timeout, info_filter, what);
+  }
+  auto message = reassembler.message();
+  if (!message) {
+    co_return message.error().context(
+        Errc::malformed,
+        fmt::format("{}: the response of slave {:#06x} does not decode", what, mailbox.station()));
+  }
+  if (const auto* refused = std::get_if<wire::SdoInfoError>(&*message)) {
+    co_return Error(Errc::sdo_abort,
+                    fmt::format("{} aborted: 0x{:08X} {}", what, refused->abort_code,
+                                wire::sdo_abort_text(refused->abort_code)))
+        .with_value(refused->abort_code);
+  }
+  co_return std::move(*message);
+}
+
+Error wrong_info_response(const std::string& what, const Mailbox& mailbox,
+                          const wire::SdoInfoMessage& message, std::string_view expected) {
+  return Error(Errc::mailbox_error,
+               fmt::format("{}: slave {:#06x} answered with a {} instead of a {}", what,
+                           mailbox.station(), wire::to_string(wire::opcode_of(message)), expected));
+}
+
+}  // namespace
+
+exec::Task<Result<std::vector<std::uint16_t>>> od_list(Mailbox& mailbox, wire::OdListType type,
+                                                       SdoOptions options) {
+  const std::string what = fmt::format("SDO information: OD list '{}' of slave {:#06x}",
+                                       wire::to_string(type), mailbox.station());
+  auto message = co_await info_exchange(mailbox, wire::OdListRequest{type}, what, options);
+  if (!message) co_return message.error();
+  const auto* list = std::get_if<wire::OdListResponse>(&*message);
+  if (list == nullptr) {
+    co_return wrong_info_response(what, mailbox, *message, "get OD list response");
+  }
+  if (list->list_type != type) {
+    co_return Error(Errc::mailbox_error, fmt::format("{}: the response is list type {} ({})", what,
+                                                     static_cast<unsigned>(list->list_type),
+                                                     wire::to_string(list->list_type)));
+  }
+  co_return list->indices;
+}
+
+exec::Task<Result<wire::ObjectDescriptionResponse>> object_description(Mailbox& mailbox,
+                                                                       std::uint16_t index,
+                                                                       SdoOptions options) {
+  const std::string what = fmt::format(
+      "SDO information: object description 0x{:04X} of slave "
+      "{:#06x}",
+      index, mailbox.station());
+  auto message =
+      co_await info_exchange(mailbox, wire::ObjectDescriptionRequest{index}, what, options);
+  if (!message) co_return message.error();
+  auto* description = std::get_if<wire::ObjectDescriptionResponse>(&*message);
+  if (description == nullptr) {
+    co_return wrong_info_response(what, mailbox, *message, "get object description response");
+  }
+  if (description->index != index) {
+    co_return Error(Errc::mailbox_error,
+                    fmt::format("{}: the response describes 0x{:04X}", what, description->index));
+  }
+  co_return std::move(*description);
+}
+
+exec::Task<Result<wire::EntryDescriptionResponse>> entry_description(Mailbox& mailbox,
+                                                                     std::uint16_t index,
+                                                                     std::uint8_t subindex,
+                                                                     std::uint8_t value_info,
+                                                                     SdoOptions options) {
+  const std::string what = fmt::format("SDO information: entry description {} of slave {:#06x}",
+                                       object_name(index, subindex), mailbox.station());
+  auto message = co_await info_exchange(
+      mailbox, wire::EntryDescriptionRequest{index, subindex, value_info}, what, options);
+  if (!message) co_return message.error();
+  auto* entry = std::get_if<wire::EntryDescriptionResponse>(&*message);
+  if (entry == nullptr) {
+    co_return wrong_info_response(what, mailbox, *message, "get entry description response");
+  }
+  if (entry->index != index || entry->subindex != subindex) {
+    co_return Error(Errc::mailbox_error, fmt::format("{}: the response describes {}", what,
+                                                     object_name(entry->index, entry->subindex)));
+  }
+  co_return std::move(*entry);
+}
+
+}  // namespace ecat::master

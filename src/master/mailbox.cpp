@@ -1,0 +1,386 @@
+#include <algorithm>
+#include <array>
+#include <utility>
+
+#include <fmt/format.h>
+
+#include <ecat/exec/transact.hpp>
+#include <ecat/master/mailbox.hpp>
+#include <ecat/wire/coe.hpp>
+#include <ecat/wire/registers.hpp>
+
+namespace ecat::master {
+
+namespace {
+
+constexpr std::uint8_t kRepeatRequestBit = 0x02;  // SM activate (offset 6) bit 1
+constexpr std::uint8_t kRepeatAckBit = 0x02;      // SM PDI control (offset 7) bit 1
+
+std::string ms_text(std::chrono::nanoseconds d) {
+  return fmt::format("{} ms", std::chrono::duration<double, std::milli>(d).count());
+}
+
+bool is_emergency(const MailboxMessage& message) {
+  if (message.header.type != wire::MailboxType::coe) return false;
+  auto coe = wire::decode_coe_header(message.data);
+  return coe && coe->service == wire::CoeService::emergency;
+}
+
+}  // namespace
+
+Mailbox::Mailbox(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t station, MailboxConfig config,
+                 MailboxOptions options)
+    : loop_(loop),
+      bus_(bus),
+      station_(station),
+      config_(config),
+      options_(std::move(options)),
+      mutex_(loop) {}
+
+std::size_t Mailbox::max_request_data() const noexcept {
+  return config_.out_size > wire::kMailboxHeaderSize ? config_.out_size - wire::kMailboxHeaderSize
+                                                     : 0;
+}
+
+std::size_t Mailbox::max_reply_data() const noexcept {
+  return config_.in_size > wire::kMailboxHeaderSize ? config_.in_size - wire::kMailboxHeaderSize
+                                                    : 0;
+}
+
+std::string Mailbox::describe_exchange(const std::string& what) const {
+  return what.empty() ? fmt::format("mailbox exchange with slave {:#06x}", station_) : what;
+}
+
+Result<void> Mailbox::check_guard(const Guard& guard, const std::string& what) const {
+  if (!guard.owns(mutex_)) {
+    return Error(Errc::wrong_state,
+                 fmt::format("{}: the mailbox of slave {:#06x} is used without holding its lock",
+                             describe_exchange(what), station_));
+  }
+  return ok();
+}
+
+exec::Task<Result<bus::TransactionResult>> Mailbox::transact(bus::Transaction tx) {
+  co_return co_await exec::transact(loop_, bus_, std::move(tx), options_.transact);
+}
+
+void Mailbox::queue_unsolicited(MailboxMessage message) {
+  ++stats_.unsolicited;
+  unsolicited_.push_back(std::move(message));
+  while (unsolicited_.size() > options_.max_unsolicited) {
+    unsolicited_.pop_front();
+    ++stats_.dropped;
+  }
+}
+
+Result<Mailbox::Arrival> Mailbox::take(wire::Bytes raw, const ReplyFilter& is_reply,
+                                       MailboxMessage* reply, const std::string& what) {
+  ++stats_.messages;
+  auto decoded = wire::decode_mailbox(raw);
+  if (!decoded) {
+    return decoded.error().context(
+        Errc::malformed,
+        fmt::format("{}: slave {:#06x} sent a malformed mailbox ({} bytes read "
+                    "from SM1 at {:#06x})",
+                    describe_exchange(what), station_, raw.size(), config_.in_offset));
+  }
+  const std::size_t size = wire::kMailboxHeaderSize + decoded->header.length;
+  const wire::Bytes bytes = raw.first(size);
+  // A repeat (after a repeat request, or a read whose reply frame was lost and retried) is the same
+  // message with the same counter. A new message with a repeated counter but other content is a
+  // slave miscounting, not a repeat: it is kept.
+  if (decoded->header.counter != 0 &&
+      std::equal(bytes.begin(), bytes.end(), last_message_.begin(), last_message_.end())) {
+    ++stats_.duplicates;
+    return Arrival::none;
+  }
+  last_message_.assign(bytes.begin(), bytes.end());
+
+  MailboxMessage message;
+  message.header = decoded->header;
+  message.data.assign(decoded->data.begin(), decoded->data.end());
+
+  if (is_emergency(message)) {
+    auto emergency = wire::decode_emergency(message.data);
+    if (emergency) {
+      ++stats_.emergencies;
+      emergencies_.push_back(*emergency);
+      while (emergencies_.size() > options_.max_emergencies) {
+        emergencies_.pop_front();
+        ++stats_.dropped;
+      }
+      if (options_.on_emergency) options_.on_emergency(station_, *emergency);
+      return Arrival::queued;
+    }
+    queue_unsolicited(std::move(message));  // a broken emergency is nobody's reply either
+    return Arrival::queued;
+  }
+  if (reply == nullptr) {
+    queue_unsolicited(std::move(message));
+    return Arrival::queued;
+  }
+  if (message.header.type == wire::MailboxType::error) {
+    ++stats_.replies;
+    auto error = wire::decode_mailbox_error(message.data);
+    if (!error) {
+      return error.error().context(
+          Errc::mailbox_error,
+          fmt::format("{}: slave {:#06x} answered with a malformed mailbox error reply",
+                      describe_exchange(what), station_));
+    }
+    return Error(Errc::mailbox_error,
+                 fmt::format("{}: slave {:#06x} answered with mailbox error {:#06x}: {}",
+                             describe_exchange(what), station_, error->detail,
+                             wire::mailbox_error_text(error->detail)))
+        .with_value(error->detail);
+  }
+  if (is_reply && !is_reply(message)) {
+    queue_unsolicited(std::move(message));
+    return Arrival::queued;
+  }
+  ++stats_.replies;
+  *reply = std::move(message);
+  return Arrival::reply;
+}
+
+exec::Task<Result<void>> Mailbox::send(const Guard& guard, wire::MailboxType type,
+                                       std::vector<std::uint8_t> data,
+                                       std::chrono::nanoseconds timeout, std::string what) {
+  if (auto held = check_guard(guard, what); !held) co_return held.error();
+  what = describe_exchange(what);
+  if (data.size() > max_request_data()) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: {} bytes of mailbox data do not fit the mailbox of slave "
+                                "{:#06x} (SM0 of {} bytes holds at most {})",
+                                what, data.size(), station_, config_.out_size, max_request_data()));
+  }
+  // Whatever was read before this request cannot be its reply.
+  while (!inbox_.empty()) {
+    auto raw = std::move(inbox_.front());
+    inbox_.pop_front();
+    (void)take(raw, {}, nullptr, what);
+  }
+
+  counter_ = wire::next_mailbox_counter(counter_);
+  wire::MailboxHeader header;
+  header.type = type;
+  header.counter = counter_;
+  std::vector<std::uint8_t> buffer(config_.out_size, 0);
+  if (auto encoded = wire::encode_mailbox(header, data, buffer); !encoded) {
+    co_return encoded.error().context(Errc::invalid_argument,
+                                      fmt::format("{}: encoding the mailbox request", what));
+  }
+
+  const auto deadline = exec::Clock::now() + timeout;
+  for (;;) {
+    bus::Transaction tx;
+    tx.fpwr(station_, config_.out_offset, buffer);
+    if (options_.read_with_request) tx.fprd(station_, config_.in_offset, config_.in_size);
+    auto reply = co_await transact(std::move(tx));
+    if (!reply) {
+      co_return reply.error().context(
+          fmt::format("{}: writing the request into the mailbox of "
+                      "slave {:#06x} (SM0 at {:#06x})",
+                      what, station_, config_.out_offset));
+    }
+    if (options_.read_with_request && reply->wkc(1) == 1) {
+      const auto read = reply->data(1);
+      inbox_.emplace_back(read.begin(), read.end());
+    }
+    const std::uint16_t wkc = reply->wkc(0);
+    if (wkc == 1) {
+      ++stats_.requests;
+      co_return ok();
+    }
+    if (wkc != 0) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("{}: the mailbox write to slave {:#06x} came back with WKC {} "
+                                  "(expected 1)",
+                                  what, station_, wkc));
+    }
+    if (exec::Clock::now() >= deadline) {
+      ++stats_.timeouts;
+      co_return Error(Errc::timeout,
+                      fmt::format("{}: slave {:#06x} did not take the request within {}: its "
+                                  "mailbox SM0 at {:#06x} stayed full (WKC 0)",
+                                  what, station_, ms_text(timeout), config_.out_offset));
+    }
+    ++stats_.write_retries;
+    co_await exec::sleep_for(loop_, options_.poll_interval);
+  }
+}
+
+exec::Task<Result<MailboxMessage>> Mailbox::receive(const Guard& guard,
+                                                    std::chrono::nanoseconds timeout,
+                                                    ReplyFilter is_reply, std::string what) {
+  co_return co_await receive_until(guard, exec::Clock::now() + timeout, timeout,
+                                   std::move(is_reply), std::move(what));
+}
+
+exec::Task<Result<MailboxMessage>> Mailbox::receive_until(const Guard& guard,
+                                                          exec::Clock::time_point deadline,
+                                                          std::chrono::nanoseconds timeout,
+                                                          ReplyFilter is_reply, std::string what) {
+  if (auto held = check_guard(guard, what); !held) co_return held.error();
+  what = describe_exchange(what);
+  MailboxMessage message;
+  while (!inbox_.empty()) {
+    auto raw = std::move(inbox_.front());
+    inbox_.pop_front();
+    auto arrival = take(raw, is_reply, &message, what);
+    if (!arrival) co_return arrival.error();
+    if (*arrival == Arrival::reply) co_return message;
+  }
+  for (;;) {
+    bus::Transaction tx;
+    tx.fprd(station_, config_.in_offset, config_.in_size);
+    auto reply = co_await transact(std::move(tx));
+    if (!reply) {
+      co_return reply.error().context(
+          fmt::format("{}: reading the mailbox of slave {:#06x} (SM1 "
+                      "at {:#06x})",
+                      what, station_, config_.in_offset));
+    }
+    const std::uint16_t wkc = reply->wkc(0);
+    if (wkc > 1) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("{}: the mailbox read from slave {:#06x} came back with WKC {} "
+                                  "(expected 0 or 1)",
+                                  what, station_, wkc));
+    }
+    if (wkc == 1) {
+      auto arrival = take(reply->data(0), is_reply, &message, what);
+      if (!arrival) co_return arrival.error();
+      if (*arrival == Arrival::reply) co_return message;
+      // SM1 may hold the next message already: read again at once (within the deadline).
+      if (exec::Clock::now() < deadline) continue;
+      break;
+    }
+    if (exec::Clock::now() >= deadline) break;
+    co_await exec::sleep_for(loop_, options_.poll_interval);
+  }
+
+  std::string after_repeat;
+  if (options_.repeat_request) {
+    auto outcome = co_await repeat(is_reply, message, what);
+    if (!outcome) co_return outcome.error();
+    if (outcome->replied) co_return message;
+    after_repeat = outcome->acknowledged
+                       ? ", nor after a mailbox repeat request"
+                       : ", and the slave did not acknowledge a mailbox repeat request";
+  }
+  ++stats_.timeouts;
+  co_return Error(Errc::timeout, fmt::format("{}: no reply from slave {:#06x} within {}{}", what,
+                                             station_, ms_text(timeout), after_repeat));
+}
+
+exec::Task<Result<Mailbox::RepeatOutcome>> Mailbox::repeat(const ReplyFilter& is_reply,
+                                                           MailboxMessage& message,
+                                                           const std::string& what) {
+  ++stats_.repeat_requests;
+  const auto sm = wire::reg::sync_manager(config_.in_sync_manager);
+  const auto activate_at = static_cast<std::uint16_t>(sm + wire::reg::kSyncManagerActivateOffset);
+  const auto pdi_at = static_cast<std::uint16_t>(sm + wire::reg::kSyncManagerPdiControlOffset);
+  auto context = [&](const Error& e) {
+    return e.context(fmt::format("{}: mailbox repeat request to slave {:#06x} (SM{})", what,
+                                 station_, config_.in_sync_manager));
+  };
+  bus::Transaction read_tx;
+  read_tx.fprd(station_, activate_at, 1, 1);
+  auto current = co_await transact(std::move(read_tx));
+  if (!current) co_return context(current.error());
+  const std::uint8_t activate = static_cast<std::uint8_t>(current->data(0)[0] ^ kRepeatRequestBit);
+  const bool want_ack = (activate & kRepeatRequestBit) != 0;
+  bus::Transaction write_tx;
+  write_tx.fpwr(station_, activate_at, wire::Bytes(&activate, 1), 1);
+  auto written = co_await transact(std::move(write_tx));
+  if (!written) co_return context(written.error());
+
+  RepeatOutcome outcome;
+  const auto deadline = exec::Clock::now() + options_.repeat_timeout;
+  for (;;) {
+    bus::Transaction tx;
+    tx.fprd(station_, pdi_at, 1);
+    tx.fprd(station_, config_.in_offset, config_.in_size);
+    auto reply = co_await transact(std::move(tx));
+    if (!reply) co_return context(reply.error());
+    if (reply->wkc(0) == 1 && ((reply->data(0)[0] & kRepeatAckBit) != 0) == want_ack) {
+      outcome.acknowledged = true;
+    }
+    if (reply->wkc(1) == 1) {
+      auto arrival = take(reply->data(1), is_reply, &message, what);
+      if (!arrival) co_return arrival.error();
+      if (*arrival == Arrival::reply) {
+        outcome.replied = true;
+        co_return outcome;
+      }
+      continue;
+    }
+    if (exec::Clock::now() >= deadline) co_return outcome;
+    co_await exec::sleep_for(loop_, options_.poll_interval);
+  }
+}
+
+exec::Task<Result<MailboxMessage>> Mailbox::exchange(const Guard& guard, wire::MailboxType type,
+                                                     std::vector<std::uint8_t> data,
+                                                     std::chrono::nanoseconds timeout,
+                                                     ReplyFilter is_reply, std::string what) {
+  // One deadline for both halves: a slave slow to take the request leaves less time to answer.
+  const auto deadline = exec::Clock::now() + timeout;
+  auto sent = co_await send(guard, type, std::move(data), timeout, what);
+  if (!sent) co_return sent.error();
+  co_return co_await receive_until(guard, deadline, timeout, std::move(is_reply), std::move(what));
+}
+
+exec::Task<Result<MailboxMessage>> Mailbox::request(wire::MailboxType type,
+                                                    std::vector<std::uint8_t> data,
+                                                    std::chrono::nanoseconds timeout,
+                                                    ReplyFilter is_reply, std::string what) {
+  auto guard = co_await lock();
+  co_return co_await exchange(guard, type, std::move(data), timeout, std::move(is_reply),
+                              std::move(what));
+}
+
+exec::Task<Result<std::size_t>> Mailbox::poll() {
+  auto guard = co_await lock();
+  std::size_t count = 0;
+  const std::string what = fmt::format("polling the mailbox of slave {:#06x}", station_);
+  while (!inbox_.empty()) {
+    auto raw = std::move(inbox_.front());
+    inbox_.pop_front();
+    ++count;
+    if (auto taken = take(raw, {}, nullptr, what); !taken) co_return taken.error();
+  }
+  // SM1 holds one message at a time; a slave with more queued refills it after each read.
+  for (int reads = 0; reads < 16; ++reads) {
+    bus::Transaction tx;
+    tx.fprd(station_, config_.in_offset, config_.in_size);
+    auto reply = co_await transact(std::move(tx));
+    if (!reply) co_return reply.error().context(what);
+    if (reply->wkc(0) != 1) break;
+    ++count;
+    if (auto taken = take(reply->data(0), {}, nullptr, what); !taken) co_return taken.error();
+  }
+  co_return count;
+}
+
+std::vector<wire::Emergency> Mailbox::emergencies() {
+  std::vector<wire::Emergency> out(emergencies_.begin(), emergencies_.end());
+  emergencies_.clear();
+  return out;
+}
+
+std::vector<MailboxMessage> Mailbox::unsolicited() {
+  std::vector<MailboxMessage> out(std::make_move_iterator(unsolicited_.begin()),
+                                  std::make_move_iterator(unsolicited_.end()));
+  unsolicited_.clear();
+  return out;
+}
+
+void Mailbox::reset() noexcept {
+  counter_ = 0;
+  last_message_.clear();
+  inbox_.clear();
+}
+
+}  // namespace ecat::master
