@@ -1,0 +1,451 @@
+// Domain: one logical process image, exchanged with the slaves by LRW every cycle.
+//
+// Life cycle (the reference design's states; the table is Domain::transition in domain.cpp):
+//
+//     open --start_cycling--> cycling --stop_cycling / miss threshold--> stopped
+//                               ^                                          |
+//                               +----------------start_cycling-------------+
+//
+//  * open: slaves register their process-data SyncManager images (register_pdo). Each
+//    registration appends one whole SM image to the image and returns its logical address (the
+//    FMMU's logical start). Outputs may already be staged.
+//  * cycling: start_cycling() froze the layout into LRW datagrams. The Domain is a
+//    CyclicParticipant: the Cycler of its bus calls on_tick() on the bus thread every period
+//    (add the Domain to the Cycler; a Domain not in a Cycler never cycles).
+//  * stopped: no more exchanges; the image keeps its last values. start_cycling() resumes (and
+//    resets the consecutive miss count). Registration is closed for good once cycling started.
+//  Cycle health (healthy / invalid{reason}) is runtime data in stats(), not a state.
+//
+// Keys and layout
+//  * A registration is named by PdoKey {slave, sync_manager}: the slave's configured station
+//    address and the SyncManager index whose image it is. One key, one registration.
+//  * The image is the registrations in registration order, each at the next free byte. The
+//    domain's logical window starts at DomainConfig::logical_base.
+//  * Images larger than one datagram are split into several LRW datagrams (each at most
+//    DomainConfig::max_datagram_size, by default as large as a frame of the bus allows), cut at
+//    registration boundaries when a registration fits, sent in one realtime exchange (the bus
+//    puts them in as many frames as needed). An image may be up to max_image_size bytes.
+//
+// Expected working counter, per datagram: each slave with a registration overlapping the datagram
+// adds 1 when one of its overlapping registrations is an input (its read FMMU is served) and 2 when
+// one is an output (its write FMMU is served): an LRW counts 3 for a slave with both. A
+// registration made with contributes_wkc = false is left out (an SM whose FMMU another domain
+// counts, padding). With one datagram this is the reference's 2 x output slaves + input slaves.
+// set_expected_wkc() overrides it. A cycle is valid when every datagram's WKC equals its
+// expectation and their sum is above 0.
+//
+// Hot path (write, write_bits, read, read_fresh, sample) — any thread, any time, never waits for
+// the bus thread and never allocates on success:
+//  * Outputs: writers copy into a staging image under a tiny spinlock (writers only wait for each
+//    other, for a memcpy). The bus thread takes the staging image with try_lock each cycle; if a
+//    writer holds the lock at that instant, the cycle goes out with the previous cycle's outputs
+//    (counted as output_stage_skips) rather than waiting: a cycle never blocks on a user thread.
+//    A seqlock would need the bus thread to retry (unbounded while writers keep writing) and a
+//    triple buffer needs a single writer; the spinlock fallback keeps the bus thread wait-free
+//    with any number of writers.
+//  * Inputs: the bus thread publishes each valid reply into the input image under a seqlock
+//    (single writer, any number of readers that retry on a concurrent publish). Readers get one
+//    cycle's bytes for a key, never a mix of two cycles.
+//  * read() of an input fails with Errc::not_ready until the first valid cycle; read() of an
+//    output with Errc::not_ready until it was written. read_fresh() also fails with Errc::stale
+//    when the last valid cycle is older than stale_after. Unknown keys: Errc::not_found.
+//
+// Events: after each valid cycle the bus thread records which input registrations changed (and
+// which bytes) into a bounded lock-free SPSC queue; the owner drains it with drain_changes() on
+// its control thread. A full queue drops records and counts them; the next drain reports the
+// drop. DomainObserver tells the owner, on the bus thread, about changes, degradation, recovery
+// and the stop at the miss threshold.
+//
+// Threading: control-plane calls (register_pdo, start_cycling, update_period, set_expected_wkc)
+// may come from any thread but the bus thread (refused there with Errc::wrong_state), serialized
+// by a mutex the bus thread never takes; stop_cycling() works from any thread, the bus thread
+// included. layout(), registrations(), info() are for the control side. Destroying the Domain waits
+// for its exchanges still in flight (the bus completes every exchange) and removes it from its
+// Cycler first.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <compare>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/master/cycler.hpp>
+#include <ecat/master/pdo.hpp>  // PdoDirection: input (read FMMU), output (write FMMU)
+#include <ecat/result.hpp>
+#include <ecat/wire/bytes.hpp>
+
+namespace ecat::master {
+
+using Clock = bus::Clock;
+
+enum class DomainState : std::uint8_t { open, cycling, stopped };
+std::string_view to_string(DomainState state) noexcept;
+
+struct PdoKey {
+  std::uint16_t slave = 0;        // configured station address
+  std::uint8_t sync_manager = 0;  // SyncManager index
+  auto operator<=>(const PdoKey&) const = default;
+};
+// "station 0x1002 SM2"
+std::string to_string(const PdoKey& key);
+
+// Position of a registration in its domain: O(1) hot-path access without a key lookup.
+struct PdoHandle {
+  std::uint32_t index = 0;
+  auto operator<=>(const PdoHandle&) const = default;
+};
+
+struct DomainConfig {
+  std::string id;  // names the domain in every message
+  // Any value >= kMinPeriod (not limited to whole milliseconds).
+  std::chrono::nanoseconds period = std::chrono::milliseconds(1);
+  std::uint32_t logical_base = 0;
+  // Consecutive transport misses (timeouts, expired or unsendable exchanges) that stop the domain.
+  std::uint32_t miss_threshold = 1000;
+  // Consecutive invalid cycles (misses or WKC mismatches) that report the domain degraded.
+  std::uint32_t recovery_threshold = 3;
+  // Inputs older than this are stale. 0: 3 x period (follows update_period()).
+  std::chrono::nanoseconds stale_after{0};
+  // How long an exchange may wait for the link before the bus drops it (Bus::submit_realtime).
+  // 0: max(period x 9/10, 200 us) (follows update_period()).
+  std::chrono::nanoseconds realtime_budget{0};
+  // Largest image (bytes). Registrations beyond it fail with image_too_large. 2035 is the
+  // reference's one-datagram limit; larger images are split over several datagrams and frames.
+  std::size_t max_image_size = 2035;
+  // Largest LRW datagram (data bytes). 0: as large as one frame of the bus carries (1486 bytes on
+  // a standard 1500-byte Ethernet payload).
+  std::size_t max_datagram_size = 0;
+  // Registrations the domain can hold (storage is reserved up front so readers never race a
+  // reallocation).
+  std::size_t max_registrations = 256;
+  // Exchanges that may be in flight at once: a lost frame keeps its exchange until the bus's frame
+  // timeout, and the following cycles use the others. When all are still in flight, the cycle is
+  // a miss (counted as an overrun).
+  std::size_t exchanges_in_flight = 4;
+  // Input change records buffered for drain_changes() (rounded up to a power of two).
+  std::size_t change_queue_capacity = 1024;
+};
+
+// Why a cycle was not valid.
+enum class InvalidReason : std::uint8_t {
+  wkc_mismatch,  // a reply came back, but a working counter differs from the expectation
+  timeout,     // transport miss: no reply in time, dropped as stale (expired), or no free exchange
+  link_error,  // transport miss: the link failed to send
+  closed,      // transport miss: the bus is stopped
+};
+std::string_view to_string(InvalidReason reason) noexcept;
+
+struct CycleInvalid {
+  InvalidReason reason = InvalidReason::timeout;
+  std::uint32_t expected_wkc = 0;  // sum over the datagrams (wkc_mismatch)
+  std::uint32_t actual_wkc = 0;
+  std::uint16_t datagram = 0;  // first datagram that differed (wkc_mismatch)
+  bool operator==(const CycleInvalid&) const = default;
+};
+
+struct CycleHealth {
+  bool healthy = true;                  // the latest cycle was valid (true before any cycle)
+  std::optional<CycleInvalid> invalid;  // when not healthy
+};
+
+struct DomainStats {
+  DomainState state = DomainState::open;
+  CycleHealth health;
+  std::uint64_t cycle_count = 0;         // cycles started (ticks while cycling)
+  std::uint64_t valid_count = 0;         // valid cycles
+  std::uint64_t miss_count = 0;          // consecutive transport misses (now)
+  std::uint64_t total_miss_count = 0;    // transport misses, all time
+  std::uint64_t invalid_streak = 0;      // consecutive invalid cycles (now)
+  std::uint64_t wkc_mismatch_count = 0;  // all time
+  std::uint64_t timeout_count = 0;       // no reply within the bus's frame timeout
+  std::uint64_t expired_count = 0;       // dropped by the bus: not sendable within the budget
+  std::uint64_t overrun_count = 0;       // every exchange still in flight at the tick
+  std::uint64_t link_error_count = 0;    // link failures and a stopped bus
+  std::uint64_t late_results = 0;        // results of older cycles that arrived after newer ones
+  std::uint64_t output_stage_skips = 0;  // cycles sent with the previous outputs (writer held lock)
+  std::uint64_t changes_dropped = 0;     // change records lost to a full queue
+  std::uint32_t last_wkc = 0;            // sum of the working counters of the latest reply
+  std::optional<Clock::time_point> last_valid_at;
+  std::optional<Clock::time_point> last_invalid_at;
+  std::optional<CycleInvalid> last_invalid;
+  // Submission to completion of exchanges that got a reply.
+  std::chrono::nanoseconds last_latency{0};
+  std::chrono::nanoseconds min_latency{0};
+  std::chrono::nanoseconds max_latency{0};
+  std::chrono::nanoseconds mean_latency{0};
+};
+
+struct PdoRegistration {
+  PdoKey key;
+  PdoHandle handle;
+  std::uint32_t offset = 0;   // in the image
+  std::uint32_t logical = 0;  // logical_base + offset
+  std::uint16_t size = 0;
+  PdoDirection direction = PdoDirection::input;
+  bool contributes_wkc = true;
+};
+
+// One LRW datagram of the cycle.
+struct DomainDatagram {
+  std::uint32_t offset = 0;  // in the image
+  std::uint32_t logical = 0;
+  std::uint16_t length = 0;
+  std::uint16_t expected_wkc = 0;
+};
+
+struct DomainInfo {
+  std::string id;
+  DomainState state = DomainState::open;
+  std::chrono::nanoseconds period{0};
+  std::chrono::nanoseconds stale_after{0};
+  std::chrono::nanoseconds realtime_budget{0};
+  std::uint32_t logical_base = 0;
+  std::uint32_t image_size = 0;
+  std::uint32_t expected_wkc = 0;  // sum over the datagrams
+  std::vector<DomainDatagram> datagrams;
+  std::vector<PdoRegistration> registrations;
+  DomainStats stats;
+};
+
+enum class Freshness : std::uint8_t { not_ready, fresh, stale };
+std::string_view to_string(Freshness freshness) noexcept;
+
+struct FreshnessInfo {
+  Freshness state = Freshness::not_ready;
+  std::optional<Clock::time_point> refreshed_at;  // last valid cycle
+  std::optional<std::chrono::nanoseconds> age;    // now - refreshed_at
+  std::chrono::nanoseconds stale_after{0};
+};
+
+struct SampleInfo {
+  std::size_t size = 0;                         // bytes copied
+  std::optional<Clock::time_point> updated_at;  // inputs: last valid cycle; outputs: last write
+  std::optional<Clock::time_point> changed_at;  // last time the bytes changed
+  std::optional<FreshnessInfo> freshness;       // inputs only
+};
+
+struct Sample {
+  std::vector<std::uint8_t> value;
+  SampleInfo info;
+};
+
+// One input registration whose bytes changed in a valid cycle.
+struct InputChange {
+  PdoHandle handle;
+  PdoKey key;
+  std::uint64_t cycle = 0;       // the domain's cycle number
+  Clock::time_point at;          // when the reply was published
+  std::uint16_t first_byte = 0;  // first and last changed byte within the registration
+  std::uint16_t last_byte = 0;
+};
+
+struct DrainResult {
+  std::size_t delivered = 0;
+  std::uint64_t dropped = 0;  // records lost to a full queue since the previous drain
+};
+
+class Domain;
+
+// Told about cycle events, on the bus thread, right when they happen. Keep it cheap: no blocking,
+// no allocation in on_inputs_changed (it may come every cycle) — typically set a flag or post to
+// the owner's own event loop and do the work there. stop_cycling() may be called from here; the
+// other control-plane methods are refused on the bus thread.
+class DomainObserver {
+ public:
+  virtual ~DomainObserver() = default;
+  // Input records were queued for drain_changes() (count: this cycle's records).
+  virtual void on_inputs_changed(Domain& domain, std::size_t count) {
+    (void)domain;
+    (void)count;
+  }
+  // The invalid streak reached recovery_threshold.
+  virtual void on_cycle_degraded(Domain& domain, const CycleInvalid& last) {
+    (void)domain;
+    (void)last;
+  }
+  // The first valid cycle after a degradation.
+  virtual void on_cycle_recovered(Domain& domain) { (void)domain; }
+  // The miss streak reached miss_threshold: the domain is now stopped.
+  virtual void on_stopped(Domain& domain, const CycleInvalid& last, std::uint64_t misses) {
+    (void)domain;
+    (void)last;
+    (void)misses;
+  }
+};
+
+class Domain final : public CyclicParticipant {
+ public:
+  static constexpr std::chrono::nanoseconds kMinPeriod = std::chrono::microseconds(50);
+
+  // Checks the configuration (errors name the field) and reserves all storage.
+  static Result<std::unique_ptr<Domain>> create(bus::Bus& bus, DomainConfig config,
+                                                DomainObserver* observer = nullptr);
+  ~Domain() override;
+
+  const std::string& id() const noexcept { return config_.id; }
+  DomainState state() const noexcept { return state_.load(std::memory_order_acquire); }
+  // Replaces the observer (nullptr: none). Takes effect from the next event.
+  void set_observer(DomainObserver* observer) noexcept {
+    observer_.store(observer, std::memory_order_release);
+  }
+
+  // ---- Control plane ---------------------------------------------------------------------
+  // Appends a whole SM image of `bytes` bytes (1..65535) and returns its logical address.
+  // Errc::wrong_state when not open (not_open), Errc::invalid_argument for a zero or oversized
+  // size or a key already registered, Errc::out_of_range when the image would exceed
+  // max_image_size (image_too_large) or max_registrations is reached.
+  Result<std::uint32_t> register_pdo(PdoKey key, std::size_t bytes, PdoDirection direction,
+                                     bool contributes_wkc = true);
+  // open/stopped -> cycling. Errc::wrong_state when already cycling (already_cycling) or with
+  // nothing registered (nothing_registered).
+  Result<void> start_cycling();
+  // cycling -> stopped. Errc::wrong_state when not cycling.
+  Result<void> stop_cycling();
+  // New period (>= kMinPeriod), live: the Cycler reschedules between two ticks; stale_after and
+  // the realtime budget follow unless configured.
+  Result<void> update_period(std::chrono::nanoseconds period);
+  // Replaces the computed per-datagram expected WKC (size must match layout().size()); an empty
+  // vector restores the computed values. Only while open.
+  Result<void> set_expected_wkc(std::vector<std::uint16_t> per_datagram);
+
+  // The datagrams the current registrations make (the plan start_cycling() freezes).
+  std::vector<DomainDatagram> layout() const;
+  std::vector<PdoRegistration> registrations() const;
+  Result<PdoHandle> find(PdoKey key) const;
+  Result<PdoRegistration> registration(PdoKey key) const;
+
+  DomainStats stats() const noexcept;
+  DomainInfo info() const;
+
+  // ---- Hot path ----------------------------------------------------------------------------
+  // Stages a whole output SM image (data.size() must equal its size).
+  Result<void> write(PdoKey key, wire::Bytes data);
+  Result<void> write(PdoHandle handle, wire::Bytes data);
+  // Stages `bit_length` (1..64) bits of `value` at `bit_offset` within the output image, LSB
+  // first (EtherCAT bit order), leaving the other bits as they are.
+  Result<void> write_bits(PdoKey key, std::size_t bit_offset, std::size_t bit_length,
+                          std::uint64_t value);
+  Result<void> write_bits(PdoHandle handle, std::size_t bit_offset, std::size_t bit_length,
+                          std::uint64_t value);
+  // Copies the current value into `out` (at least the registration's size); returns the size.
+  Result<std::size_t> read(PdoKey key, wire::MutableBytes out) const;
+  Result<std::size_t> read(PdoHandle handle, wire::MutableBytes out) const;
+  Result<std::vector<std::uint8_t>> read(PdoKey key) const;
+  // Like read() for inputs, but fails closed: Errc::stale when the last valid cycle is older than
+  // stale_after.
+  Result<std::size_t> read_fresh(PdoHandle handle, wire::MutableBytes out) const;
+  Result<std::size_t> read_fresh(PdoKey key, wire::MutableBytes out) const;
+  // Value plus timestamps and freshness.
+  Result<SampleInfo> sample(PdoHandle handle, wire::MutableBytes out) const;
+  Result<SampleInfo> sample(PdoKey key, wire::MutableBytes out) const;
+  Result<Sample> sample(PdoKey key) const;
+  // Freshness of the inputs as a whole.
+  FreshnessInfo freshness() const noexcept;
+
+  // Delivers queued input change records to `f(const InputChange&)`, oldest first. One drainer
+  // at a time (serialized internally).
+  template <class F>
+  DrainResult drain_changes(F&& f) {
+    std::lock_guard lock(drain_mutex_);
+    DrainResult result;
+    result.dropped = take_dropped_changes();
+    InputChange change;
+    while (pop_change(change)) {
+      f(static_cast<const InputChange&>(change));
+      ++result.delivered;
+    }
+    return result;
+  }
+
+  // ---- CyclicParticipant ---------------------------------------------------------------------
+  // Bus thread: stages outputs and submits this cycle's exchange.
+  void on_tick(const bus::CycleTick& tick) override;
+  std::chrono::nanoseconds cycle_period() const noexcept override {
+    return std::chrono::nanoseconds(period_ns_.load(std::memory_order_acquire));
+  }
+  std::chrono::nanoseconds stale_after() const noexcept;
+  std::chrono::nanoseconds realtime_budget() const noexcept;
+
+ private:
+  struct Entry;
+  struct Exchange;
+  struct Plan;
+
+  Domain(bus::Bus& bus, DomainConfig config, DomainObserver* observer);
+
+  Error error(Errc code, std::string_view what) const;
+  Error refuse_on_bus_thread(std::string_view call) const;
+  Result<const Entry*> lookup(PdoKey key) const;
+  Result<const Entry*> lookup(PdoHandle handle) const;
+  Result<void> write_entry(const Entry& e, wire::Bytes data);
+  Result<void> write_bits_entry(const Entry& e, std::size_t bit_offset, std::size_t bit_length,
+                                std::uint64_t value);
+  Result<SampleInfo> sample_entry(const Entry& e, wire::MutableBytes out, bool fail_stale) const;
+  Result<void> build_exchanges_locked();
+  std::vector<DomainDatagram> plan_locked() const;
+
+  void lock_staging() const noexcept;
+  void unlock_staging() const noexcept;
+
+  // Bus thread.
+  void on_exchange_done(Exchange& x) noexcept;
+  void classify_valid(Exchange& x, Clock::time_point now) noexcept;
+  void classify_invalid(std::uint64_t cycle, CycleInvalid invalid, Clock::time_point now) noexcept;
+  void publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept;
+  void record_latency(std::int64_t ns) noexcept;
+  bool push_change(const InputChange& change) noexcept;
+  bool pop_change(InputChange& out) noexcept;
+  std::uint64_t take_dropped_changes() noexcept;
+
+  bus::Bus& bus_;
+  const DomainConfig config_;
+  std::atomic<DomainObserver*> observer_;
+  std::atomic<DomainState> state_{DomainState::open};
+  std::atomic<std::int64_t> period_ns_;
+
+  mutable std::mutex control_mutex_;  // control plane only
+  mutable std::mutex drain_mutex_;
+
+  // Registrations: fixed storage, published by count (entries [0, count) are immutable).
+  std::unique_ptr<Entry[]> entries_;
+  std::atomic<std::uint32_t> entry_count_{0};
+  std::uint32_t image_size_ = 0;  // control thread (under control_mutex_)
+  std::vector<std::uint16_t> wkc_override_;
+
+  // Outputs: staging image under a writer spinlock.
+  mutable std::atomic<bool> staging_lock_{false};
+  std::unique_ptr<std::uint8_t[]> staging_;
+  std::uint64_t staging_version_ = 0;  // under staging_lock_
+
+  // Inputs: seqlocked words, single writer (bus thread).
+  std::atomic<std::uint64_t> input_seq_{0};
+  std::unique_ptr<std::atomic<std::uint64_t>[]> input_words_;
+  std::atomic<std::int64_t> refreshed_ns_{0};  // 0: never
+
+  // Frozen at the first start_cycling.
+  std::unique_ptr<Plan> plan_;
+  std::atomic<std::uint32_t> restart_generation_{0};
+
+  // Change records: SPSC ring (producer bus thread, consumer drain_changes).
+  std::unique_ptr<InputChange[]> changes_;
+  std::size_t change_mask_ = 0;
+  std::atomic<std::uint64_t> change_head_{0};  // next to write (producer)
+  std::atomic<std::uint64_t> change_tail_{0};  // next to read (consumer)
+  std::atomic<std::uint64_t> changes_dropped_{0};
+  std::uint64_t changes_dropped_reported_ = 0;  // under drain_mutex_
+
+  // Statistics (written by the bus thread, read anywhere).
+  struct Counters;
+  std::unique_ptr<Counters> counters_;
+};
+
+}  // namespace ecat::master

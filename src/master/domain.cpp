@@ -1,0 +1,1181 @@
+// Domain: registrations and planning on the control side, staging and the seqlocked input image
+// for the hot path, the cycle and its classification on the bus thread. See domain.hpp for the
+// model; the comments here say why the mechanics are as they are.
+
+#include <algorithm>
+#include <cstring>
+#include <limits>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include <ecat/bus/realtime.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/wire/frame.hpp>
+
+namespace ecat::master {
+
+using std::chrono::nanoseconds;
+using namespace std::chrono_literals;
+
+namespace {
+
+std::int64_t to_ns(Clock::time_point t) {
+  return std::chrono::duration_cast<nanoseconds>(t.time_since_epoch()).count();
+}
+
+// 0 is "never": the steady clock starts at boot, so a real time stamp is never 0.
+std::optional<Clock::time_point> from_ns(std::int64_t ns) {
+  if (ns == 0) return std::nullopt;
+  return Clock::time_point(nanoseconds(ns));
+}
+
+void cpu_relax() noexcept {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_ia32_pause();
+#endif
+}
+
+std::string format_duration(nanoseconds d) {
+  const auto ns = d.count();
+  if (ns % 1'000'000 == 0) return fmt::format("{} ms", ns / 1'000'000);
+  if (ns % 1'000 == 0) return fmt::format("{} us", ns / 1'000);
+  return fmt::format("{} ns", ns);
+}
+
+// The input image is an array of 64-bit atomics so that the seqlock's racing reads are
+// well-defined; bytes are packed into words in host order (only this file ever sees the words).
+void store_bytes(std::atomic<std::uint64_t>* words, std::size_t offset, const std::uint8_t* src,
+                 std::size_t n) noexcept {
+  while (n > 0) {
+    const std::size_t w = offset / 8;
+    const std::size_t in_word = offset % 8;
+    const std::size_t take = std::min<std::size_t>(8 - in_word, n);
+    std::uint64_t value = words[w].load(std::memory_order_relaxed);  // single writer
+    std::memcpy(reinterpret_cast<std::uint8_t*>(&value) + in_word, src, take);
+    words[w].store(value, std::memory_order_relaxed);
+    offset += take;
+    src += take;
+    n -= take;
+  }
+}
+
+void load_bytes(const std::atomic<std::uint64_t>* words, std::size_t offset, std::uint8_t* dst,
+                std::size_t n) noexcept {
+  while (n > 0) {
+    const std::size_t w = offset / 8;
+    const std::size_t in_word = offset % 8;
+    const std::size_t take = std::min<std::size_t>(8 - in_word, n);
+    const std::uint64_t value = words[w].load(std::memory_order_relaxed);
+    std::memcpy(dst, reinterpret_cast<const std::uint8_t*>(&value) + in_word, take);
+    offset += take;
+    dst += take;
+    n -= take;
+  }
+}
+
+// The last invalid cycle and the health fit one atomic word each, so a reader never sees the
+// reason of one cycle with the counters of another.
+constexpr std::uint64_t kPresentBit = std::uint64_t{1} << 63;
+constexpr std::uint32_t kWkcFieldMax = (1u << 20) - 1;
+
+std::uint64_t pack(const CycleInvalid& c) noexcept {
+  const std::uint64_t expected = std::min(c.expected_wkc, kWkcFieldMax);
+  const std::uint64_t actual = std::min(c.actual_wkc, kWkcFieldMax);
+  return kPresentBit | (static_cast<std::uint64_t>(c.reason) << 56) |
+         (static_cast<std::uint64_t>(c.datagram) << 40) | (actual << 20) | expected;
+}
+
+std::optional<CycleInvalid> unpack(std::uint64_t v) noexcept {
+  if ((v & kPresentBit) == 0) return std::nullopt;
+  CycleInvalid c;
+  c.reason = static_cast<InvalidReason>((v >> 56) & 0x7F);
+  c.datagram = static_cast<std::uint16_t>(v >> 40);
+  c.actual_wkc = static_cast<std::uint32_t>((v >> 20) & kWkcFieldMax);
+  c.expected_wkc = static_cast<std::uint32_t>(v & kWkcFieldMax);
+  return c;
+}
+
+enum class DomainEvent : std::uint8_t { start_cycling, stop_cycling, miss_threshold };
+
+// The state diagram of domain.hpp, and nothing else.
+constexpr std::optional<DomainState> transition(DomainState from, DomainEvent event) noexcept {
+  switch (event) {
+    case DomainEvent::start_cycling:
+      if (from == DomainState::open || from == DomainState::stopped) return DomainState::cycling;
+      return std::nullopt;
+    case DomainEvent::stop_cycling:
+    case DomainEvent::miss_threshold:
+      if (from == DomainState::cycling) return DomainState::stopped;
+      return std::nullopt;
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
+std::string_view to_string(DomainState state) noexcept {
+  switch (state) {
+    case DomainState::open:
+      return "open";
+    case DomainState::cycling:
+      return "cycling";
+    case DomainState::stopped:
+      return "stopped";
+  }
+  return "unknown";
+}
+
+std::string to_string(const PdoKey& key) {
+  return fmt::format("station 0x{:04x} SM{}", key.slave, key.sync_manager);
+}
+
+std::string_view to_string(InvalidReason reason) noexcept {
+  switch (reason) {
+    case InvalidReason::wkc_mismatch:
+      return "wkc_mismatch";
+    case InvalidReason::timeout:
+      return "timeout";
+    case InvalidReason::link_error:
+      return "link_error";
+    case InvalidReason::closed:
+      return "closed";
+  }
+  return "unknown";
+}
+
+std::string_view to_string(Freshness freshness) noexcept {
+  switch (freshness) {
+    case Freshness::not_ready:
+      return "not_ready";
+    case Freshness::fresh:
+      return "fresh";
+    case Freshness::stale:
+      return "stale";
+  }
+  return "unknown";
+}
+
+// ---------------------------------------------------------------------------------------------
+// Internal types
+
+struct Domain::Entry {
+  PdoKey key;
+  std::uint32_t index = 0;
+  std::uint32_t offset = 0;
+  std::uint16_t size = 0;
+  PdoDirection direction = PdoDirection::input;
+  bool contributes_wkc = true;
+  // Outputs: written under the staging lock; atomics so stats-like readers need no lock.
+  mutable std::atomic<std::int64_t> output_written_ns{0};
+  mutable std::atomic<std::int64_t> output_changed_ns{0};
+  // Inputs: written by the bus thread inside the seqlock's write section.
+  mutable std::atomic<std::int64_t> input_changed_ns{0};
+};
+
+struct Domain::Exchange {
+  Domain* domain = nullptr;
+  std::unique_ptr<bus::RealtimeTransaction> rt;
+  std::uint64_t cycle = 0;
+  Clock::time_point submitted_at{};
+};
+
+struct Domain::Plan {
+  std::vector<DomainDatagram> datagrams;
+  std::uint32_t image_size = 0;
+  std::uint32_t expected_total = 0;
+  std::uint32_t entry_count = 0;
+  std::vector<std::uint32_t> input_entries;
+  std::vector<std::unique_ptr<Exchange>> exchanges;
+
+  // Bus thread only from here on.
+  std::vector<std::uint8_t> tx_image;     // outputs of the next exchange
+  std::vector<std::uint8_t> rx_image;     // the reply being classified
+  std::vector<std::uint8_t> last_inputs;  // as last published (change detection)
+  struct Changed {
+    std::uint32_t entry = 0;
+    std::uint16_t first = 0;
+    std::uint16_t last = 0;
+  };
+  std::vector<Changed> changed;  // capacity: one per input registration
+  std::size_t next_exchange = 0;
+  std::uint64_t next_cycle = 0;
+  std::uint64_t last_classified = 0;  // newest cycle whose result counted for health
+  std::uint64_t seen_staging_version = std::numeric_limits<std::uint64_t>::max();
+  std::uint32_t seen_generation = 0;
+  bool published = false;
+  bool degraded = false;
+  std::uint64_t miss_streak = 0;
+  std::uint64_t invalid_streak = 0;
+};
+
+struct Domain::Counters {
+  std::atomic<std::uint64_t> cycles{0}, valid{0}, miss_streak{0}, total_miss{0}, invalid_streak{0},
+      wkc_mismatch{0}, timeout{0}, expired{0}, overrun{0}, link_error{0}, late{0}, stage_skips{0};
+  std::atomic<std::uint32_t> last_wkc{0};
+  std::atomic<std::int64_t> last_valid_ns{0}, last_invalid_ns{0};
+  std::atomic<std::uint64_t> last_invalid{0};  // packed CycleInvalid, 0: none
+  std::atomic<std::uint64_t> health{0};        // packed CycleInvalid of the latest cycle, 0: ok
+  std::atomic<std::int64_t> last_latency{0}, min_latency{std::numeric_limits<std::int64_t>::max()},
+      max_latency{0}, latency_sum{0};
+  std::atomic<std::uint64_t> latency_count{0};
+};
+
+// ---------------------------------------------------------------------------------------------
+// Creation
+
+Result<std::unique_ptr<Domain>> Domain::create(bus::Bus& bus, DomainConfig config,
+                                               DomainObserver* observer) {
+  const auto fail = [&](std::string what) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("domain \"{}\": {}", config.id, std::move(what)));
+  };
+  if (config.id.empty()) return Error(Errc::invalid_argument, "domain: id must not be empty");
+  if (config.period < kMinPeriod) {
+    return fail(fmt::format("period {} is below the {} minimum", format_duration(config.period),
+                            format_duration(kMinPeriod)));
+  }
+  if (config.miss_threshold == 0) return fail("miss_threshold must be at least 1");
+  if (config.recovery_threshold == 0) return fail("recovery_threshold must be at least 1");
+  if (config.stale_after < 0ns) return fail("stale_after must not be negative");
+  if (config.realtime_budget < 0ns) return fail("realtime_budget must not be negative");
+  if (config.max_image_size == 0) return fail("max_image_size must be at least 1");
+  if (static_cast<std::uint64_t>(config.logical_base) + config.max_image_size >
+      (std::uint64_t{1} << 32)) {
+    return fail(
+        fmt::format("logical window 0x{:08x} + {} bytes (max_image_size) passes the end of "
+                    "the 4 GiB logical address space",
+                    config.logical_base, config.max_image_size));
+  }
+  const std::size_t frame_room =
+      bus.max_frame_size() > wire::kFrameHeaderSize + wire::kDatagramOverhead
+          ? std::min<std::size_t>(
+                bus.max_frame_size() - wire::kFrameHeaderSize - wire::kDatagramOverhead,
+                wire::kMaxDatagramLength)
+          : 0;
+  if (frame_room == 0) return fail("the bus's frames have no room for a datagram");
+  if (config.max_datagram_size > frame_room) {
+    return fail(
+        fmt::format("max_datagram_size {} exceeds the {} data bytes one frame of bus {} "
+                    "carries",
+                    config.max_datagram_size, frame_room, bus.link_name()));
+  }
+  if (config.max_datagram_size == 0) config.max_datagram_size = frame_room;
+  if (config.max_registrations == 0 || config.max_registrations > 65535) {
+    return fail(
+        fmt::format("max_registrations must be 1..65535, got {}", config.max_registrations));
+  }
+  if (config.exchanges_in_flight == 0 || config.exchanges_in_flight > 64) {
+    return fail(
+        fmt::format("exchanges_in_flight must be 1..64, got {}", config.exchanges_in_flight));
+  }
+  if (config.change_queue_capacity == 0 || config.change_queue_capacity > (1u << 24)) {
+    return fail(fmt::format("change_queue_capacity must be 1..16777216, got {}",
+                            config.change_queue_capacity));
+  }
+  return std::unique_ptr<Domain>(new Domain(bus, std::move(config), observer));
+}
+
+Domain::Domain(bus::Bus& bus, DomainConfig config, DomainObserver* observer)
+    : bus_(bus),
+      config_(std::move(config)),
+      observer_(observer),
+      period_ns_(config_.period.count()),
+      entries_(std::make_unique<Entry[]>(config_.max_registrations)),
+      staging_(std::make_unique<std::uint8_t[]>(config_.max_image_size)),
+      input_words_(
+          std::make_unique<std::atomic<std::uint64_t>[]>((config_.max_image_size + 7) / 8)),
+      counters_(std::make_unique<Counters>()) {
+  std::size_t capacity = 1;
+  while (capacity < config_.change_queue_capacity)
+    capacity <<= 1;
+  changes_ = std::make_unique<InputChange[]>(capacity);
+  change_mask_ = capacity - 1;
+  const std::size_t words = (config_.max_image_size + 7) / 8;
+  for (std::size_t i = 0; i < words; ++i)
+    input_words_[i].store(0, std::memory_order_relaxed);
+}
+
+Domain::~Domain() {
+  // First make sure the bus thread no longer calls on_tick, then wait for the exchanges it still
+  // has: their completions call into this object.
+  detach_from_cycler();
+  state_.store(DomainState::stopped, std::memory_order_release);
+  if (plan_) {
+    for (auto& x : plan_->exchanges)
+      x->rt->wait();
+  }
+}
+
+Error Domain::error(Errc code, std::string_view what) const {
+  return Error(code, fmt::format("domain \"{}\": {}", config_.id, what));
+}
+
+// The control side may hold control_mutex_ while the Cycler waits for the bus thread's tick; a
+// bus-thread caller waiting for control_mutex_ would close the circle.
+Error Domain::refuse_on_bus_thread(std::string_view call) const {
+  return error(Errc::wrong_state,
+               fmt::format("{}() called on the bus thread (from an observer or a completion); "
+                           "post it to the control thread",
+                           call));
+}
+
+nanoseconds Domain::stale_after() const noexcept {
+  if (config_.stale_after > 0ns) return config_.stale_after;
+  return 3 * cycle_period();
+}
+
+nanoseconds Domain::realtime_budget() const noexcept {
+  if (config_.realtime_budget > 0ns) return config_.realtime_budget;
+  return std::max<nanoseconds>(cycle_period() * 9 / 10, 200us);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Control plane
+
+Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDirection direction,
+                                           bool contributes_wkc) {
+  if (bus_.on_bus_thread()) return refuse_on_bus_thread("register_pdo");
+  std::lock_guard lock(control_mutex_);
+  const DomainState s = state();
+  if (s != DomainState::open) {
+    return error(Errc::wrong_state,
+                 fmt::format("cannot register {} ({}): not_open (the domain is {}; registration "
+                             "is only possible before it first cycles)",
+                             to_string(key), to_string(direction), to_string(s)));
+  }
+  if (bytes == 0 || bytes > 0xFFFF) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot register {}: size {} bytes is outside 1..65535",
+                             to_string(key), bytes));
+  }
+  const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (entries_[i].key == key) {
+      return error(
+          Errc::invalid_argument,
+          fmt::format("{} is already registered (at logical 0x{:08x}, {} bytes)", to_string(key),
+                      config_.logical_base + entries_[i].offset, entries_[i].size));
+    }
+  }
+  if (count >= config_.max_registrations) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot register {}: all {} registrations (max_registrations) used",
+                             to_string(key), config_.max_registrations));
+  }
+  if (image_size_ + bytes > config_.max_image_size) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot register {}: image_too_large: {} + {} bytes exceeds the {} "
+                             "byte maximum (max_image_size)",
+                             to_string(key), image_size_, bytes, config_.max_image_size));
+  }
+  Entry& e = entries_[count];
+  e.key = key;
+  e.index = count;
+  e.offset = image_size_;
+  e.size = static_cast<std::uint16_t>(bytes);
+  e.direction = direction;
+  e.contributes_wkc = contributes_wkc;
+  image_size_ += static_cast<std::uint32_t>(bytes);
+  // Publishing the count makes the entry visible to hot-path readers, fully written.
+  entry_count_.store(count + 1, std::memory_order_release);
+  return config_.logical_base + e.offset;
+}
+
+std::vector<DomainDatagram> Domain::plan_locked() const {
+  std::vector<DomainDatagram> out;
+  const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
+  const std::size_t max_dg = config_.max_datagram_size;
+  std::uint32_t offset = 0;
+  std::uint32_t first = 0;  // first registration ending after `offset`
+  while (offset < image_size_) {
+    while (first < count && entries_[first].offset + entries_[first].size <= offset)
+      ++first;
+    // Whole registrations while they fit; a registration larger than a datagram is cut.
+    std::uint32_t end = offset;
+    for (std::uint32_t i = first; i < count; ++i) {
+      const std::uint32_t reg_end = entries_[i].offset + entries_[i].size;
+      if (reg_end - offset <= max_dg) {
+        end = reg_end;
+        continue;
+      }
+      if (end == offset) end = offset + static_cast<std::uint32_t>(max_dg);
+      break;
+    }
+    DomainDatagram d;
+    d.offset = offset;
+    d.logical = config_.logical_base + offset;
+    d.length = static_cast<std::uint16_t>(end - offset);
+    // Expected WKC: per slave, 1 when it has an input and 2 when it has an output overlapping.
+    struct SlaveShare {
+      std::uint16_t slave;
+      bool reads;
+      bool writes;
+    };
+    std::vector<SlaveShare> shares;
+    for (std::uint32_t i = first; i < count && entries_[i].offset < end; ++i) {
+      const Entry& e = entries_[i];
+      if (!e.contributes_wkc) continue;
+      auto it = std::find_if(shares.begin(), shares.end(),
+                             [&](const SlaveShare& s) { return s.slave == e.key.slave; });
+      if (it == shares.end()) {
+        shares.push_back({e.key.slave, false, false});
+        it = shares.end() - 1;
+      }
+      (e.direction == PdoDirection::input ? it->reads : it->writes) = true;
+    }
+    std::uint32_t wkc = 0;
+    for (const auto& s : shares)
+      wkc += (s.reads ? 1u : 0u) + (s.writes ? 2u : 0u);
+    d.expected_wkc = static_cast<std::uint16_t>(std::min<std::uint32_t>(wkc, 0xFFFF));
+    out.push_back(d);
+    offset = end;
+  }
+  if (!wkc_override_.empty() && wkc_override_.size() == out.size()) {
+    for (std::size_t i = 0; i < out.size(); ++i)
+      out[i].expected_wkc = wkc_override_[i];
+  }
+  return out;
+}
+
+Result<void> Domain::build_exchanges_locked() {
+  auto plan = std::make_unique<Plan>();
+  plan->datagrams = plan_locked();
+  if (!wkc_override_.empty() && wkc_override_.size() != plan->datagrams.size()) {
+    return error(Errc::invalid_argument,
+                 fmt::format("the expected WKC override has {} values, but the image makes {} "
+                             "datagrams",
+                             wkc_override_.size(), plan->datagrams.size()));
+  }
+  plan->image_size = image_size_;
+  plan->entry_count = entry_count_.load(std::memory_order_relaxed);
+  for (const auto& d : plan->datagrams)
+    plan->expected_total += d.expected_wkc;
+  for (std::uint32_t i = 0; i < plan->entry_count; ++i) {
+    if (entries_[i].direction == PdoDirection::input) plan->input_entries.push_back(i);
+  }
+  plan->tx_image.assign(image_size_, 0);
+  plan->rx_image.assign(image_size_, 0);
+  plan->last_inputs.assign(image_size_, 0);
+  plan->changed.resize(plan->input_entries.size());
+  plan->seen_generation = restart_generation_.load(std::memory_order_relaxed);
+  for (std::size_t k = 0; k < config_.exchanges_in_flight; ++k) {
+    bus::Transaction tx;
+    tx.reserve(plan->datagrams.size(), image_size_);
+    for (const auto& d : plan->datagrams) {
+      tx.lrw(d.logical, wire::Bytes(plan->tx_image.data() + d.offset, d.length), d.expected_wkc);
+    }
+    if (tx.error()) return tx.error()->context(fmt::format("domain \"{}\": LRW layout", id()));
+    auto x = std::make_unique<Exchange>();
+    x->domain = this;
+    x->rt = std::make_unique<bus::RealtimeTransaction>(std::move(tx));
+    Exchange* raw = x.get();
+    x->rt->set_completion(
+        [raw](bus::RealtimeTransaction&) { raw->domain->on_exchange_done(*raw); });
+    plan->exchanges.push_back(std::move(x));
+  }
+  plan_ = std::move(plan);
+  return ok();
+}
+
+Result<void> Domain::start_cycling() {
+  if (bus_.on_bus_thread()) return refuse_on_bus_thread("start_cycling");
+  std::lock_guard lock(control_mutex_);
+  const DomainState s = state();
+  if (s == DomainState::cycling) {
+    return error(Errc::wrong_state, "cannot start cycling: already_cycling");
+  }
+  if (s == DomainState::open) {
+    if (entry_count_.load(std::memory_order_relaxed) == 0) {
+      return error(Errc::wrong_state, "cannot start cycling: nothing_registered");
+    }
+    if (auto r = build_exchanges_locked(); !r) return r;
+  } else {
+    // stopped -> cycling: the bus thread resets its streaks when it sees the new generation.
+    restart_generation_.fetch_add(1, std::memory_order_acq_rel);
+  }
+  DomainState expected = s;
+  const auto next = transition(s, DomainEvent::start_cycling);
+  if (!next || !state_.compare_exchange_strong(expected, *next, std::memory_order_acq_rel)) {
+    return error(Errc::wrong_state,
+                 fmt::format("cannot start cycling from state {}", to_string(expected)));
+  }
+  return ok();
+}
+
+Result<void> Domain::stop_cycling() {
+  // Lock-free (one compare-exchange), so an observer may stop the domain from the bus thread.
+  DomainState s = state();
+  const auto next = transition(s, DomainEvent::stop_cycling);
+  if (!next || !state_.compare_exchange_strong(s, *next, std::memory_order_acq_rel)) {
+    return error(Errc::wrong_state,
+                 fmt::format("cannot stop cycling: the domain is {}", to_string(s)));
+  }
+  return ok();
+}
+
+Result<void> Domain::update_period(nanoseconds period) {
+  if (bus_.on_bus_thread()) return refuse_on_bus_thread("update_period");
+  if (period < kMinPeriod) {
+    return error(Errc::invalid_argument,
+                 fmt::format("period {} is below the {} minimum", format_duration(period),
+                             format_duration(kMinPeriod)));
+  }
+  std::lock_guard lock(control_mutex_);
+  const std::int64_t previous = period_ns_.exchange(period.count(), std::memory_order_acq_rel);
+  if (auto r = notify_period_changed(); !r) {
+    period_ns_.store(previous, std::memory_order_release);
+    return std::move(r).error().context(
+        fmt::format("domain \"{}\": changing the period to {}", id(), format_duration(period)));
+  }
+  return ok();
+}
+
+Result<void> Domain::set_expected_wkc(std::vector<std::uint16_t> per_datagram) {
+  if (bus_.on_bus_thread()) return refuse_on_bus_thread("set_expected_wkc");
+  std::lock_guard lock(control_mutex_);
+  if (state() != DomainState::open) {
+    return error(Errc::wrong_state, "the expected WKC can only be overridden while open");
+  }
+  wkc_override_.clear();
+  const auto computed = plan_locked();
+  if (!per_datagram.empty() && per_datagram.size() != computed.size()) {
+    return error(Errc::invalid_argument,
+                 fmt::format("expected WKC override has {} values, the image makes {} datagrams",
+                             per_datagram.size(), computed.size()));
+  }
+  wkc_override_ = std::move(per_datagram);
+  return ok();
+}
+
+std::vector<DomainDatagram> Domain::layout() const {
+  std::lock_guard lock(control_mutex_);
+  if (plan_) return plan_->datagrams;
+  return plan_locked();
+}
+
+std::vector<PdoRegistration> Domain::registrations() const {
+  std::vector<PdoRegistration> out;
+  const std::uint32_t count = entry_count_.load(std::memory_order_acquire);
+  out.reserve(count);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const Entry& e = entries_[i];
+    out.push_back({e.key, PdoHandle{i}, e.offset, config_.logical_base + e.offset, e.size,
+                   e.direction, e.contributes_wkc});
+  }
+  return out;
+}
+
+Result<PdoHandle> Domain::find(PdoKey key) const {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  return PdoHandle{(*e)->index};
+}
+
+Result<PdoRegistration> Domain::registration(PdoKey key) const {
+  auto found = lookup(key);
+  if (!found) return std::move(found).error();
+  const Entry& e = **found;
+  return PdoRegistration{
+      e.key,  PdoHandle{e.index}, e.offset,         config_.logical_base + e.offset,
+      e.size, e.direction,        e.contributes_wkc};
+}
+
+DomainStats Domain::stats() const noexcept {
+  const Counters& c = *counters_;
+  DomainStats s;
+  s.state = state();
+  const auto health = unpack(c.health.load(std::memory_order_relaxed));
+  s.health.healthy = !health.has_value();
+  s.health.invalid = health;
+  s.cycle_count = c.cycles.load(std::memory_order_relaxed);
+  s.valid_count = c.valid.load(std::memory_order_relaxed);
+  s.miss_count = c.miss_streak.load(std::memory_order_relaxed);
+  s.total_miss_count = c.total_miss.load(std::memory_order_relaxed);
+  s.invalid_streak = c.invalid_streak.load(std::memory_order_relaxed);
+  s.wkc_mismatch_count = c.wkc_mismatch.load(std::memory_order_relaxed);
+  s.timeout_count = c.timeout.load(std::memory_order_relaxed);
+  s.expired_count = c.expired.load(std::memory_order_relaxed);
+  s.overrun_count = c.overrun.load(std::memory_order_relaxed);
+  s.link_error_count = c.link_error.load(std::memory_order_relaxed);
+  s.late_results = c.late.load(std::memory_order_relaxed);
+  s.output_stage_skips = c.stage_skips.load(std::memory_order_relaxed);
+  s.changes_dropped = changes_dropped_.load(std::memory_order_relaxed);
+  s.last_wkc = c.last_wkc.load(std::memory_order_relaxed);
+  s.last_valid_at = from_ns(c.last_valid_ns.load(std::memory_order_relaxed));
+  s.last_invalid_at = from_ns(c.last_invalid_ns.load(std::memory_order_relaxed));
+  s.last_invalid = unpack(c.last_invalid.load(std::memory_order_relaxed));
+  const auto count = c.latency_count.load(std::memory_order_relaxed);
+  if (count > 0) {
+    s.last_latency = nanoseconds(c.last_latency.load(std::memory_order_relaxed));
+    s.min_latency = nanoseconds(c.min_latency.load(std::memory_order_relaxed));
+    s.max_latency = nanoseconds(c.max_latency.load(std::memory_order_relaxed));
+    s.mean_latency = nanoseconds(c.latency_sum.load(std::memory_order_relaxed) /
+                                 static_cast<std::int64_t>(count));
+  }
+  return s;
+}
+
+DomainInfo Domain::info() const {
+  DomainInfo info;
+  info.id = config_.id;
+  info.period = cycle_period();
+  info.stale_after = stale_after();
+  info.realtime_budget = realtime_budget();
+  info.logical_base = config_.logical_base;
+  {
+    std::lock_guard lock(control_mutex_);
+    info.image_size = image_size_;
+    info.datagrams = plan_ ? plan_->datagrams : plan_locked();
+  }
+  for (const auto& d : info.datagrams)
+    info.expected_wkc += d.expected_wkc;
+  info.registrations = registrations();
+  info.stats = stats();
+  info.state = info.stats.state;
+  return info;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hot path
+
+Result<const Domain::Entry*> Domain::lookup(PdoKey key) const {
+  const std::uint32_t count = entry_count_.load(std::memory_order_acquire);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (entries_[i].key == key) return &entries_[i];
+  }
+  return error(Errc::not_found, fmt::format("{} is not registered", to_string(key)));
+}
+
+Result<const Domain::Entry*> Domain::lookup(PdoHandle handle) const {
+  const std::uint32_t count = entry_count_.load(std::memory_order_acquire);
+  if (handle.index >= count) {
+    return error(Errc::not_found, fmt::format("no registration with handle {} ({} registered)",
+                                              handle.index, count));
+  }
+  return &entries_[handle.index];
+}
+
+void Domain::lock_staging() const noexcept {
+  for (int spins = 0;; ++spins) {
+    bool expected = false;
+    if (staging_lock_.compare_exchange_weak(expected, true, std::memory_order_acquire,
+                                            std::memory_order_relaxed)) {
+      return;
+    }
+    // Holders only copy a few bytes; a holder that lost its CPU needs the CPU back.
+    if (spins < 64) {
+      cpu_relax();
+    } else {
+      std::this_thread::yield();
+    }
+  }
+}
+
+void Domain::unlock_staging() const noexcept {
+  staging_lock_.store(false, std::memory_order_release);
+}
+
+Result<void> Domain::write_entry(const Entry& e, wire::Bytes data) {
+  if (e.direction != PdoDirection::output) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot write {}: it is an input", to_string(e.key)));
+  }
+  if (data.size() != e.size) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot write {}: {} bytes given, the SM image has {}",
+                             to_string(e.key), data.size(), e.size));
+  }
+  const std::int64_t now = to_ns(Clock::now());
+  lock_staging();
+  std::uint8_t* target = staging_.get() + e.offset;
+  const bool changed = std::memcmp(target, data.data(), data.size()) != 0 ||
+                       e.output_written_ns.load(std::memory_order_relaxed) == 0;
+  std::memcpy(target, data.data(), data.size());
+  ++staging_version_;
+  e.output_written_ns.store(now, std::memory_order_relaxed);
+  if (changed) e.output_changed_ns.store(now, std::memory_order_relaxed);
+  unlock_staging();
+  return ok();
+}
+
+Result<void> Domain::write(PdoKey key, wire::Bytes data) {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  return write_entry(**e, data);
+}
+
+Result<void> Domain::write(PdoHandle handle, wire::Bytes data) {
+  auto e = lookup(handle);
+  if (!e) return std::move(e).error();
+  return write_entry(**e, data);
+}
+
+Result<void> Domain::write_bits_entry(const Entry& e, std::size_t bit_offset,
+                                      std::size_t bit_length, std::uint64_t value) {
+  if (e.direction != PdoDirection::output) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot write bits of {}: it is an input", to_string(e.key)));
+  }
+  if (bit_length == 0 || bit_length > 64 || bit_offset + bit_length > std::size_t{e.size} * 8) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot write bits {}..{} of {}: the SM image has {} bits and at "
+                             "most 64 bits are written at once",
+                             bit_offset, bit_offset + bit_length, to_string(e.key),
+                             std::size_t{e.size} * 8));
+  }
+  const std::int64_t now = to_ns(Clock::now());
+  lock_staging();
+  std::uint8_t* image = staging_.get() + e.offset;
+  bool changed = e.output_written_ns.load(std::memory_order_relaxed) == 0;
+  for (std::size_t i = 0; i < bit_length; ++i) {
+    const std::size_t bit = bit_offset + i;
+    const auto mask = static_cast<std::uint8_t>(1u << (bit % 8));
+    const bool on = ((value >> i) & 1u) != 0;
+    std::uint8_t& byte = image[bit / 8];
+    const auto next = static_cast<std::uint8_t>(on ? (byte | mask) : (byte & ~mask));
+    changed = changed || next != byte;
+    byte = next;
+  }
+  ++staging_version_;
+  e.output_written_ns.store(now, std::memory_order_relaxed);
+  if (changed) e.output_changed_ns.store(now, std::memory_order_relaxed);
+  unlock_staging();
+  return ok();
+}
+
+Result<void> Domain::write_bits(PdoKey key, std::size_t bit_offset, std::size_t bit_length,
+                                std::uint64_t value) {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  return write_bits_entry(**e, bit_offset, bit_length, value);
+}
+
+Result<void> Domain::write_bits(PdoHandle handle, std::size_t bit_offset, std::size_t bit_length,
+                                std::uint64_t value) {
+  auto e = lookup(handle);
+  if (!e) return std::move(e).error();
+  return write_bits_entry(**e, bit_offset, bit_length, value);
+}
+
+FreshnessInfo Domain::freshness() const noexcept {
+  FreshnessInfo f;
+  f.stale_after = stale_after();
+  const std::int64_t refreshed = refreshed_ns_.load(std::memory_order_acquire);
+  if (refreshed == 0) return f;
+  const auto now = Clock::now();
+  f.refreshed_at = from_ns(refreshed);
+  f.age = std::max(nanoseconds(0), now - *f.refreshed_at);
+  f.state = *f.age <= f.stale_after ? Freshness::fresh : Freshness::stale;
+  return f;
+}
+
+Result<SampleInfo> Domain::sample_entry(const Entry& e, wire::MutableBytes out,
+                                        bool fail_stale) const {
+  if (out.size() < e.size) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot read {}: buffer of {} bytes, the SM image has {}",
+                             to_string(e.key), out.size(), e.size));
+  }
+  SampleInfo info;
+  info.size = e.size;
+  if (e.direction == PdoDirection::output) {
+    lock_staging();
+    const std::int64_t written = e.output_written_ns.load(std::memory_order_relaxed);
+    const std::int64_t changed = e.output_changed_ns.load(std::memory_order_relaxed);
+    if (written != 0) std::memcpy(out.data(), staging_.get() + e.offset, e.size);
+    unlock_staging();
+    if (written == 0) {
+      return error(Errc::not_ready,
+                   fmt::format("{} (output) has not been written yet", to_string(e.key)));
+    }
+    info.updated_at = from_ns(written);
+    info.changed_at = from_ns(changed);
+    return info;
+  }
+  std::int64_t refreshed = 0;
+  std::int64_t changed = 0;
+  for (int spins = 0;; ++spins) {
+    const std::uint64_t s1 = input_seq_.load(std::memory_order_acquire);
+    if ((s1 & 1u) == 0) {
+      refreshed = refreshed_ns_.load(std::memory_order_relaxed);
+      changed = e.input_changed_ns.load(std::memory_order_relaxed);
+      load_bytes(input_words_.get(), e.offset, out.data(), e.size);
+      std::atomic_thread_fence(std::memory_order_acquire);
+      if (input_seq_.load(std::memory_order_relaxed) == s1) break;
+    }
+    if (spins < 64) {
+      cpu_relax();
+    } else {
+      std::this_thread::yield();
+    }
+  }
+  if (refreshed == 0) {
+    return error(Errc::not_ready,
+                 fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
+  }
+  FreshnessInfo f;
+  f.stale_after = stale_after();
+  f.refreshed_at = from_ns(refreshed);
+  f.age = std::max(nanoseconds(0), Clock::now() - *f.refreshed_at);
+  f.state = *f.age <= f.stale_after ? Freshness::fresh : Freshness::stale;
+  if (fail_stale && f.state == Freshness::stale) {
+    return error(
+        Errc::stale,
+        fmt::format("{} (input) is stale: last valid cycle {} us ago, stale after {} us",
+                    to_string(e.key),
+                    std::chrono::duration_cast<std::chrono::microseconds>(*f.age).count(),
+                    std::chrono::duration_cast<std::chrono::microseconds>(f.stale_after).count()));
+  }
+  info.updated_at = f.refreshed_at;
+  info.changed_at = from_ns(changed);
+  info.freshness = f;
+  return info;
+}
+
+Result<std::size_t> Domain::read(PdoHandle handle, wire::MutableBytes out) const {
+  auto e = lookup(handle);
+  if (!e) return std::move(e).error();
+  auto s = sample_entry(**e, out, false);
+  if (!s) return std::move(s).error();
+  return s->size;
+}
+
+Result<std::size_t> Domain::read(PdoKey key, wire::MutableBytes out) const {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  auto s = sample_entry(**e, out, false);
+  if (!s) return std::move(s).error();
+  return s->size;
+}
+
+Result<std::vector<std::uint8_t>> Domain::read(PdoKey key) const {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  std::vector<std::uint8_t> value((*e)->size);
+  auto s = sample_entry(**e, value, false);
+  if (!s) return std::move(s).error();
+  return value;
+}
+
+Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out) const {
+  auto e = lookup(handle);
+  if (!e) return std::move(e).error();
+  if ((*e)->direction != PdoDirection::input) {
+    return error(Errc::invalid_argument,
+                 fmt::format("read_fresh({}): outputs have no freshness", to_string((*e)->key)));
+  }
+  auto s = sample_entry(**e, out, true);
+  if (!s) return std::move(s).error();
+  return s->size;
+}
+
+Result<std::size_t> Domain::read_fresh(PdoKey key, wire::MutableBytes out) const {
+  auto h = find(key);
+  if (!h) return std::move(h).error();
+  return read_fresh(*h, out);
+}
+
+Result<SampleInfo> Domain::sample(PdoHandle handle, wire::MutableBytes out) const {
+  auto e = lookup(handle);
+  if (!e) return std::move(e).error();
+  return sample_entry(**e, out, false);
+}
+
+Result<SampleInfo> Domain::sample(PdoKey key, wire::MutableBytes out) const {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  return sample_entry(**e, out, false);
+}
+
+Result<Sample> Domain::sample(PdoKey key) const {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  Sample sample;
+  sample.value.resize((*e)->size);
+  auto s = sample_entry(**e, sample.value, false);
+  if (!s) return std::move(s).error();
+  sample.info = *s;
+  return sample;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Change records (SPSC ring)
+
+bool Domain::push_change(const InputChange& change) noexcept {
+  const std::uint64_t head = change_head_.load(std::memory_order_relaxed);
+  const std::uint64_t tail = change_tail_.load(std::memory_order_acquire);
+  if (head - tail > change_mask_) {
+    changes_dropped_.fetch_add(1, std::memory_order_relaxed);
+    return false;
+  }
+  changes_[head & change_mask_] = change;
+  change_head_.store(head + 1, std::memory_order_release);
+  return true;
+}
+
+bool Domain::pop_change(InputChange& out) noexcept {
+  const std::uint64_t tail = change_tail_.load(std::memory_order_relaxed);
+  const std::uint64_t head = change_head_.load(std::memory_order_acquire);
+  if (tail == head) return false;
+  out = changes_[tail & change_mask_];
+  change_tail_.store(tail + 1, std::memory_order_release);
+  return true;
+}
+
+std::uint64_t Domain::take_dropped_changes() noexcept {
+  const std::uint64_t total = changes_dropped_.load(std::memory_order_relaxed);
+  const std::uint64_t fresh = total - changes_dropped_reported_;
+  changes_dropped_reported_ = total;
+  return fresh;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The cycle (bus thread)
+
+void Domain::on_tick(const bus::CycleTick& tick) {
+  (void)tick;
+  if (state() != DomainState::cycling) return;
+  Plan& p = *plan_;  // set before the state first became cycling (acquire above)
+  Counters& c = *counters_;
+  const auto now = Clock::now();
+
+  const std::uint32_t generation = restart_generation_.load(std::memory_order_acquire);
+  if (generation != p.seen_generation) {
+    // Restarted after a stop: the consecutive misses start over (as the reference does). The
+    // invalid streak and a pending degradation stay, so the first valid cycle reports recovery.
+    p.seen_generation = generation;
+    p.miss_streak = 0;
+    c.miss_streak.store(0, std::memory_order_relaxed);
+  }
+
+  const std::uint64_t cycle = ++p.next_cycle;
+  c.cycles.fetch_add(1, std::memory_order_relaxed);
+
+  Exchange* x = nullptr;
+  const std::size_t n = p.exchanges.size();
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::size_t i = (p.next_exchange + k) % n;
+    if (!p.exchanges[i]->rt->pending()) {
+      x = p.exchanges[i].get();
+      p.next_exchange = (i + 1) % n;
+      break;
+    }
+  }
+  if (x == nullptr) {
+    // Every exchange is still waiting for its reply or its timeout: this cycle cannot go out.
+    c.overrun.fetch_add(1, std::memory_order_relaxed);
+    classify_invalid(cycle, CycleInvalid{InvalidReason::timeout, p.expected_total, 0, 0}, now);
+    return;
+  }
+
+  bool expected = false;
+  if (staging_lock_.compare_exchange_strong(expected, true, std::memory_order_acquire,
+                                            std::memory_order_relaxed)) {
+    if (staging_version_ != p.seen_staging_version) {
+      p.seen_staging_version = staging_version_;
+      // Input ranges of the staging image are never written: they stay zero.
+      std::memcpy(p.tx_image.data(), staging_.get(), p.image_size);
+    }
+    unlock_staging();
+  } else {
+    c.stage_skips.fetch_add(1, std::memory_order_relaxed);
+  }
+  for (std::size_t slot = 0; slot < p.datagrams.size(); ++slot) {
+    const auto& d = p.datagrams[slot];
+    std::memcpy(x->rt->output(slot).data(), p.tx_image.data() + d.offset, d.length);
+  }
+
+  x->cycle = cycle;
+  x->submitted_at = now;
+  if (auto r = bus_.submit_realtime(*x->rt, realtime_budget()); !r) {
+    c.link_error.fetch_add(1, std::memory_order_relaxed);
+    const InvalidReason reason =
+        r.error().code() == Errc::closed ? InvalidReason::closed : InvalidReason::link_error;
+    classify_invalid(cycle, CycleInvalid{reason, p.expected_total, 0, 0}, now);
+  }
+}
+
+void Domain::record_latency(std::int64_t ns) noexcept {
+  Counters& c = *counters_;
+  c.last_latency.store(ns, std::memory_order_relaxed);
+  if (ns < c.min_latency.load(std::memory_order_relaxed)) {
+    c.min_latency.store(ns, std::memory_order_relaxed);
+  }
+  if (ns > c.max_latency.load(std::memory_order_relaxed)) {
+    c.max_latency.store(ns, std::memory_order_relaxed);
+  }
+  c.latency_sum.fetch_add(ns, std::memory_order_relaxed);
+  c.latency_count.fetch_add(1, std::memory_order_relaxed);
+}
+
+void Domain::on_exchange_done(Exchange& x) noexcept {
+  Plan& p = *plan_;
+  Counters& c = *counters_;
+  const auto now = Clock::now();
+  const bus::RealtimeStatus status = x.rt->status();
+  const bool replied =
+      status == bus::RealtimeStatus::ok || status == bus::RealtimeStatus::wkc_mismatch;
+  if (replied) {
+    record_latency((now - x.submitted_at).count());
+    std::uint32_t actual = 0;
+    std::optional<std::uint16_t> first_bad;
+    for (std::size_t slot = 0; slot < p.datagrams.size(); ++slot) {
+      const std::uint16_t wkc = x.rt->wkc(slot);
+      actual += wkc;
+      if (!first_bad && wkc != p.datagrams[slot].expected_wkc) {
+        first_bad = static_cast<std::uint16_t>(slot);
+      }
+    }
+    c.last_wkc.store(actual, std::memory_order_relaxed);
+    if (!first_bad && actual > 0) {
+      classify_valid(x, now);
+      return;
+    }
+    c.wkc_mismatch.fetch_add(1, std::memory_order_relaxed);
+    classify_invalid(
+        x.cycle,
+        CycleInvalid{InvalidReason::wkc_mismatch, p.expected_total, actual, first_bad.value_or(0)},
+        now);
+    return;
+  }
+  InvalidReason reason = InvalidReason::timeout;
+  switch (status) {
+    case bus::RealtimeStatus::expired:
+      c.expired.fetch_add(1, std::memory_order_relaxed);
+      break;
+    case bus::RealtimeStatus::timeout:
+      c.timeout.fetch_add(1, std::memory_order_relaxed);
+      break;
+    case bus::RealtimeStatus::link_error:
+      c.link_error.fetch_add(1, std::memory_order_relaxed);
+      reason = InvalidReason::link_error;
+      break;
+    case bus::RealtimeStatus::closed:
+      c.link_error.fetch_add(1, std::memory_order_relaxed);
+      reason = InvalidReason::closed;
+      break;
+    default:
+      return;
+  }
+  classify_invalid(x.cycle, CycleInvalid{reason, p.expected_total, 0, 0}, now);
+}
+
+void Domain::classify_valid(Exchange& x, Clock::time_point now) noexcept {
+  Plan& p = *plan_;
+  Counters& c = *counters_;
+  if (x.cycle <= p.last_classified) {
+    // A newer cycle already counted (this one waited behind a lost frame): its inputs are older
+    // than what readers have.
+    c.late.fetch_add(1, std::memory_order_relaxed);
+    return;
+  }
+  p.last_classified = x.cycle;
+  for (std::size_t slot = 0; slot < p.datagrams.size(); ++slot) {
+    const auto& d = p.datagrams[slot];
+    const auto in = x.rt->input(slot);
+    std::memcpy(p.rx_image.data() + d.offset, in.data(),
+                std::min<std::size_t>(in.size(), d.length));
+  }
+  publish_inputs(x.cycle, now);
+  c.valid.fetch_add(1, std::memory_order_relaxed);
+  c.last_valid_ns.store(to_ns(now), std::memory_order_relaxed);
+  c.health.store(0, std::memory_order_relaxed);
+  p.miss_streak = 0;
+  p.invalid_streak = 0;
+  c.miss_streak.store(0, std::memory_order_relaxed);
+  c.invalid_streak.store(0, std::memory_order_relaxed);
+  if (p.degraded) {
+    p.degraded = false;
+    if (DomainObserver* o = observer_.load(std::memory_order_acquire)) o->on_cycle_recovered(*this);
+  }
+}
+
+void Domain::classify_invalid(std::uint64_t cycle, CycleInvalid invalid,
+                              Clock::time_point now) noexcept {
+  Plan& p = *plan_;
+  Counters& c = *counters_;
+  const bool miss = invalid.reason != InvalidReason::wkc_mismatch;
+  if (miss) c.total_miss.fetch_add(1, std::memory_order_relaxed);
+  c.last_invalid_ns.store(to_ns(now), std::memory_order_relaxed);
+  c.last_invalid.store(pack(invalid), std::memory_order_relaxed);
+  if (cycle <= p.last_classified) {
+    // Older than the newest result: counted, but it says nothing about the current health.
+    c.late.fetch_add(1, std::memory_order_relaxed);
+    return;
+  }
+  p.last_classified = cycle;
+  c.health.store(pack(invalid), std::memory_order_relaxed);
+  ++p.invalid_streak;
+  p.miss_streak = miss ? p.miss_streak + 1 : 0;
+  c.invalid_streak.store(p.invalid_streak, std::memory_order_relaxed);
+  c.miss_streak.store(p.miss_streak, std::memory_order_relaxed);
+  DomainObserver* observer = observer_.load(std::memory_order_acquire);
+  if (!p.degraded && p.invalid_streak >= config_.recovery_threshold) {
+    p.degraded = true;
+    if (observer) observer->on_cycle_degraded(*this, invalid);
+  }
+  if (miss && p.miss_streak >= config_.miss_threshold) {
+    DomainState expected = DomainState::cycling;
+    const auto next = transition(expected, DomainEvent::miss_threshold);
+    if (next && state_.compare_exchange_strong(expected, *next, std::memory_order_acq_rel)) {
+      if (observer) observer->on_stopped(*this, invalid, p.miss_streak);
+    }
+  }
+}
+
+void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept {
+  Plan& p = *plan_;
+  std::size_t changed = 0;
+  for (const std::uint32_t index : p.input_entries) {
+    const Entry& e = entries_[index];
+    const std::uint8_t* fresh = p.rx_image.data() + e.offset;
+    const std::uint8_t* old = p.last_inputs.data() + e.offset;
+    std::size_t first = 0;
+    if (p.published) {
+      while (first < e.size && fresh[first] == old[first])
+        ++first;
+      if (first == e.size) continue;
+    }
+    std::size_t last = e.size - 1;
+    if (p.published) {
+      while (last > first && fresh[last] == old[last])
+        --last;
+    }
+    p.changed[changed++] = {index, static_cast<std::uint16_t>(first),
+                            static_cast<std::uint16_t>(last)};
+  }
+
+  const std::int64_t now_ns = to_ns(now);
+  const std::uint64_t seq = input_seq_.load(std::memory_order_relaxed);
+  input_seq_.store(seq + 1, std::memory_order_relaxed);
+  std::atomic_thread_fence(std::memory_order_release);
+  for (std::size_t i = 0; i < changed; ++i) {
+    Entry& e = entries_[p.changed[i].entry];
+    store_bytes(input_words_.get(), e.offset, p.rx_image.data() + e.offset, e.size);
+    e.input_changed_ns.store(now_ns, std::memory_order_relaxed);
+  }
+  refreshed_ns_.store(now_ns, std::memory_order_relaxed);
+  input_seq_.store(seq + 2, std::memory_order_release);
+  p.published = true;
+
+  for (std::size_t i = 0; i < changed; ++i) {
+    const Entry& e = entries_[p.changed[i].entry];
+    std::memcpy(p.last_inputs.data() + e.offset, p.rx_image.data() + e.offset, e.size);
+    InputChange record;
+    record.handle = PdoHandle{e.index};
+    record.key = e.key;
+    record.cycle = cycle;
+    record.at = now;
+    record.first_byte = p.changed[i].first;
+    record.last_byte = p.changed[i].last;
+    push_change(record);
+  }
+  if (changed > 0) {
+    if (DomainObserver* o = observer_.load(std::memory_order_acquire)) {
+      o->on_inputs_changed(*this, changed);
+    }
+  }
+}
+
+}  // namespace ecat::master
