@@ -4,11 +4,16 @@
 #include <ecat/bus/bus.hpp>
 #include <ecat/bus/realtime.hpp>
 #include <ecat/bus/transaction.hpp>
+#include <ecat/exec/event_loop.hpp>
+#include <ecat/exec/task.hpp>
+#include <ecat/exec/transact.hpp>
 #include <ecat/link/link.hpp>
 #include <ecat/link/memory_link.hpp>
 #include <ecat/link/open.hpp>
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
+#include <ecat/master/master.hpp>
+#include <ecat/sim/backend.hpp>
 #include <ecat/result.hpp>
 #include <ecat/version.hpp>
 #include <ecat/wire/al.hpp>

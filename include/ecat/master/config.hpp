@@ -1,0 +1,127 @@
+// What a master session is told to do: the C++ form of the reference design's start options,
+// Slave.Config, Domain.Config and DC.Config (upstream-inventory §2.14-2.18), without its limits
+// (any cycle period, several sessions per process). Loaded from the master's sections of a ring
+// file (docs/MASTER-CONFIG.md) or built in code.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/master/al_control.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/driver.hpp>
+#include <ecat/master/pdo.hpp>
+#include <ecat/master/startup.hpp>
+#include <ecat/master/states.hpp>
+#include <ecat/result.hpp>
+
+namespace ecat::master {
+
+// Which of a slave's signals go to which domain.
+struct ProcessDataRequest {
+  enum class Kind : std::uint8_t { none, all, signals };
+  Kind kind = Kind::none;
+  std::string domain;  // Kind::all
+  struct Route {
+    std::string signal;
+    std::string domain;
+  };
+  std::vector<Route> routes;  // Kind::signals
+
+  static ProcessDataRequest none() { return {}; }
+  static ProcessDataRequest all(std::string domain_id) {
+    return {Kind::all, std::move(domain_id), {}};
+  }
+};
+
+enum class SyncMode : std::uint8_t { free_run, sync0, sync1 };
+std::string_view to_string(SyncMode mode) noexcept;
+
+enum class LatchEdge : std::uint8_t { rising, falling };
+
+struct LatchConfig {
+  std::string name;
+  std::uint8_t unit = 0;  // LATCH0 / LATCH1
+  LatchEdge edge = LatchEdge::rising;
+};
+
+// DC synchronisation of one slave (applied on the way to SAFEOP when the session has DC).
+struct SyncConfig {
+  SyncMode mode = SyncMode::free_run;
+  std::chrono::nanoseconds sync0_pulse{0};  // 0 = from the ESI/SII or the ESC default
+  std::chrono::nanoseconds sync0_shift{0};
+  std::chrono::nanoseconds sync1_offset{0};
+  // AssignActivate (0x0980/0x0981); empty = from the SII DC category, else mode defaults.
+  std::optional<std::uint16_t> assign_activate;
+  std::vector<LatchConfig> latches;
+};
+
+struct SlaveConfig {
+  std::string name;
+  // Ring position this entry describes; empty = the one after the previous entry's (0 first).
+  std::optional<std::uint16_t> position;
+  // When set, the slave's identity must match (checked after the SII is read).
+  std::optional<std::uint32_t> vendor_id;
+  std::optional<std::uint32_t> product_code;
+  std::string driver;  // driver name; empty = chosen by identity, else the generic driver
+  DriverConfig driver_config;
+  ProcessDataRequest process_data;
+  TargetState target = TargetState::op;
+  std::optional<SyncConfig> sync;
+  // AL status poll period while the slave is in PREOP or above; empty disables it.
+  std::optional<std::chrono::nanoseconds> health_poll = std::chrono::milliseconds(250);
+  // SDO downloads run in PREOP before process data is set up (after the driver's own).
+  std::vector<SdoWrite> startup_sdos;
+  // Where the PDO layout comes from: the SII (the device's default), the device's CoE objects
+  // (0x1C12/0x1C13 and the mapping objects, read in PREOP), or a mapping given here, written to
+  // the device in PREOP and then used.
+  enum class PdoSource : std::uint8_t { sii, coe, configured };
+  PdoSource pdo_source = PdoSource::sii;
+  std::optional<CoePdoConfiguration> pdo_mapping;  // PdoSource::configured
+};
+
+enum class LockPolicy : std::uint8_t { advisory, recovering, fatal };
+std::string_view to_string(LockPolicy policy) noexcept;
+
+struct DcConfig {
+  std::chrono::nanoseconds cycle = std::chrono::milliseconds(1);
+  bool await_lock = false;
+  LockPolicy lock_policy = LockPolicy::advisory;
+  std::chrono::nanoseconds lock_threshold = std::chrono::nanoseconds(100);
+  std::chrono::nanoseconds lock_timeout = std::chrono::seconds(5);
+  std::uint32_t warmup_cycles = 0;
+};
+
+struct MasterConfig {
+  std::uint16_t base_station = 0x1000;
+  // Empty: every slave found is managed, named "slave_<position>" (position 0 "coupler" when it
+  // is a coupler), held in PREOP with no process data: the dynamic, PREOP-first session.
+  std::vector<SlaveConfig> slaves;
+  // Domain configurations (domain.hpp); logical_base is assigned by the master (index x 0x800)
+  // unless set.
+  std::vector<DomainConfig> domains;
+  std::optional<DcConfig> dc = DcConfig{};                // empty disables DC
+  std::optional<std::chrono::nanoseconds> frame_timeout;  // empty: tuned to the slave count
+  ScanOptions scan;
+  std::chrono::nanoseconds awaiting_preop_timeout = std::chrono::seconds(30);
+  std::chrono::nanoseconds retry_interval = std::chrono::seconds(1);
+  std::chrono::nanoseconds slave_retry_interval = std::chrono::milliseconds(200);
+  AlOptions al;
+  InitOptions init;
+};
+
+// Checks a configuration: unique slave names and domain ids, known domains in process-data
+// requests, positive periods and thresholds, a base station that fits. Errors name the entry.
+Result<void> validate(const MasterConfig& config);
+
+// Reads the master's sections (master:, domains:, slaves:, dc:) of a ring file; the simulator's
+// section is ignored. Errors carry file:line.
+Result<MasterConfig> parse_master_config(std::string_view yaml, std::string source = "ring.yaml");
+Result<MasterConfig> load_master_config(const std::string& path);
+
+}  // namespace ecat::master

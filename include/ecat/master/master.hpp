@@ -1,0 +1,137 @@
+// The master session: one per link, as many as the process wants (the reference design's
+// singleton is a limitation ecat does not copy).
+//
+// A Master owns a Bus (the link's I/O and cycle thread) and a control loop (its own thread) on
+// which discovery, the slaves' state machines, SDO traffic and recovery run as coroutines. Every
+// public call is thread-safe: control calls are handed to the loop and answered within their
+// timeout; the process-data calls of Slave (read_input, write_output) go straight to the
+// domains' images and never wait for the loop.
+//
+// Lifecycle (seeds/master.md, tables in states.hpp):
+//   idle --start--> discovering --> awaiting_preop --> preop_ready | operational |
+//   activation_blocked; deactivated, recovering; stop() returns to idle from anywhere.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/link/link.hpp>
+#include <ecat/master/config.hpp>
+#include <ecat/master/slave.hpp>
+#include <ecat/master/states.hpp>
+#include <ecat/result.hpp>
+
+namespace ecat::master {
+
+class Domain;
+
+// A terminal failure the session keeps after it ends (upstream-inventory §6.3).
+struct Failure {
+  std::string kind;  // "startup_failed", "awaiting_preop_timeout", "dc_lock_lost", ...
+  Error error;
+  std::chrono::system_clock::time_point at;
+};
+
+struct SlaveSummary {
+  std::string name;
+  std::uint16_t position = 0;
+  std::uint16_t station = 0;
+  SlaveState state = SlaveState::init;
+  TargetState target = TargetState::op;
+  std::optional<std::string> fault;  // a tracked slave-local fault, described
+};
+
+struct DomainSummary {
+  std::string id;
+  std::chrono::nanoseconds period{};
+  std::string state;  // open / cycling / stopped
+  std::uint32_t logical_base = 0;
+  std::size_t image_size = 0;
+  std::uint16_t expected_wkc = 0;
+  std::uint64_t cycles = 0;
+  std::uint64_t total_misses = 0;
+  bool healthy = true;
+};
+
+// Why activation did not reach its target, per slave.
+struct ActivationFailure {
+  std::string slave;
+  wire::AlState wanted = wire::AlState::op;
+  Error error;
+  std::optional<std::uint16_t> al_status_code;
+};
+
+struct MasterStatus {
+  MasterState state = MasterState::idle;
+  TargetState desired_target = TargetState::op;
+  std::string link;
+  std::uint16_t slave_count = 0;
+  std::vector<SlaveSummary> slaves;
+  std::vector<DomainSummary> domains;
+  std::vector<ActivationFailure> activation_failures;
+  std::vector<std::string> runtime_faults;  // critical faults being healed (described)
+  std::optional<Failure> last_failure;
+};
+
+class Master {
+ public:
+  explicit Master(MasterConfig config = {});
+  ~Master();  // stops the session
+  Master(const Master&) = delete;
+  Master& operator=(const Master&) = delete;
+
+  // Opens a session on `link`: idle -> discovering; returns at once (await_running waits).
+  // Errc::wrong_state unless idle; Errc::invalid_argument for a configuration validate() refuses.
+  Result<void> start(std::unique_ptr<link::Link> link);
+  // Same, replacing the configuration first.
+  Result<void> start(std::unique_ptr<link::Link> link, MasterConfig config);
+  // Tears the session down (domains, slaves, bus) and returns to idle. Errc::wrong_state when
+  // already idle ("already stopped").
+  Result<void> stop();
+
+  MasterState state() const noexcept;
+  MasterStatus status() const;
+
+  // Waits until the session is usable: preop_ready, deactivated or operational. Returns the
+  // activation or startup error when it ends blocked, recovering or idle instead.
+  Result<void> await_running(std::chrono::nanoseconds timeout = std::chrono::seconds(10));
+  // Waits until operational.
+  Result<void> await_operational(std::chrono::nanoseconds timeout = std::chrono::seconds(10));
+
+  // Drives the session towards OP (from preop_ready or deactivated).
+  Result<void> activate();
+  // Retreats to SAFEOP (-> deactivated) or PREOP (-> preop_ready), keeping the bus alive.
+  Result<void> deactivate(TargetState target = TargetState::safeop);
+  // Replaces one slave's configuration in preop_ready (PREOP-first dynamic configuration).
+  Result<void> configure_slave(std::string_view name, SlaveConfig config);
+  // Changes a running domain's period (the stored configuration is unchanged).
+  Result<void> update_domain_cycle_time(std::string_view domain, std::chrono::nanoseconds period);
+
+  // The bus, while a session runs (null otherwise).
+  bus::Bus* bus() noexcept;
+  std::vector<SlaveSummary> slaves() const;
+  std::vector<DomainSummary> domains() const;
+  std::optional<Failure> last_failure() const;
+
+  // A slave of the running session by name (Errc::not_found names it). The reference stays
+  // valid until stop().
+  Result<Slave*> slave(std::string_view name);
+  Result<Domain*> domain(std::string_view id);
+
+  // Called on the control thread after every state change (cheap; do not block).
+  void on_state_change(std::function<void(MasterState from, MasterState to)> callback);
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace ecat::master

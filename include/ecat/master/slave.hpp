@@ -1,0 +1,140 @@
+// One slave of a running session: its AL state machine (seeds/slave.md), identity, process data
+// as named signals, SDO access and events.
+//
+// Slave objects belong to the Master; get one with Master::slave(name). Every call is
+// thread-safe. read_input / write_output touch only the domains' images (never the control
+// loop); the others are handed to the control loop and answered within their timeout.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/master/coe_client.hpp>
+#include <ecat/master/config.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/driver.hpp>
+#include <ecat/master/mailbox.hpp>
+#include <ecat/master/pdo.hpp>
+#include <ecat/master/signal.hpp>
+#include <ecat/master/states.hpp>
+#include <ecat/result.hpp>
+#include <ecat/wire/registers.hpp>
+#include <ecat/wire/sii.hpp>
+
+namespace ecat::master {
+
+struct Session;
+
+// Where one SyncManager's image lives in one domain (one FMMU).
+struct SmAttachment {
+  std::uint8_t sync_manager = 0;
+  PdoDirection direction = PdoDirection::input;
+  std::string domain;
+  std::uint32_t logical_address = 0;
+  std::uint16_t physical_address = 0;
+  std::uint16_t size = 0;
+  std::uint8_t fmmu = 0;
+};
+
+struct SlaveInfo {
+  std::string name;
+  std::uint16_t position = 0;
+  std::uint16_t station = 0;
+  SlaveState state = SlaveState::init;
+  TargetState target = TargetState::op;
+  std::optional<std::uint16_t> al_status_code;  // the last refusal / error the slave reported
+  std::optional<wire::SiiIdentity> identity;
+  std::string device_name;  // from the SII
+  wire::EscInformation esc{};
+  bool has_mailbox = false;
+  bool coe = false;
+  std::string driver;
+  PdoLayout layout;
+  std::vector<Signal> signals;
+  std::vector<SmAttachment> attachments;
+  std::optional<std::string> configuration_error;  // retained PREOP configuration failure
+  std::optional<std::string> fault;                // tracked slave-local fault
+  DeviceState device_state;
+};
+
+struct SignalEvent {
+  std::string slave;
+  std::string signal;
+  Value value;
+  std::uint64_t cycle = 0;
+  Clock::time_point at;
+};
+
+using SubscriptionId = std::uint64_t;
+
+class Slave {
+ public:
+  Slave(Session& session, SlaveConfig config, std::uint16_t position, std::uint16_t station);
+  ~Slave();
+  Slave(const Slave&) = delete;
+  Slave& operator=(const Slave&) = delete;
+
+  const std::string& name() const noexcept { return name_; }
+  std::uint16_t position() const noexcept { return position_; }
+  std::uint16_t station() const noexcept { return station_; }
+  SlaveState state() const noexcept;
+  TargetState target() const;
+  // The AL status code the slave last reported with its error flag, if any.
+  std::optional<std::uint16_t> error() const;
+  // Vendor, product, revision, serial (from the SII); Errc::not_ready before it was read.
+  Result<wire::SiiIdentity> identity() const;
+  SlaveInfo info() const;
+
+  // Walks the AL state machine to `target` (intermediate states included). Errc::al_error with
+  // the AL status code when the slave refuses; Errc::wrong_state when it is down or SAFEOP/OP is
+  // asked while a PREOP configuration failure is retained.
+  Result<void> request(wire::AlState target,
+                       std::chrono::nanoseconds timeout = std::chrono::seconds(10));
+  // Replaces the slave's configuration (in PREOP only) and re-runs the PREOP setup.
+  Result<void> configure(SlaveConfig config,
+                         std::chrono::nanoseconds timeout = std::chrono::seconds(10));
+  // Re-runs a failed PREOP configuration; ok when there is none.
+  Result<void> retry(std::chrono::nanoseconds timeout = std::chrono::seconds(10));
+
+  // CoE SDO transfers (Errc::unsupported for a slave without CoE, Errc::wrong_state below PREOP).
+  Result<std::vector<std::uint8_t>> upload_sdo(std::uint16_t index, std::uint8_t subindex,
+                                               SdoOptions options = {});
+  Result<void> download_sdo(std::uint16_t index, std::uint8_t subindex,
+                            std::vector<std::uint8_t> data, SdoOptions options = {});
+
+  // The signals the driver made of the PDO layout (empty before PREOP configuration).
+  std::vector<Signal> signals() const;
+  // The latest value of an input (or the staged value of an output) signal. Errc::not_ready
+  // before the first valid cycle, Errc::stale (with the age) when the last valid cycle is older
+  // than the domain's freshness window, Errc::not_found for an unknown signal or one not routed
+  // to a domain.
+  Result<Value> read_input(std::string_view signal) const;
+  // Stages an output for the next cycle of every domain the signal's SyncManager is in. The
+  // value is kept while the slave is down and applied when it is back.
+  Result<void> write_output(std::string_view signal, const Value& value);
+  // Runs a driver command (set_output, enable_operation, ...).
+  Result<void> command(std::string_view name, const CommandArgs& args = {});
+  // Calls `callback` on the control thread whenever the signal's value changes.
+  Result<SubscriptionId> subscribe(std::string_view signal,
+                                   std::function<void(const SignalEvent&)> callback);
+  void unsubscribe(SubscriptionId id);
+
+  // ---- control loop side (the master's) ---------------------------------------------------
+  struct Impl;
+  Impl& impl() noexcept { return *impl_; }
+
+ private:
+  std::string name_;
+  std::uint16_t position_;
+  std::uint16_t station_;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace ecat::master

@@ -1,0 +1,68 @@
+// The master's startup steps before any slave is configured (upstream-inventory §3.4): count the
+// slaves until the count is stable, assign station addresses, read DL status, reset every ESC to
+// a known state with broadcast writes, and bring them all to INIT. Each is a coroutine on the
+// control loop; the Master runs them in order.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <vector>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/exec/event_loop.hpp>
+#include <ecat/exec/task.hpp>
+#include <ecat/result.hpp>
+#include <ecat/wire/al.hpp>
+#include <ecat/wire/registers.hpp>
+
+namespace ecat::master {
+
+// Slaves answering a broadcast read of 0x0000 (the working counter).
+exec::Task<Result<std::uint16_t>> count_slaves(exec::EventLoop& loop, bus::Bus& bus,
+                                               bus::TransactOptions options = {});
+
+struct ScanOptions {
+  std::chrono::nanoseconds poll = std::chrono::milliseconds(100);
+  // The count must stay the same for this long (and over at least two reads).
+  std::chrono::nanoseconds stable = std::chrono::seconds(1);
+  // Give up (Errc::timeout) when no stable non-zero count was seen for this long.
+  std::chrono::nanoseconds timeout = std::chrono::seconds(10);
+};
+
+// Polls count_slaves() until it is non-zero and unchanged for `stable`.
+exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
+                                                     ScanOptions options = {});
+
+// Checks the limits of auto-increment addressing and of the station range (base + count - 1 must
+// stay within 0xFFFF; station 0 is never assigned).
+Result<void> check_addressing(std::uint16_t count, std::uint16_t base_station);
+
+// Writes station = base + position to every slave (one APWR each, in one transaction) and reads
+// them back by station. Errors name the position and station.
+exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
+                                         std::uint16_t base_station);
+
+// DL status (0x0110) of every station, in station order.
+exec::Task<Result<std::vector<wire::DlStatus>>> read_dl_status(exec::EventLoop& loop, bus::Bus& bus,
+                                                               std::uint16_t count,
+                                                               std::uint16_t base_station);
+
+// The reset block (one frame of broadcast writes): loop control, event mask, error counters,
+// FMMUs, SyncManagers, DC activation/system time/filters, alias control, AL control INIT with
+// acknowledge, EEPROM to ECAT. Required writes must reach all `count` slaves.
+exec::Task<Result<void>> reset_slaves(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count);
+
+struct InitOptions {
+  unsigned attempts = 100;
+  std::chrono::nanoseconds interval = std::chrono::milliseconds(10);
+};
+
+// Requests INIT (with error acknowledge) from every slave and waits until each station shows
+// INIT, re-requesting from slaves that do not; names the blocking stations on failure.
+exec::Task<Result<void>> init_all(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
+                                  std::uint16_t base_station, InitOptions options = {});
+
+// Auto-tuned frame timeout for `count` slaves: (200 + 40 * count) us, clamped to [5, 10] ms.
+std::chrono::nanoseconds auto_frame_timeout(std::uint16_t count) noexcept;
+
+}  // namespace ecat::master

@@ -1,0 +1,99 @@
+#include <set>
+
+#include <fmt/format.h>
+
+#include <ecat/master/config.hpp>
+
+namespace ecat::master {
+
+std::string_view to_string(SyncMode mode) noexcept {
+  switch (mode) {
+    case SyncMode::free_run:
+      return "free_run";
+    case SyncMode::sync0:
+      return "sync0";
+    case SyncMode::sync1:
+      return "sync1";
+  }
+  return "unknown";
+}
+
+std::string_view to_string(LockPolicy policy) noexcept {
+  switch (policy) {
+    case LockPolicy::advisory:
+      return "advisory";
+    case LockPolicy::recovering:
+      return "recovering";
+    case LockPolicy::fatal:
+      return "fatal";
+  }
+  return "unknown";
+}
+
+Result<void> validate(const MasterConfig& config) {
+  auto bad = [](std::string message) { return Error(Errc::invalid_argument, std::move(message)); };
+  if (config.base_station == 0) return bad("base_station: 0 is not a station address");
+  std::set<std::string> domain_ids;
+  for (std::size_t i = 0; i < config.domains.size(); ++i) {
+    const auto& d = config.domains[i];
+    if (d.id.empty()) return bad(fmt::format("domains[{}]: the id is empty", i));
+    if (!domain_ids.insert(d.id).second) {
+      return bad(fmt::format("domains[{}]: the id \"{}\" is used twice", i, d.id));
+    }
+    if (d.period < Domain::kMinPeriod) {
+      return bad(fmt::format("domain {}: period {} ns is below the minimum {} ns", d.id,
+                             d.period.count(), Domain::kMinPeriod.count()));
+    }
+    if (d.miss_threshold == 0)
+      return bad(fmt::format("domain {}: miss_threshold must be > 0", d.id));
+    if (d.recovery_threshold == 0) {
+      return bad(fmt::format("domain {}: recovery_threshold must be > 0", d.id));
+    }
+  }
+  std::set<std::string> names;
+  std::set<std::uint16_t> positions;
+  std::int64_t previous = -1;
+  for (std::size_t i = 0; i < config.slaves.size(); ++i) {
+    const auto& s = config.slaves[i];
+    if (s.name.empty()) return bad(fmt::format("slaves[{}]: the name is empty", i));
+    if (!names.insert(s.name).second) {
+      return bad(fmt::format("slaves[{}]: the name \"{}\" is used twice", i, s.name));
+    }
+    const std::int64_t next = s.position ? *s.position : previous + 1;
+    if (next > 0xFFFF) return bad(fmt::format("slave {}: position {} is past 65535", s.name, next));
+    const auto pos = static_cast<std::uint16_t>(next);
+    previous = next;
+    if (!positions.insert(pos).second) {
+      return bad(fmt::format("slave {}: position {} is taken by another slave", s.name, pos));
+    }
+    if (s.process_data.kind == ProcessDataRequest::Kind::all &&
+        !domain_ids.count(s.process_data.domain)) {
+      return bad(fmt::format("slave {}: process_data goes to unknown domain \"{}\"", s.name,
+                             s.process_data.domain));
+    }
+    for (const auto& route : s.process_data.routes) {
+      if (!domain_ids.count(route.domain)) {
+        return bad(fmt::format("slave {}: signal {} goes to unknown domain \"{}\"", s.name,
+                               route.signal, route.domain));
+      }
+    }
+    if (s.health_poll && s.health_poll->count() <= 0) {
+      return bad(fmt::format("slave {}: health_poll must be positive", s.name));
+    }
+    if (s.pdo_source == SlaveConfig::PdoSource::configured && !s.pdo_mapping) {
+      return bad(fmt::format("slave {}: pdo_source configured needs a pdo_mapping", s.name));
+    }
+    if (s.sync && s.sync->mode != SyncMode::free_run && !config.dc) {
+      return bad(fmt::format("slave {}: sync mode {} needs distributed clocks (dc is disabled)",
+                             s.name, to_string(s.sync->mode)));
+    }
+  }
+  if (config.dc && config.dc->cycle.count() <= 0) return bad("dc.cycle must be positive");
+  if (config.scan.poll.count() <= 0) return bad("scan poll period must be positive");
+  if (config.awaiting_preop_timeout.count() <= 0)
+    return bad("awaiting_preop_timeout must be positive");
+  if (config.retry_interval.count() <= 0) return bad("retry_interval must be positive");
+  return ok();
+}
+
+}  // namespace ecat::master

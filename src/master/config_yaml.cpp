@@ -1,0 +1,469 @@
+// The master's sections of a ring file (docs/MASTER-CONFIG.md). Strict: unknown keys are errors
+// naming file:line and the key path.
+#include <cstdint>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include <fmt/format.h>
+
+#include <ecat/master/config.hpp>
+
+#include "sim/spec_tree.hpp"
+
+namespace ecat::master {
+namespace {
+
+using sim::detail::check_keys;
+using sim::detail::index_path;
+using sim::detail::join_path;
+using sim::detail::spec_error;
+using sim::detail::SpecContext;
+using sim::detail::SpecNode;
+using sim::detail::to_bool;
+using sim::detail::to_int;
+using sim::detail::to_text;
+
+class Reader {
+ public:
+  explicit Reader(std::string source) : ctx_{std::move(source)} {}
+
+  Result<MasterConfig> read(const SpecNode& root) {
+    MasterConfig config;
+    if (!root.is_mapping()) return spec_error(ctx_, root, "", "the file must be a mapping");
+    if (const auto* m = root.find("master")) {
+      if (auto r = master(*m, config); !r) return r.error();
+    }
+    if (const auto* d = root.find("domains")) {
+      if (auto r = domains(*d, config); !r) return r.error();
+    }
+    if (const auto* s = root.find("slaves")) {
+      if (auto r = slaves(*s, config); !r) return r.error();
+    }
+    if (const auto* dc = root.find("dc")) {
+      if (auto r = distributed_clocks(*dc, config); !r) return r.error();
+    }
+    if (auto valid = validate(config); !valid) {
+      return valid.error().context(Errc::invalid_argument, ctx_.source);
+    }
+    return config;
+  }
+
+ private:
+  Result<std::chrono::nanoseconds> duration(const SpecNode& node, std::string_view path,
+                                            std::int64_t unit_ns, std::int64_t min,
+                                            std::int64_t max) {
+    auto v = to_int(ctx_, node, path, min, max);
+    if (!v) return v.error();
+    return std::chrono::nanoseconds(*v * unit_ns);
+  }
+
+  Result<void> master(const SpecNode& node, MasterConfig& config) {
+    const std::string path = "master";
+    if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
+    if (auto r = check_keys(ctx_, node, path,
+                            {"base_station", "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
+                             "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms"});
+        !r) {
+      return r.error();
+    }
+    for (const auto& e : node.entries) {
+      const auto p = join_path(path, e.key);
+      const SpecNode& v = e.value;
+      if (e.key == "base_station") {
+        auto n = to_int(ctx_, v, p, 1, 0xFFFF);
+        if (!n) return n.error();
+        config.base_station = static_cast<std::uint16_t>(*n);
+      } else if (e.key == "frame_timeout_us") {
+        auto d = duration(v, p, 1000, 50, 10'000'000);
+        if (!d) return d.error();
+        config.frame_timeout = *d;
+      } else {
+        auto d = duration(v, p, 1'000'000, 1, 3'600'000);
+        if (!d) return d.error();
+        if (e.key == "scan_poll_ms") config.scan.poll = *d;
+        if (e.key == "scan_stable_ms") config.scan.stable = *d;
+        if (e.key == "scan_timeout_ms") config.scan.timeout = *d;
+        if (e.key == "awaiting_preop_timeout_ms") config.awaiting_preop_timeout = *d;
+        if (e.key == "retry_interval_ms") config.retry_interval = *d;
+      }
+    }
+    return ok();
+  }
+
+  Result<void> domains(const SpecNode& node, MasterConfig& config) {
+    if (!node.is_sequence()) return spec_error(ctx_, node, "domains", "must be a list");
+    for (std::size_t i = 0; i < node.items.size(); ++i) {
+      const auto& item = node.items[i];
+      const auto path = index_path("domains", i);
+      if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
+      if (auto r = check_keys(
+              ctx_, item, path,
+              {"id", "period_us", "miss_threshold", "recovery_threshold", "max_image_size"});
+          !r) {
+        return r.error();
+      }
+      DomainConfig d;
+      const auto* id = item.find("id");
+      if (!id) return spec_error(ctx_, item, path, "needs an id");
+      auto text = to_text(ctx_, *id, join_path(path, "id"));
+      if (!text) return text.error();
+      d.id = *text;
+      for (const auto& e : item.entries) {
+        const auto p = join_path(path, e.key);
+        if (e.key == "period_us") {
+          auto v = duration(e.value, p, 1000, 50, 10'000'000);
+          if (!v) return v.error();
+          d.period = *v;
+        } else if (e.key != "id") {
+          auto v = to_int(ctx_, e.value, p, 1, e.key == "max_image_size" ? 1 << 20 : 1 << 30);
+          if (!v) return v.error();
+          if (e.key == "miss_threshold") d.miss_threshold = static_cast<std::uint32_t>(*v);
+          if (e.key == "recovery_threshold") d.recovery_threshold = static_cast<std::uint32_t>(*v);
+          if (e.key == "max_image_size") d.max_image_size = static_cast<std::size_t>(*v);
+        }
+      }
+      config.domains.push_back(std::move(d));
+    }
+    return ok();
+  }
+
+  Result<ProcessDataRequest> process_data(const SpecNode& node, const std::string& path) {
+    if (node.is_null()) return ProcessDataRequest::none();
+    if (node.is_scalar()) {
+      auto text = to_text(ctx_, node, path);
+      if (!text) return text.error();
+      if (*text == "none") return ProcessDataRequest::none();
+      return ProcessDataRequest::all(*text);  // shorthand: every signal to that domain
+    }
+    if (node.is_mapping()) {
+      if (auto r = check_keys(ctx_, node, path, {"all"}); !r) return r.error();
+      const auto* all = node.find("all");
+      if (!all) return spec_error(ctx_, node, path, "needs `all: DOMAIN`");
+      auto text = to_text(ctx_, *all, join_path(path, "all"));
+      if (!text) return text.error();
+      return ProcessDataRequest::all(*text);
+    }
+    ProcessDataRequest request;
+    request.kind = ProcessDataRequest::Kind::signals;
+    for (std::size_t i = 0; i < node.items.size(); ++i) {
+      const auto& item = node.items[i];
+      const auto p = index_path(path, i);
+      if (!item.is_mapping()) return spec_error(ctx_, item, p, "must be {signal, domain}");
+      if (auto r = check_keys(ctx_, item, p, {"signal", "domain"}); !r) return r.error();
+      const auto* signal = item.find("signal");
+      const auto* domain = item.find("domain");
+      if (!signal || !domain) return spec_error(ctx_, item, p, "needs signal and domain");
+      auto s = to_text(ctx_, *signal, join_path(p, "signal"));
+      if (!s) return s.error();
+      auto d = to_text(ctx_, *domain, join_path(p, "domain"));
+      if (!d) return d.error();
+      request.routes.push_back({*s, *d});
+    }
+    return request;
+  }
+
+  // A startup SDO value: `value` with a `type` (u8 u16 u32 u64 i8 i16 i32 i64, or bytes given
+  // as a hex string "01 02 0a").
+  Result<std::vector<std::uint8_t>> sdo_value(const SpecNode& item, const std::string& path) {
+    const auto* type = item.find("type");
+    const auto* value = item.find("value");
+    if (!value) return spec_error(ctx_, item, path, "needs a value");
+    std::string t = "u32";
+    if (type) {
+      auto text = to_text(ctx_, *type, join_path(path, "type"));
+      if (!text) return text.error();
+      t = *text;
+    }
+    const auto vpath = join_path(path, "value");
+    if (t == "bytes") {
+      auto text = to_text(ctx_, *value, vpath);
+      if (!text) return text.error();
+      std::vector<std::uint8_t> out;
+      std::istringstream in(*text);
+      std::string byte;
+      while (in >> byte) {
+        if (byte.size() > 2 ||
+            byte.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos) {
+          return spec_error(ctx_, *value, vpath, fmt::format("\"{}\" is not a hex byte", byte));
+        }
+        out.push_back(static_cast<std::uint8_t>(std::stoul(byte, nullptr, 16)));
+      }
+      if (out.empty()) return spec_error(ctx_, *value, vpath, "no bytes");
+      return out;
+    }
+    static const std::map<std::string, std::pair<int, bool>> kTypes{
+        {"u8", {1, false}}, {"u16", {2, false}}, {"u32", {4, false}}, {"u64", {8, false}},
+        {"i8", {1, true}},  {"i16", {2, true}},  {"i32", {4, true}},  {"i64", {8, true}}};
+    auto it = kTypes.find(t);
+    if (it == kTypes.end()) {
+      return spec_error(ctx_, type ? *type : item, join_path(path, "type"),
+                        fmt::format("unknown type \"{}\" (u8..u64, i8..i64, bytes)", t));
+    }
+    const int size = it->second.first;
+    const bool is_signed = it->second.second;
+    const std::int64_t min =
+        is_signed ? (size == 8 ? INT64_MIN : -(std::int64_t{1} << (8 * size - 1))) : 0;
+    const std::int64_t max = size == 8 ? INT64_MAX
+                                       : (is_signed ? (std::int64_t{1} << (8 * size - 1)) - 1
+                                                    : (std::int64_t{1} << (8 * size)) - 1);
+    auto v = to_int(ctx_, *value, vpath, min, max);
+    if (!v) return v.error();
+    std::vector<std::uint8_t> out(static_cast<std::size_t>(size));
+    const auto raw = static_cast<std::uint64_t>(*v);
+    for (int i = 0; i < size; ++i)
+      out[static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(raw >> (8 * i));
+    return out;
+  }
+
+  Result<void> slaves(const SpecNode& node, MasterConfig& config) {
+    if (!node.is_sequence()) return spec_error(ctx_, node, "slaves", "must be a list");
+    for (std::size_t i = 0; i < node.items.size(); ++i) {
+      const auto& item = node.items[i];
+      const auto path = index_path("slaves", i);
+      if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
+      if (auto r = check_keys(
+              ctx_, item, path,
+              {"name", "position", "vendor_id", "product_code", "driver", "driver_options",
+               "process_data", "target", "health_poll_ms", "startup_sdos", "pdo_source", "sync"});
+          !r) {
+        return r.error();
+      }
+      SlaveConfig s;
+      const auto* name = item.find("name");
+      if (!name) return spec_error(ctx_, item, path, "needs a name");
+      auto n = to_text(ctx_, *name, join_path(path, "name"));
+      if (!n) return n.error();
+      s.name = *n;
+      for (const auto& e : item.entries) {
+        const auto p = join_path(path, e.key);
+        const SpecNode& v = e.value;
+        if (e.key == "position") {
+          auto x = to_int(ctx_, v, p, 0, 0xFFFF);
+          if (!x) return x.error();
+          s.position = static_cast<std::uint16_t>(*x);
+        } else if (e.key == "vendor_id" || e.key == "product_code") {
+          auto x = to_int(ctx_, v, p, 0, 0xFFFFFFFFll);
+          if (!x) return x.error();
+          (e.key == "vendor_id" ? s.vendor_id : s.product_code) = static_cast<std::uint32_t>(*x);
+        } else if (e.key == "driver") {
+          auto x = to_text(ctx_, v, p);
+          if (!x) return x.error();
+          s.driver = *x;
+        } else if (e.key == "driver_options") {
+          if (!v.is_mapping()) return spec_error(ctx_, v, p, "must be a mapping");
+          for (const auto& o : v.entries) {
+            auto x = to_text(ctx_, o.value, join_path(p, o.key));
+            if (!x) return x.error();
+            s.driver_config.options[o.key] = *x;
+          }
+        } else if (e.key == "process_data") {
+          auto x = process_data(v, p);
+          if (!x) return x.error();
+          s.process_data = std::move(*x);
+        } else if (e.key == "target") {
+          auto x = to_text(ctx_, v, p);
+          if (!x) return x.error();
+          if (*x == "op") {
+            s.target = TargetState::op;
+          } else if (*x == "safeop") {
+            s.target = TargetState::safeop;
+          } else if (*x == "preop") {
+            s.target = TargetState::preop;
+          } else {
+            return spec_error(ctx_, v, p,
+                              fmt::format("unknown target \"{}\" (op, safeop, preop)", *x));
+          }
+        } else if (e.key == "health_poll_ms") {
+          if (v.is_null()) {
+            s.health_poll.reset();
+          } else {
+            auto x = to_int(ctx_, v, p, 0, 3'600'000);
+            if (!x) return x.error();
+            if (*x == 0) {
+              s.health_poll.reset();
+            } else {
+              s.health_poll = std::chrono::milliseconds(*x);
+            }
+          }
+        } else if (e.key == "pdo_source") {
+          auto x = to_text(ctx_, v, p);
+          if (!x) return x.error();
+          if (*x == "sii") {
+            s.pdo_source = SlaveConfig::PdoSource::sii;
+          } else if (*x == "coe") {
+            s.pdo_source = SlaveConfig::PdoSource::coe;
+          } else {
+            return spec_error(ctx_, v, p, fmt::format("unknown pdo_source \"{}\" (sii, coe)", *x));
+          }
+        } else if (e.key == "startup_sdos") {
+          if (!v.is_sequence()) return spec_error(ctx_, v, p, "must be a list");
+          for (std::size_t k = 0; k < v.items.size(); ++k) {
+            const auto& sdo = v.items[k];
+            const auto sp = index_path(p, k);
+            if (!sdo.is_mapping()) return spec_error(ctx_, sdo, sp, "must be a mapping");
+            if (auto r = check_keys(ctx_, sdo, sp,
+                                    {"index", "subindex", "type", "value", "complete_access"});
+                !r) {
+              return r.error();
+            }
+            SdoWrite w;
+            const auto* index = sdo.find("index");
+            if (!index) return spec_error(ctx_, sdo, sp, "needs an index");
+            auto ix = to_int(ctx_, *index, join_path(sp, "index"), 0, 0xFFFF);
+            if (!ix) return ix.error();
+            w.index = static_cast<std::uint16_t>(*ix);
+            if (const auto* sub = sdo.find("subindex")) {
+              auto sx = to_int(ctx_, *sub, join_path(sp, "subindex"), 0, 0xFF);
+              if (!sx) return sx.error();
+              w.subindex = static_cast<std::uint8_t>(*sx);
+            }
+            if (const auto* ca = sdo.find("complete_access")) {
+              auto b = to_bool(ctx_, *ca, join_path(sp, "complete_access"));
+              if (!b) return b.error();
+              w.complete_access = *b;
+            }
+            auto data = sdo_value(sdo, sp);
+            if (!data) return data.error();
+            w.data = std::move(*data);
+            s.startup_sdos.push_back(std::move(w));
+          }
+        } else if (e.key == "sync") {
+          auto x = sync(v, p);
+          if (!x) return x.error();
+          s.sync = std::move(*x);
+        }
+      }
+      config.slaves.push_back(std::move(s));
+    }
+    return ok();
+  }
+
+  Result<SyncConfig> sync(const SpecNode& node, const std::string& path) {
+    if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
+    if (auto r = check_keys(ctx_, node, path,
+                            {"mode", "pulse_ns", "shift_ns", "sync1_offset_ns", "assign_activate"});
+        !r) {
+      return r.error();
+    }
+    SyncConfig sc;
+    for (const auto& e : node.entries) {
+      const auto p = join_path(path, e.key);
+      if (e.key == "mode") {
+        auto x = to_text(ctx_, e.value, p);
+        if (!x) return x.error();
+        if (*x == "free_run") {
+          sc.mode = SyncMode::free_run;
+        } else if (*x == "sync0") {
+          sc.mode = SyncMode::sync0;
+        } else if (*x == "sync1") {
+          sc.mode = SyncMode::sync1;
+        } else {
+          return spec_error(ctx_, e.value, p,
+                            fmt::format("unknown mode \"{}\" (free_run, sync0, sync1)", *x));
+        }
+      } else if (e.key == "assign_activate") {
+        auto x = to_int(ctx_, e.value, p, 0, 0xFFFF);
+        if (!x) return x.error();
+        sc.assign_activate = static_cast<std::uint16_t>(*x);
+      } else {
+        auto x = to_int(ctx_, e.value, p, e.key == "shift_ns" ? -1'000'000'000 : 0, 4'000'000'000);
+        if (!x) return x.error();
+        const std::chrono::nanoseconds d(*x);
+        if (e.key == "pulse_ns") sc.sync0_pulse = d;
+        if (e.key == "shift_ns") sc.sync0_shift = d;
+        if (e.key == "sync1_offset_ns") sc.sync1_offset = d;
+      }
+    }
+    return sc;
+  }
+
+  Result<void> distributed_clocks(const SpecNode& node, MasterConfig& config) {
+    if (node.is_null()) {
+      config.dc.reset();
+      return ok();
+    }
+    if (node.is_scalar()) {
+      auto on = to_bool(ctx_, node, "dc");
+      if (!on) return on.error();
+      if (*on) {
+        config.dc = DcConfig{};
+      } else {
+        config.dc.reset();
+      }
+      return ok();
+    }
+    if (!node.is_mapping()) return spec_error(ctx_, node, "dc", "must be a mapping or false");
+    if (auto r = check_keys(ctx_, node, "dc",
+                            {"cycle_us", "await_lock", "lock_policy", "lock_threshold_ns",
+                             "lock_timeout_ms", "warmup_cycles"});
+        !r) {
+      return r.error();
+    }
+    DcConfig dc;
+    for (const auto& e : node.entries) {
+      const auto p = join_path("dc", e.key);
+      if (e.key == "cycle_us") {
+        auto x = duration(e.value, p, 1000, 50, 1'000'000);
+        if (!x) return x.error();
+        dc.cycle = *x;
+      } else if (e.key == "await_lock") {
+        auto x = to_bool(ctx_, e.value, p);
+        if (!x) return x.error();
+        dc.await_lock = *x;
+      } else if (e.key == "lock_policy") {
+        auto x = to_text(ctx_, e.value, p);
+        if (!x) return x.error();
+        if (*x == "advisory") {
+          dc.lock_policy = LockPolicy::advisory;
+        } else if (*x == "recovering") {
+          dc.lock_policy = LockPolicy::recovering;
+        } else if (*x == "fatal") {
+          dc.lock_policy = LockPolicy::fatal;
+        } else {
+          return spec_error(
+              ctx_, e.value, p,
+              fmt::format("unknown lock_policy \"{}\" (advisory, recovering, fatal)", *x));
+        }
+      } else if (e.key == "lock_threshold_ns") {
+        auto x = duration(e.value, p, 1, 1, 1'000'000'000);
+        if (!x) return x.error();
+        dc.lock_threshold = *x;
+      } else if (e.key == "lock_timeout_ms") {
+        auto x = duration(e.value, p, 1'000'000, 1, 3'600'000);
+        if (!x) return x.error();
+        dc.lock_timeout = *x;
+      } else if (e.key == "warmup_cycles") {
+        auto x = to_int(ctx_, e.value, p, 0, 1'000'000);
+        if (!x) return x.error();
+        dc.warmup_cycles = static_cast<std::uint32_t>(*x);
+      }
+    }
+    config.dc = dc;
+    return ok();
+  }
+
+  SpecContext ctx_;
+};
+
+}  // namespace
+
+Result<MasterConfig> parse_master_config(std::string_view yaml, std::string source) {
+  SpecContext ctx{source};
+  auto root = sim::detail::parse_yaml(yaml, ctx);
+  if (!root) return root.error();
+  return Reader(std::move(source)).read(*root);
+}
+
+Result<MasterConfig> load_master_config(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Error(Errc::not_found, fmt::format("{}: cannot open the file", path));
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (text.str().size() > (4u << 20)) {
+    return Error(Errc::out_of_range, fmt::format("{}: larger than 4 MiB", path));
+  }
+  return parse_master_config(text.str(), path);
+}
+
+}  // namespace ecat::master

@@ -1,0 +1,879 @@
+#include <algorithm>
+#include <condition_variable>
+#include <map>
+#include <mutex>
+#include <set>
+
+#include <fmt/format.h>
+
+#include <ecat/exec/task.hpp>
+#include <ecat/master/al_control.hpp>
+#include <ecat/master/master.hpp>
+#include <ecat/master/startup.hpp>
+
+#include "session.hpp"
+#include "slave_impl.hpp"
+
+namespace ecat::master {
+
+using namespace std::chrono_literals;
+
+namespace {
+
+constexpr auto kCallTimeout = 5s;
+
+std::chrono::milliseconds ms(std::chrono::nanoseconds d) {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(d);
+}
+
+wire::AlState min_target(TargetState session_target, TargetState slave_target) {
+  return al_state_of(std::min(session_target, slave_target));
+}
+
+}  // namespace
+
+struct Master::Impl : DomainObserver {
+  explicit Impl(MasterConfig c) : config(std::move(c)) { loop.start_thread("ecat-control"); }
+  ~Impl() override {
+    shutdown();
+    loop.stop();
+    loop.join();
+  }
+
+  MasterConfig config;
+  exec::EventLoop loop;
+  std::shared_ptr<Session> session;  // loop thread writes; guarded by `mutex` for readers
+
+  mutable std::mutex mutex;
+  std::condition_variable changed;
+  MasterState state = MasterState::idle;
+  TargetState desired = TargetState::op;
+  std::optional<Error> startup_error;     // why the last startup ended in idle
+  std::optional<Error> activation_error;  // why activation is blocked
+  std::map<std::string, ActivationFailure> activation_failures;
+  std::map<std::string, std::string> runtime_faults;
+  std::optional<Failure> last;
+  std::uint64_t generation = 0;
+  std::uint64_t refused_transitions = 0;
+  std::function<void(MasterState, MasterState)> on_change;
+  std::atomic<bool> inputs_pending{false};
+  std::atomic<bool> retry_armed{false};
+
+  // ---- state -------------------------------------------------------------------------------
+
+  // Changes the state along the seed diagram. A change the diagram does not draw is a bug: it
+  // is refused and counted (tests check the count stays 0).
+  bool transition(MasterState to) {
+    MasterState from;
+    std::function<void(MasterState, MasterState)> cb;
+    {
+      std::lock_guard lock(mutex);
+      from = state;
+      if (from == to) return true;
+      if (!master_transition_allowed(from, to)) {
+        ++refused_transitions;
+        return false;
+      }
+      state = to;
+      cb = on_change;
+    }
+    if (cb) cb(from, to);
+    changed.notify_all();
+    return true;
+  }
+
+  MasterState current() const {
+    std::lock_guard lock(mutex);
+    return state;
+  }
+
+  void fail(std::string kind, const Error& error) {
+    std::lock_guard lock(mutex);
+    last = Failure{std::move(kind), error, std::chrono::system_clock::now()};
+  }
+
+  // ---- startup -----------------------------------------------------------------------------
+
+  std::vector<SlaveConfig> effective_slaves(std::uint16_t count) const {
+    std::vector<SlaveConfig> out;
+    if (config.slaves.empty()) {
+      for (std::uint16_t pos = 0; pos < count; ++pos) {
+        SlaveConfig c;
+        c.name = fmt::format("slave_{}", pos);
+        c.target = TargetState::preop;
+        c.position = pos;
+        out.push_back(std::move(c));
+      }
+      return out;
+    }
+    // An entry without a position is the slave after the previous entry's.
+    int next = 0;
+    for (const auto& configured : config.slaves) {
+      SlaveConfig c = configured;
+      if (!c.position) c.position = static_cast<std::uint16_t>(next);
+      next = *c.position + 1;
+      out.push_back(std::move(c));
+    }
+    return out;
+  }
+
+  exec::Task<Result<void>> bring_up_with_retry(std::shared_ptr<Session> s, Slave& slave,
+                                               exec::Clock::time_point deadline) {
+    std::optional<Error> last_error;
+    while (!s->stopping) {
+      auto up = co_await slave.impl().bring_up(s);
+      if (up) {
+        slave.impl().start_health(s);
+        co_return ok();
+      }
+      last_error = up.error();
+      if (exec::Clock::now() + s->config.slave_retry_interval >= deadline) break;
+      co_await exec::sleep_for(s->loop, s->config.slave_retry_interval);
+    }
+    if (s->stopping) co_return Error(Errc::closed, "session stopped");
+    co_return last_error->context(fmt::format("slave {} did not reach PREOP within {} ms",
+                                              slave.name(),
+                                              ms(s->config.awaiting_preop_timeout).count()));
+  }
+
+  exec::Task<void> startup(std::shared_ptr<Session> s) {
+    auto result = co_await run_startup(s);
+    if (s->stopping || session != s) co_return;
+    if (!result) {
+      {
+        std::lock_guard lock(mutex);
+        startup_error = result.error();
+      }
+      const bool awaiting = current() == MasterState::awaiting_preop;
+      fail(awaiting ? "awaiting_preop_failed" : "startup_failed", result.error());
+      teardown();
+      transition(MasterState::idle);
+    }
+  }
+
+  exec::Task<Result<void>> run_startup(std::shared_ptr<Session> s) {
+    auto& bus = *s->bus;
+    auto count = co_await await_stable_count(loop, bus, s->config.scan);
+    if (!count) co_return count.error().context("discovering the ring");
+    if (s->stopping) co_return Error(Errc::closed, "stopped");
+    if (s->config.slaves.size() > *count) {
+      co_return Error(Errc::invalid_argument, fmt::format("{} slaves configured, the ring has {}",
+                                                          s->config.slaves.size(), *count));
+    }
+    for (const auto& c : effective_slaves(*count)) {
+      if (*c.position >= *count) {
+        co_return Error(Errc::invalid_argument,
+                        fmt::format("slave {} is configured at position {}, the ring has {} "
+                                    "slaves",
+                                    c.name, *c.position, *count));
+      }
+    }
+    s->slave_count = *count;
+    if (!s->config.frame_timeout) (void)bus.set_frame_timeout(auto_frame_timeout(*count));
+    if (auto r = co_await assign_stations(loop, bus, *count, s->config.base_station); !r) {
+      co_return r.error();
+    }
+    auto dl = co_await read_dl_status(loop, bus, *count, s->config.base_station);
+    if (!dl) co_return dl.error();
+    s->dl_status = std::move(*dl);
+    if (auto r = co_await reset_slaves(loop, bus, *count); !r) co_return r.error();
+    if (auto r = co_await init_all(loop, bus, *count, s->config.base_station, s->config.init); !r) {
+      co_return r.error();
+    }
+    if (s->stopping) co_return Error(Errc::closed, "stopped");
+
+    // Domains (open: slaves register their SyncManagers while reaching PREOP).
+    std::uint32_t base = 0;
+    for (auto dc : s->config.domains) {
+      if (dc.logical_base == 0) dc.logical_base = base;
+      const std::uint32_t span = static_cast<std::uint32_t>(
+          std::max<std::size_t>(0x800, (dc.max_image_size + 0x7FF) & ~std::size_t{0x7FF}));
+      base = dc.logical_base + span;
+      auto domain = Domain::create(bus, dc, this);
+      if (!domain) co_return domain.error();
+      std::lock_guard lock(mutex);  // Master::domain() reads the list from other threads
+      s->domains.push_back(std::move(*domain));
+    }
+
+    // Slaves.
+    for (auto& c : effective_slaves(*count)) {
+      const auto pos = *c.position;
+      const auto station = static_cast<std::uint16_t>(s->config.base_station + pos);
+      auto slave = std::make_unique<Slave>(*s, std::move(c), pos, station);
+      std::lock_guard lock(mutex);  // Master::slave() reads the list from other threads
+      s->slaves.push_back(std::move(slave));
+    }
+    transition(MasterState::awaiting_preop);
+    const auto deadline = exec::Clock::now() + s->config.awaiting_preop_timeout;
+    std::vector<exec::Task<Result<void>>> ups;
+    for (auto& slave : s->slaves)
+      ups.push_back(bring_up_with_retry(s, *slave, deadline));
+    auto results = co_await exec::when_all(loop, std::move(ups));
+    if (s->stopping) co_return Error(Errc::closed, "stopped");
+    for (auto& r : results) {
+      if (!r) co_return r.error();
+    }
+    // Quiesce: let late startup traffic drain before the first public exchange.
+    co_await exec::sleep_for(loop, 2ms);
+
+    bool any_active = false;
+    for (const auto& slave : s->slaves) {
+      if (slave->impl().config.target != TargetState::preop) any_active = true;
+    }
+    if (!any_active) {
+      {
+        std::lock_guard lock(mutex);
+        desired = TargetState::preop;
+      }
+      transition(MasterState::preop_ready);
+      co_return ok();
+    }
+    {
+      std::lock_guard lock(mutex);
+      desired = TargetState::op;
+    }
+    co_await run_activation(s);
+    co_return ok();
+  }
+
+  // ---- activation ----------------------------------------------------------------------------
+
+  // Brings every activatable slave to min(desired, its target), starting the domains first.
+  // Ends operational / deactivated / preop_ready, or activation_blocked with the failures kept.
+  exec::Task<void> run_activation(std::shared_ptr<Session> s) {
+    TargetState want;
+    {
+      std::lock_guard lock(mutex);
+      want = desired;
+      activation_failures.clear();
+      activation_error.reset();
+    }
+    if (want != TargetState::preop) start_cycling(*s);
+    std::vector<exec::Task<Result<void>>> steps;
+    std::vector<Slave*> order;
+    for (auto& slave : s->slaves) {
+      const auto target = min_target(want, slave->impl().config.target);
+      if (slave->state() == SlaveState::down) continue;
+      order.push_back(slave.get());
+      steps.push_back(slave->impl().go_to(target, s));
+    }
+    auto results = co_await exec::when_all(loop, std::move(steps));
+    if (s->stopping || session != s) co_return;
+    std::map<std::string, ActivationFailure> failures;
+    for (std::size_t i = 0; i < results.size(); ++i) {
+      if (results[i]) continue;
+      const auto target = min_target(want, order[i]->impl().config.target);
+      failures.emplace(order[i]->name(),
+                       ActivationFailure{order[i]->name(), target, results[i].error(),
+                                         al_status_code(results[i].error())});
+    }
+    if (want == TargetState::preop) stop_cycling(*s);
+    const bool blocked = !failures.empty();
+    {
+      std::lock_guard lock(mutex);
+      activation_failures = std::move(failures);
+      if (blocked) {
+        const auto& first = activation_failures.begin()->second;
+        activation_error =
+            first.error.context(fmt::format("activation to {} blocked for {} slave(s)",
+                                            to_string(want), activation_failures.size()));
+      }
+    }
+    if (blocked) {
+      // From recovering the diagram has no edge to activation_blocked: recovery goes on.
+      if (current() != MasterState::recovering) transition(MasterState::activation_blocked);
+      arm_retry(s);
+      co_return;
+    }
+    bool faults;
+    {
+      std::lock_guard lock(mutex);
+      faults = !runtime_faults.empty() && want != TargetState::preop;
+    }
+    if (faults && current() == MasterState::recovering) {
+      arm_retry(s);
+      co_return;
+    }
+    // The session state follows what the slaves were driven to: min(session target, slave
+    // target), the highest of those (a session whose slaves are all held in PREOP stays
+    // preop_ready even when OP is desired).
+    TargetState reached = TargetState::preop;
+    for (auto& slave : s->slaves)
+      reached = std::max(reached, std::min(want, slave->impl().config.target));
+    transition(state_for(reached));
+  }
+
+  static MasterState state_for(TargetState target) {
+    switch (target) {
+      case TargetState::op:
+        return MasterState::operational;
+      case TargetState::safeop:
+        return MasterState::deactivated;
+      case TargetState::preop:
+        return MasterState::preop_ready;
+    }
+    return MasterState::preop_ready;
+  }
+
+  void start_cycling(Session& s) {
+    if (!s.cycler) s.cycler = std::make_unique<Cycler>(*s.bus);
+    for (auto& d : s.domains) {
+      if (d->state() == DomainState::cycling || d->registrations().empty()) continue;
+      if (d->cycler() == nullptr) (void)s.cycler->add(*d);
+      (void)d->start_cycling();
+    }
+    if (!s.cycler->running()) (void)s.cycler->start();
+    arm_pump(s.shared_from_this());
+  }
+
+  void stop_cycling(Session& s) {
+    for (auto& d : s.domains) {
+      if (d->state() == DomainState::cycling) (void)d->stop_cycling();
+    }
+  }
+
+  // In activation_blocked / recovering: try again every retry_interval.
+  void arm_retry(std::shared_ptr<Session> s) {
+    if (retry_armed.exchange(true)) return;
+    loop.call_after(s->config.retry_interval, [this, s] {
+      retry_armed = false;
+      if (s->stopping || session != s) return;
+      const auto now = current();
+      if (now != MasterState::activation_blocked && now != MasterState::recovering) return;
+      exec::spawn(loop, retry(s));
+    });
+  }
+
+  exec::Task<void> retry(std::shared_ptr<Session> s) {
+    // Slaves with a retained configuration failure get it retried first.
+    for (auto& slave : s->slaves) {
+      if (slave->state() == SlaveState::preop) {
+        (void)co_await slave->impl().retry_configuration(s);
+      }
+    }
+    if (s->stopping || session != s) co_return;
+    const auto now = current();
+    if (now == MasterState::recovering) {
+      bool faults;
+      {
+        std::lock_guard lock(mutex);
+        faults = !runtime_faults.empty();
+      }
+      if (faults) {
+        // Domains that stopped at the miss threshold are restarted; a fault clears when its
+        // domain cycles validly again (on_cycle_recovered).
+        start_cycling(*s);
+        arm_retry(s);
+        co_return;
+      }
+    }
+    co_await run_activation(s);
+  }
+
+  // ---- domain events (bus thread: keep cheap, hand over to the loop) -------------------------
+
+  void on_inputs_changed(Domain&, std::size_t) override {
+    inputs_pending.store(true, std::memory_order_release);
+  }
+  void on_cycle_degraded(Domain& domain, const CycleInvalid& invalid) override {
+    // Rare: posting (which allocates) is acceptable here, never per cycle.
+    const std::string id = domain.id();
+    const std::string why =
+        fmt::format("domain {}: {} (expected wkc {}, got {})", id, to_string(invalid.reason),
+                    invalid.expected_wkc, invalid.actual_wkc);
+    loop.post([this, id, why] { raise_runtime_fault("domain:" + id, why); });
+  }
+  void on_cycle_recovered(Domain& domain) override {
+    const std::string id = domain.id();
+    loop.post([this, id] { clear_runtime_fault("domain:" + id); });
+  }
+  void on_stopped(Domain& domain, const CycleInvalid& invalid, std::uint64_t misses) override {
+    const std::string id = domain.id();
+    const std::string why = fmt::format("domain {} stopped after {} consecutive misses ({})", id,
+                                        misses, to_string(invalid.reason));
+    loop.post([this, id, why] { raise_runtime_fault("domain:" + id, why); });
+  }
+
+  void raise_runtime_fault(const std::string& key, const std::string& why) {
+    auto s = session;
+    if (!s || s->stopping) return;
+    {
+      std::lock_guard lock(mutex);
+      runtime_faults[key] = why;
+    }
+    const auto now = current();
+    if (now == MasterState::operational || now == MasterState::deactivated ||
+        now == MasterState::preop_ready || now == MasterState::activation_blocked) {
+      transition(MasterState::recovering);
+      arm_retry(s);
+    }
+  }
+
+  void clear_runtime_fault(const std::string& key) {
+    auto s = session;
+    if (!s || s->stopping) return;
+    bool empty;
+    {
+      std::lock_guard lock(mutex);
+      runtime_faults.erase(key);
+      empty = runtime_faults.empty();
+    }
+    if (empty && current() == MasterState::recovering) exec::spawn(loop, run_activation(s));
+  }
+
+  // ---- slave notices (loop) -------------------------------------------------------------------
+
+  static bool carries_process_data(Slave& slave) {
+    std::lock_guard lock(slave.impl().mutex);
+    return !slave.impl().attachments.empty();
+  }
+
+  void on_notice(const SlaveNotice& notice) {
+    auto s = session;
+    if (!s || s->stopping) return;
+    Slave* slave = s->find_slave(notice.slave);
+    if (!slave) return;
+    const std::string key = "slave:" + notice.slave;
+    switch (notice.kind) {
+      case SlaveNotice::Kind::down:
+        // A lost slave that carries process data breaks its domains: critical. Others are
+        // tracked as slave-local faults while the session stays where it is.
+        if (carries_process_data(*slave)) {
+          raise_runtime_fault(key,
+                              fmt::format("slave {} is down: {}", notice.slave, notice.detail));
+        }
+        break;
+      case SlaveNotice::Kind::retreated:
+        arm_slave_retry(s);
+        break;
+      case SlaveNotice::Kind::reconnected:
+      case SlaveNotice::Kind::fault_cleared:
+        exec::spawn(loop, restore_slave(s, slave, key));
+        break;
+      case SlaveNotice::Kind::ready_preop:
+        break;
+    }
+  }
+
+  // Brings a slave that came back (or retreated) to its runtime target: min(session target, its
+  // configured target). Clears its runtime fault when it gets there.
+  exec::Task<void> restore_slave(std::shared_ptr<Session> s, Slave* slave, std::string key) {
+    TargetState want;
+    {
+      std::lock_guard lock(mutex);
+      want = desired;
+    }
+    const auto state_now = current();
+    if (state_now == MasterState::preop_ready) want = TargetState::preop;
+    auto target = min_target(want, slave->impl().config.target);
+    auto done = co_await slave->impl().go_to(target, s);
+    if (s->stopping || session != s) co_return;
+    if (!done) {
+      arm_slave_retry(s);
+      co_return;
+    }
+    {
+      std::lock_guard lock(slave->impl().mutex);
+      slave->impl().fault.reset();
+    }
+    clear_runtime_fault(key);
+  }
+
+  std::atomic<bool> slave_retry_armed{false};
+  void arm_slave_retry(std::shared_ptr<Session> s) {
+    if (slave_retry_armed.exchange(true)) return;
+    loop.call_after(s->config.retry_interval, [this, s] {
+      slave_retry_armed = false;
+      if (s->stopping || session != s) return;
+      const auto now = current();
+      if (now != MasterState::operational && now != MasterState::deactivated &&
+          now != MasterState::recovering) {
+        return;
+      }
+      TargetState want;
+      {
+        std::lock_guard lock(mutex);
+        want = desired;
+      }
+      for (auto& slave : s->slaves) {
+        const auto target = min_target(want, slave->impl().config.target);
+        const auto st = slave->state();
+        if (st == SlaveState::down) continue;
+        if (al_state_of(st) != target) {
+          exec::spawn(loop, restore_slave(s, slave.get(), "slave:" + slave->name()));
+        }
+      }
+    });
+  }
+
+  // Delivers input changes to subscribers on the loop.
+  void arm_pump(std::shared_ptr<Session> s) {
+    auto period = 1ms;
+    loop.call_after(period, [this, s] {
+      if (s->stopping || session != s) return;
+      if (inputs_pending.exchange(false, std::memory_order_acq_rel)) {
+        for (auto& d : s->domains) {
+          d->drain_changes([&](const InputChange& change) {
+            for (auto& slave : s->slaves) {
+              if (slave->station() == change.key.slave) slave->impl().on_input_change(change);
+            }
+          });
+        }
+      }
+      arm_pump(s);
+    });
+  }
+
+  // ---- teardown ------------------------------------------------------------------------------
+
+  // Stops the session's cycle and bus; the objects go when the last task holding them ends.
+  void teardown() {
+    auto s = session;
+    if (!s) return;
+    s->stopping = true;
+    if (s->cycler) (void)s->cycler->stop();
+    if (s->bus) s->bus->stop();
+    std::lock_guard lock(mutex);
+    session.reset();
+  }
+
+  void shutdown() {
+    if (current() == MasterState::idle && !session) return;
+    auto done = exec::run_blocking(loop, stop_task(), 10s);
+    (void)done;
+  }
+
+  exec::Task<Result<void>> stop_task() {
+    if (!session) co_return Error(Errc::wrong_state, "the master is already stopped");
+    teardown();
+    transition(MasterState::idle);
+    co_return ok();
+  }
+};
+
+// ---- public ---------------------------------------------------------------------------------
+
+Master::Master(MasterConfig config) : impl_(std::make_unique<Impl>(std::move(config))) {}
+
+Master::~Master() = default;
+
+Result<void> Master::start(std::unique_ptr<link::Link> link, MasterConfig config) {
+  if (state() != MasterState::idle) {
+    return Error(Errc::wrong_state,
+                 fmt::format("the master is already started ({})", to_string(state())));
+  }
+  impl_->config = std::move(config);
+  return start(std::move(link));
+}
+
+Result<void> Master::start(std::unique_ptr<link::Link> link) {
+  if (!link) return Error(Errc::invalid_argument, "start: no link given");
+  if (auto valid = validate(impl_->config); !valid) return valid.error();
+  auto started = exec::run_blocking(
+      impl_->loop,
+      [](Impl& impl, std::unique_ptr<link::Link> l) -> exec::Task<Result<void>> {
+        if (impl.current() != MasterState::idle || impl.session) {
+          co_return Error(Errc::wrong_state, fmt::format("the master is already started ({})",
+                                                         to_string(impl.current())));
+        }
+        auto s = std::make_shared<Session>(impl.loop, impl.config);
+        s->notify = [&impl](const SlaveNotice& notice) { impl.on_notice(notice); };
+        bus::BusOptions options;
+        if (impl.config.frame_timeout) options.frame_timeout = *impl.config.frame_timeout;
+        s->bus = std::make_unique<bus::Bus>(std::move(l), options);
+        if (auto r = s->bus->start(); !r) co_return r.error().context("starting the bus");
+        {
+          std::lock_guard lock(impl.mutex);
+          impl.startup_error.reset();
+          impl.activation_error.reset();
+          impl.activation_failures.clear();
+          impl.runtime_faults.clear();
+          ++impl.generation;
+        }
+        {
+          std::lock_guard lock(impl.mutex);
+          impl.session = s;
+        }
+        impl.transition(MasterState::discovering);
+        exec::spawn(impl.loop, impl.startup(s));
+        co_return ok();
+      }(*impl_, std::move(link)),
+      kCallTimeout);
+  if (!started) return Error(Errc::timeout, "start: the control thread did not answer");
+  return std::move(*started);
+}
+
+Result<void> Master::stop() {
+  auto done = exec::run_blocking(impl_->loop, impl_->stop_task(), 10s);
+  if (!done) return Error(Errc::timeout, "stop: the control thread did not answer");
+  return std::move(*done);
+}
+
+MasterState Master::state() const noexcept {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->state;
+}
+
+namespace {
+
+template <class Pred>
+Result<void> wait_for_state(Master::Impl& impl, std::chrono::nanoseconds timeout, Pred done,
+                            bool running_counts, std::string_view what) {
+  std::unique_lock lock(impl.mutex);
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (true) {
+    const auto s = impl.state;
+    if (done(s)) return ok();
+    if (s == MasterState::idle) {
+      if (impl.startup_error)
+        return impl.startup_error->context(fmt::format("{}: startup failed", what));
+      return Error(Errc::wrong_state, fmt::format("{}: the master is not started", what));
+    }
+    if (running_counts && s == MasterState::activation_blocked && impl.activation_error) {
+      return *impl.activation_error;
+    }
+    if (running_counts && s == MasterState::recovering) {
+      std::string faults;
+      for (const auto& [k, v] : impl.runtime_faults)
+        faults += (faults.empty() ? "" : "; ") + v;
+      return Error(Errc::wrong_state,
+                   fmt::format("{}: the session is recovering: {}", what, faults));
+    }
+    if (impl.changed.wait_until(lock, deadline) == std::cv_status::timeout && !done(impl.state)) {
+      return Error(Errc::timeout, fmt::format("{}: still {} after {} ms", what,
+                                              to_string(impl.state), ms(timeout).count()));
+    }
+  }
+}
+
+}  // namespace
+
+Result<void> Master::await_running(std::chrono::nanoseconds timeout) {
+  return wait_for_state(
+      *impl_, timeout,
+      [](MasterState s) {
+        return s == MasterState::preop_ready || s == MasterState::deactivated ||
+               s == MasterState::operational;
+      },
+      true, "await_running");
+}
+
+Result<void> Master::await_operational(std::chrono::nanoseconds timeout) {
+  return wait_for_state(
+      *impl_, timeout, [](MasterState s) { return s == MasterState::operational; }, false,
+      "await_operational");
+}
+
+Result<void> Master::activate() {
+  auto done = exec::run_blocking(
+      impl_->loop,
+      [](Impl& impl) -> exec::Task<Result<void>> {
+        const auto now = impl.current();
+        switch (now) {
+          case MasterState::operational:
+            co_return Error(Errc::wrong_state, "activate: already operational");
+          case MasterState::activation_blocked:
+            co_return Error(Errc::wrong_state, "activate: an activation is in progress (blocked)");
+          case MasterState::recovering:
+            co_return Error(Errc::wrong_state, "activate: recovery in progress");
+          case MasterState::preop_ready:
+          case MasterState::deactivated:
+            break;
+          default:
+            co_return Error(Errc::wrong_state,
+                            fmt::format("activate: not possible while {}", to_string(now)));
+        }
+        auto s = impl.session;
+        {
+          std::lock_guard lock(impl.mutex);
+          impl.desired = TargetState::op;
+        }
+        for (auto& slave : s->slaves) {
+          if (slave->impl().config.target == TargetState::preop) continue;
+        }
+        co_await impl.run_activation(s);
+        std::lock_guard lock(impl.mutex);
+        if (impl.state == MasterState::activation_blocked && impl.activation_error) {
+          co_return *impl.activation_error;
+        }
+        co_return ok();
+      }(*impl_),
+      60s);
+  if (!done) return Error(Errc::timeout, "activate: no answer within 60 s");
+  return std::move(*done);
+}
+
+Result<void> Master::deactivate(TargetState target) {
+  auto done = exec::run_blocking(
+      impl_->loop,
+      [](Impl& impl, TargetState t) -> exec::Task<Result<void>> {
+        if (t == TargetState::op) {
+          co_return Error(Errc::invalid_argument, "deactivate: the target must be safeop or preop");
+        }
+        const auto now = impl.current();
+        if (now == MasterState::idle || now == MasterState::discovering ||
+            now == MasterState::awaiting_preop) {
+          co_return Error(Errc::wrong_state,
+                          fmt::format("deactivate: not possible while {}", to_string(now)));
+        }
+        if (now == MasterState::preop_ready && t == TargetState::safeop) {
+          co_return Error(Errc::wrong_state,
+                          "deactivate to safeop: the session is not operational");
+        }
+        auto s = impl.session;
+        {
+          std::lock_guard lock(impl.mutex);
+          impl.desired = t;
+          impl.runtime_faults.clear();
+        }
+        co_await impl.run_activation(s);
+        std::lock_guard lock(impl.mutex);
+        if (impl.state == MasterState::activation_blocked && impl.activation_error) {
+          co_return *impl.activation_error;
+        }
+        co_return ok();
+      }(*impl_, target),
+      60s);
+  if (!done) return Error(Errc::timeout, "deactivate: no answer within 60 s");
+  return std::move(*done);
+}
+
+Result<void> Master::configure_slave(std::string_view name, SlaveConfig config) {
+  const auto now = state();
+  if (now != MasterState::preop_ready) {
+    return Error(Errc::wrong_state,
+                 fmt::format("configure_slave: only in preop_ready (now {})", to_string(now)));
+  }
+  auto slave = this->slave(name);
+  if (!slave) return slave.error();
+  if (config.name.empty()) config.name = std::string(name);
+  return (*slave)->configure(std::move(config));
+}
+
+Result<void> Master::update_domain_cycle_time(std::string_view id,
+                                              std::chrono::nanoseconds period) {
+  auto d = domain(id);
+  if (!d) return d.error();
+  return (*d)->update_period(period);
+}
+
+bus::Bus* Master::bus() noexcept {
+  std::lock_guard lock(impl_->mutex);
+  auto s = impl_->session;
+  return s ? s->bus.get() : nullptr;
+}
+
+std::vector<SlaveSummary> Master::slaves() const {
+  std::shared_ptr<Session> s;
+  {
+    std::lock_guard lock(impl_->mutex);
+    s = impl_->session;
+  }
+  std::vector<SlaveSummary> out;
+  if (!s) return out;
+  auto done = exec::run_blocking(
+      impl_->loop,
+      [](std::shared_ptr<Session> sess) -> exec::Task<std::vector<SlaveSummary>> {
+        std::vector<SlaveSummary> list;
+        for (const auto& slave : sess->slaves) {
+          auto info = slave->info();
+          SlaveSummary summary;
+          summary.name = info.name;
+          summary.position = info.position;
+          summary.station = info.station;
+          summary.state = info.state;
+          summary.target = info.target;
+          if (info.configuration_error) summary.fault = *info.configuration_error;
+          if (info.fault) summary.fault = *info.fault;
+          list.push_back(std::move(summary));
+        }
+        co_return list;
+      }(s),
+      kCallTimeout);
+  return done ? std::move(*done) : out;
+}
+
+std::vector<DomainSummary> Master::domains() const {
+  std::shared_ptr<Session> s;
+  {
+    std::lock_guard lock(impl_->mutex);
+    s = impl_->session;
+  }
+  std::vector<DomainSummary> out;
+  if (!s) return out;
+  auto done = exec::run_blocking(
+      impl_->loop,
+      [](std::shared_ptr<Session> sess) -> exec::Task<std::vector<DomainSummary>> {
+        std::vector<DomainSummary> list;
+        for (const auto& d : sess->domains) {
+          auto info = d->info();
+          DomainSummary summary;
+          summary.id = info.id;
+          summary.period = info.period;
+          summary.state = std::string(to_string(info.state));
+          summary.logical_base = info.logical_base;
+          summary.image_size = info.image_size;
+          summary.expected_wkc = static_cast<std::uint16_t>(info.expected_wkc);
+          summary.cycles = info.stats.cycle_count;
+          summary.total_misses = info.stats.total_miss_count;
+          summary.healthy = info.stats.health.healthy;
+          list.push_back(std::move(summary));
+        }
+        co_return list;
+      }(s),
+      kCallTimeout);
+  return done ? std::move(*done) : out;
+}
+
+std::optional<Failure> Master::last_failure() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->last;
+}
+
+MasterStatus Master::status() const {
+  MasterStatus out;
+  {
+    std::lock_guard lock(impl_->mutex);
+    out.state = impl_->state;
+    out.desired_target = impl_->desired;
+    out.last_failure = impl_->last;
+    for (const auto& [name, f] : impl_->activation_failures)
+      out.activation_failures.push_back(f);
+    for (const auto& [key, why] : impl_->runtime_faults)
+      out.runtime_faults.push_back(why);
+    if (impl_->session) {
+      out.link = impl_->session->bus ? impl_->session->bus->link_name() : "";
+      out.slave_count = impl_->session->slave_count;
+    }
+  }
+  out.slaves = slaves();
+  out.domains = domains();
+  return out;
+}
+
+Result<Slave*> Master::slave(std::string_view name) {
+  std::lock_guard lock(impl_->mutex);
+  auto s = impl_->session;
+  if (!s) return Error(Errc::wrong_state, "the master is not started");
+  if (impl_->state == MasterState::discovering) {
+    return Error(Errc::not_ready,
+                 fmt::format("slave {}: the ring is still being discovered", name));
+  }
+  if (auto* found = s->find_slave(name)) return found;
+  return Error(Errc::not_found, fmt::format("no slave named \"{}\"", name));
+}
+
+Result<Domain*> Master::domain(std::string_view id) {
+  std::lock_guard lock(impl_->mutex);
+  auto s = impl_->session;
+  if (!s) return Error(Errc::wrong_state, "the master is not started");
+  if (auto* found = s->find_domain(id)) return found;
+  return Error(Errc::not_found, fmt::format("no domain named \"{}\"", id));
+}
+
+void Master::on_state_change(std::function<void(MasterState, MasterState)> callback) {
+  std::lock_guard lock(impl_->mutex);
+  impl_->on_change = std::move(callback);
+}
+
+}  // namespace ecat::master

@@ -1,0 +1,64 @@
+// The state one master session shares between the Master, its slaves and its domains. Private to
+// src/master. Owned through shared_ptr: every coroutine of the session holds a reference, so
+// nothing it touches is destroyed while it is suspended; stop() sets `stopping`, stops the bus
+// (which completes everything in flight) and lets the tasks run out.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/exec/event_loop.hpp>
+#include <ecat/master/config.hpp>
+#include <ecat/master/cycler.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/driver.hpp>
+#include <ecat/master/slave.hpp>
+#include <ecat/wire/registers.hpp>
+
+namespace ecat::master {
+
+// What a slave tells its master (on the control loop).
+struct SlaveNotice {
+  enum class Kind : std::uint8_t { ready_preop, retreated, down, reconnected, fault_cleared };
+  Kind kind = Kind::ready_preop;
+  std::string slave;
+  std::string detail;
+};
+
+struct Session : std::enable_shared_from_this<Session> {
+  Session(exec::EventLoop& control_loop, MasterConfig master_config)
+      : loop(control_loop), config(std::move(master_config)) {}
+
+  exec::EventLoop& loop;
+  MasterConfig config;
+  std::unique_ptr<bus::Bus> bus;
+  std::unique_ptr<Cycler> cycler;
+  std::vector<std::unique_ptr<Domain>> domains;
+  std::vector<std::unique_ptr<Slave>> slaves;
+  DriverRegistry drivers = DriverRegistry::with_builtins();
+  std::uint16_t slave_count = 0;
+  std::vector<wire::DlStatus> dl_status;
+  std::atomic<bool> stopping{false};
+  // Set by the master: slaves report here (called on the loop).
+  std::function<void(const SlaveNotice&)> notify;
+
+  Domain* find_domain(std::string_view id) const noexcept {
+    for (const auto& d : domains) {
+      if (d->id() == id) return d.get();
+    }
+    return nullptr;
+  }
+  Slave* find_slave(std::string_view name) const noexcept {
+    for (const auto& s : slaves) {
+      if (s->name() == name) return s.get();
+    }
+    return nullptr;
+  }
+};
+
+}  // namespace ecat::master

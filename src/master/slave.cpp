@@ -1,0 +1,988 @@
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <map>
+#include <set>
+
+#include <fmt/format.h>
+
+#include <ecat/exec/task.hpp>
+#include <ecat/exec/transact.hpp>
+#include <ecat/master/al_control.hpp>
+#include <ecat/master/sii_reader.hpp>
+#include <ecat/master/slave.hpp>
+#include <ecat/wire/bytes.hpp>
+
+#include "slave_impl.hpp"
+
+namespace ecat::master {
+
+namespace reg = wire::reg;
+using namespace std::chrono_literals;
+
+namespace {
+
+std::string hex_identity(const wire::SiiIdentity& id) {
+  return fmt::format("vendor 0x{:08x} product 0x{:08x} revision 0x{:08x}", id.vendor_id,
+                     id.product_code, id.revision);
+}
+
+}  // namespace
+
+// ---- Impl: control loop side ------------------------------------------------------------------
+
+Slave::Impl::Impl(Slave& owner, Session& s, SlaveConfig c)
+    : self(owner), session(s), config(std::move(c)) {}
+
+std::string Slave::Impl::who() const {
+  return fmt::format("slave {} (station 0x{:04x})", self.name(), self.station());
+}
+
+void Slave::Impl::set_state(SlaveState next) {
+  const SlaveState now = state.load();
+  if (now == next) return;
+  // The seed diagram has no INIT -> down edge etc.; a slave found in an unexpected state is
+  // adopted (what the hardware says wins), but transitions the diagram draws are the norm.
+  state.store(next);
+}
+
+exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
+  (void)keep;
+  auto& loop = session.loop;
+  auto& bus = *session.bus;
+  const auto station = self.station();
+  {
+    std::lock_guard lock(mutex);
+    configuration_error.reset();
+  }
+  auto init = co_await al_request(loop, bus, station, wire::AlState::init, session.config.al);
+  if (!init) co_return init.error().context(fmt::format("{}: reaching INIT", who()));
+  set_state(SlaveState::init);
+
+  bus::Transaction esc_tx;
+  esc_tx.fprd(station, reg::kType, static_cast<std::uint16_t>(reg::kEscInformationSize), 1);
+  auto esc_reply = co_await exec::transact(loop, bus, std::move(esc_tx));
+  if (!esc_reply)
+    co_return esc_reply.error().context(fmt::format("{}: reading ESC information", who()));
+  auto esc_info = wire::EscInformation::decode(esc_reply->data(0));
+  if (!esc_info) co_return esc_info.error().context(fmt::format("{}: ESC information", who()));
+
+  auto sii_read = co_await read_sii(loop, bus, station);
+  if (!sii_read) co_return sii_read.error().context(fmt::format("{}: reading the SII", who()));
+  const auto& image = sii_read->decoded.image;
+  if (session.stopping) co_return Error(Errc::closed, "session stopped");
+
+  if ((config.vendor_id && *config.vendor_id != image.identity.vendor_id) ||
+      (config.product_code && *config.product_code != image.identity.product_code)) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: identity mismatch: configured vendor 0x{:08x} product "
+                                "0x{:08x}, found {}",
+                                who(), config.vendor_id.value_or(image.identity.vendor_id),
+                                config.product_code.value_or(image.identity.product_code),
+                                hex_identity(image.identity)));
+  }
+  if (known_identity && (known_identity->vendor_id != image.identity.vendor_id ||
+                         known_identity->product_code != image.identity.product_code ||
+                         known_identity->serial != image.identity.serial)) {
+    co_return Error(
+        Errc::invalid_argument,
+        fmt::format("{}: a different device answers at this position: was {}, now {}", who(),
+                    hex_identity(*known_identity), hex_identity(image.identity)));
+  }
+  {
+    std::lock_guard lock(mutex);
+    esc = *esc_info;
+    sii = std::move(*sii_read);
+    known_identity = sii->decoded.image.identity;
+  }
+
+  // Mailbox SyncManagers (SM0 master -> slave, SM1 slave -> master) from the SII.
+  const auto& mbx = sii->decoded.image.standard_mailbox;
+  if (mbx.present()) {
+    wire::SyncManagerConfig out;
+    out.physical_start = mbx.recv_offset;
+    out.length = mbx.recv_size;
+    out.control = wire::kMailboxOutControl;
+    out.activate.enable = true;
+    wire::SyncManagerConfig in;
+    in.physical_start = mbx.send_offset;
+    in.length = mbx.send_size;
+    in.control = wire::kMailboxInControl;
+    in.activate.enable = true;
+    bus::Transaction tx;
+    const std::array<std::uint8_t, 1> off{0};
+    tx.fpwr(station, reg::kSyncManagerBase + reg::kSyncManagerActivateOffset, off, 1);
+    tx.fpwr(station, reg::kSyncManagerBase + 8 + reg::kSyncManagerActivateOffset, off, 1);
+    tx.fpwr(station, reg::kSyncManagerBase, out.encode(), 1);
+    tx.fpwr(station, reg::kSyncManagerBase + 8, in.encode(), 1);
+    auto written = co_await exec::transact(loop, bus, std::move(tx));
+    if (!written) {
+      co_return written.error().context(fmt::format("{}: writing the mailbox SyncManagers", who()));
+    }
+    MailboxConfig mc;
+    mc.out_offset = mbx.recv_offset;
+    mc.out_size = mbx.recv_size;
+    mc.in_offset = mbx.send_offset;
+    mc.in_size = mbx.send_size;
+    std::lock_guard lock(mutex);
+    // One Mailbox per slave for its whole life: after the SyncManagers were written again (a
+    // rebuild) it is reset, so counters start over as the slave's do.
+    if (mailbox && mailbox->config() == mc) {
+      mailbox->reset();
+    } else {
+      mailbox = std::make_unique<Mailbox>(loop, bus, station, mc);
+    }
+  } else {
+    std::lock_guard lock(mutex);
+    mailbox.reset();
+  }
+
+  auto preop = co_await al_step(loop, bus, station, wire::AlState::preop, session.config.al);
+  if (!preop) {
+    record_al_error(preop.error());
+    co_return preop.error().context(fmt::format("{}: reaching PREOP", who()));
+  }
+  set_state(SlaveState::preop);
+
+  auto configured = co_await configure_preop(keep);
+  if (!configured) {
+    // Retained: the slave stays in PREOP (reachable for SDOs and reconfiguration) and SAFEOP/OP
+    // requests are refused with this error until retry() or configure() succeeds.
+    std::lock_guard lock(mutex);
+    configuration_error = configured.error().describe();
+  }
+  co_return ok();
+}
+
+exec::Task<Result<void>> Slave::Impl::run_sdos(const std::vector<SdoWrite>& writes) {
+  for (const auto& w : writes) {
+    if (!mailbox) {
+      co_return Error(
+          Errc::unsupported,
+          fmt::format("{}: SDO {} needs a mailbox, the slave has none", who(), to_string(w)));
+    }
+    SdoOptions options;
+    options.complete_access = w.complete_access;
+    auto done = co_await master::download_sdo(*mailbox, w.index, w.subindex, w.data, options);
+    if (!done)
+      co_return done.error().context(fmt::format("{}: startup SDO {}", who(), to_string(w)));
+  }
+  co_return ok();
+}
+
+exec::Task<Result<PdoLayout>> Slave::Impl::read_coe_layout(const PdoLayout& known) {
+  if (!mailbox) {
+    co_return Error(
+        Errc::unsupported,
+        fmt::format("{}: PDO layout from CoE needs a mailbox, the slave has none", who()));
+  }
+  CoePdoConfiguration coe;
+  for (const auto& sm : known.sync_managers)
+    (void)sm;
+  // Process-data SyncManagers are 2 (outputs) and 3 (inputs) on nearly every device; read the
+  // assignment of every SyncManager the SII describes beyond the mailbox.
+  const auto& sms = sii->decoded.image.sync_managers;
+  for (std::size_t i = 2; i < sms.size() && i < 16; ++i) {
+    const auto object = pdo_assignment_object(static_cast<std::uint8_t>(i));
+    auto count = co_await master::upload<std::uint8_t>(*mailbox, object, 0);
+    if (!count) {
+      if (sdo_abort_code(count.error())) continue;  // no such object: SM not used for PDOs
+      co_return count.error();
+    }
+    CoePdoAssignment assignment;
+    assignment.sync_manager = static_cast<std::uint8_t>(i);
+    if (sms[i].type == wire::sii_sm_type::kOutputs) {
+      assignment.direction = PdoDirection::output;
+    } else if (sms[i].type == wire::sii_sm_type::kInputs) {
+      assignment.direction = PdoDirection::input;
+    }
+    for (std::uint8_t sub = 1; sub <= *count; ++sub) {
+      auto pdo = co_await master::upload<std::uint16_t>(*mailbox, object, sub);
+      if (!pdo) co_return pdo.error();
+      assignment.pdo_indices.push_back(*pdo);
+      CoePdoMapping mapping;
+      mapping.pdo_index = *pdo;
+      auto entries = co_await master::upload<std::uint8_t>(*mailbox, *pdo, 0);
+      if (!entries) {
+        if (known.find_pdo(*pdo) != nullptr) continue;  // fixed PDO, the SII knows it
+        co_return entries.error();
+      }
+      for (std::uint8_t e = 1; e <= *entries; ++e) {
+        auto entry = co_await master::upload<std::uint32_t>(*mailbox, *pdo, e);
+        if (!entry) co_return entry.error();
+        mapping.entries.push_back(*entry);
+      }
+      coe.mappings.push_back(std::move(mapping));
+    }
+    coe.assignments.push_back(std::move(assignment));
+  }
+  co_return pdo_layout_from_coe(coe, &known);
+}
+
+exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> keep) {
+  (void)keep;
+  auto& loop = session.loop;
+  auto& bus = *session.bus;
+  const auto station = self.station();
+  const auto& image = sii->decoded.image;
+
+  // Driver.
+  std::shared_ptr<const Driver> chosen;
+  if (!config.driver.empty()) {
+    chosen = session.drivers.find(std::string_view(config.driver));
+    if (!chosen) {
+      co_return Error(Errc::not_found,
+                      fmt::format("{}: unknown driver \"{}\"", who(), config.driver));
+    }
+  } else {
+    chosen = session.drivers.find(image.identity);
+  }
+  auto made_state = chosen->init(config.driver_config);
+  if (!made_state)
+    co_return made_state.error().context(fmt::format("{}: driver {}", who(), chosen->name()));
+
+  // PDO layout.
+  auto sii_layout = pdo_layout_from_sii(image);
+  if (!sii_layout) co_return sii_layout.error().context(fmt::format("{}: SII PDOs", who()));
+  PdoLayout pdo_layout = *sii_layout;
+
+  SyncSettings sync_settings;  // DC sync modes come with the distributed-clocks work
+  auto driver_preop =
+      chosen->startup_sdos(config.driver_config, StartupPhase::preop, sync_settings);
+  if (!driver_preop) co_return driver_preop.error();
+  if (auto ran = co_await run_sdos(*driver_preop); !ran) co_return ran.error();
+  if (auto ran = co_await run_sdos(config.startup_sdos); !ran) co_return ran.error();
+
+  if (config.pdo_source == SlaveConfig::PdoSource::configured) {
+    if (!config.pdo_mapping) {
+      co_return Error(Errc::invalid_argument,
+                      fmt::format("{}: pdo_source is 'configured' but no mapping is given", who()));
+    }
+    auto wanted = pdo_layout_from_coe(*config.pdo_mapping, &*sii_layout);
+    if (!wanted) co_return wanted.error().context(fmt::format("{}: configured PDO mapping", who()));
+    auto writes = coe_mapping_writes(*wanted);
+    if (!writes) co_return writes.error();
+    if (auto ran = co_await run_sdos(*writes); !ran) co_return ran.error();
+    pdo_layout = *wanted;
+  } else if (config.pdo_source == SlaveConfig::PdoSource::coe) {
+    auto read = co_await read_coe_layout(*sii_layout);
+    if (!read) co_return read.error().context(fmt::format("{}: reading the PDO mapping", who()));
+    pdo_layout = *read;
+  }
+  auto driver_sync =
+      chosen->startup_sdos(config.driver_config, StartupPhase::sync_update, sync_settings);
+  if (!driver_sync) co_return driver_sync.error();
+  if (auto ran = co_await run_sdos(*driver_sync); !ran) co_return ran.error();
+
+  auto model = chosen->signal_model(pdo_layout, config.driver_config);
+  if (!model) co_return model.error().context(fmt::format("{}: signal model", who()));
+
+  // Which SyncManager goes to which domains.
+  std::map<std::uint8_t, std::set<std::string>> sm_domains;
+  const auto& request = config.process_data;
+  if (request.kind == ProcessDataRequest::Kind::all) {
+    for (const auto& sig : *model)
+      sm_domains[sig.sync_manager].insert(request.domain);
+  } else if (request.kind == ProcessDataRequest::Kind::signals) {
+    for (const auto& route : request.routes) {
+      auto it = std::find_if(model->begin(), model->end(),
+                             [&](const Signal& s) { return s.name == route.signal; });
+      if (it == model->end()) {
+        co_return Error(Errc::not_found,
+                        fmt::format("{}: process_data names signal \"{}\", which the {} driver "
+                                    "does not have",
+                                    who(), route.signal, chosen->name()));
+      }
+      sm_domains[it->sync_manager].insert(route.domain);
+    }
+  }
+  for (const auto& [sm, ids] : sm_domains) {
+    for (const auto& id : ids) {
+      if (!session.find_domain(id)) {
+        co_return Error(Errc::not_found,
+                        fmt::format("{}: process data routed to unknown domain \"{}\"", who(), id));
+      }
+    }
+  }
+
+  // Plan: one FMMU per (SyncManager, domain).
+  std::vector<SmAttachment> plan;
+  std::uint8_t next_fmmu = 0;
+  for (const auto& [sm_index, ids] : sm_domains) {
+    const auto* sm = pdo_layout.find_sync_manager(sm_index);
+    if (!sm || sm->byte_length() == 0) continue;
+    if (sm_index >= image.sync_managers.size()) {
+      co_return Error(Errc::invalid_argument,
+                      fmt::format("{}: PDOs assigned to SyncManager {}, which the SII does not "
+                                  "describe",
+                                  who(), sm_index));
+    }
+    for (const auto& id : ids) {
+      SmAttachment a;
+      a.sync_manager = sm_index;
+      a.direction = sm->direction;
+      a.domain = id;
+      a.physical_address = image.sync_managers[sm_index].start;
+      a.size = sm->byte_length();
+      a.fmmu = next_fmmu++;
+      plan.push_back(a);
+    }
+  }
+  const unsigned fmmu_available = esc.fmmu_count == 0 ? 16u : esc.fmmu_count;
+  if (plan.size() > fmmu_available) {
+    co_return Error(Errc::out_of_range, fmt::format("{}: needs {} FMMUs, the ESC has {}", who(),
+                                                    plan.size(), fmmu_available));
+  }
+
+  // Register with the domains (re-using a registration from before a reconnect).
+  for (auto& a : plan) {
+    Domain* domain = session.find_domain(a.domain);
+    const PdoKey key{station, a.sync_manager};
+    auto existing = domain->registration(key);
+    if (existing) {
+      if (existing->size != a.size || existing->direction != a.direction) {
+        co_return Error(Errc::wrong_state,
+                        fmt::format("{}: SyncManager {} is registered in domain \"{}\" with {} "
+                                    "bytes, now {}: the domain must be rebuilt",
+                                    who(), a.sync_manager, a.domain, existing->size, a.size));
+      }
+      a.logical_address = existing->logical;
+      continue;
+    }
+    auto logical = domain->register_pdo(key, a.size, a.direction);
+    if (!logical)
+      co_return logical.error().context(fmt::format(
+          "{}: registering SyncManager {} in domain \"{}\"", who(), a.sync_manager, a.domain));
+    a.logical_address = *logical;
+  }
+
+  // SyncManagers and FMMUs.
+  bus::Transaction tx;
+  std::set<std::uint8_t> done_sms;
+  for (const auto& a : plan) {
+    if (done_sms.insert(a.sync_manager).second) {
+      const auto& sii_sm = image.sync_managers[a.sync_manager];
+      wire::SyncManagerConfig smc;
+      smc.physical_start = a.physical_address;
+      smc.length = a.size;
+      auto control = wire::SmControl::decode(sii_sm.control);
+      smc.control = control && control->mode == wire::SmMode::buffered
+                        ? *control
+                        : (a.direction == PdoDirection::output ? wire::kOutputsControl
+                                                               : wire::kInputsControl);
+      smc.activate.enable = true;
+      const auto base = static_cast<std::uint16_t>(reg::kSyncManagerBase + 8 * a.sync_manager);
+      const std::array<std::uint8_t, 1> off{0};
+      tx.fpwr(station, static_cast<std::uint16_t>(base + reg::kSyncManagerActivateOffset), off, 1);
+      tx.fpwr(station, base, smc.encode(), 1);
+    }
+    wire::FmmuConfig f;
+    f.logical_start = a.logical_address;
+    f.length = a.size;
+    f.logical_start_bit = 0;
+    f.logical_stop_bit = 7;
+    f.physical_start = a.physical_address;
+    f.type = a.direction == PdoDirection::output ? wire::FmmuType::write : wire::FmmuType::read;
+    f.active = true;
+    tx.fpwr(station, static_cast<std::uint16_t>(reg::kFmmuBase + reg::kFmmuSize * a.fmmu),
+            f.encode(), 1);
+  }
+  if (!tx.empty()) {
+    auto written = co_await exec::transact(loop, bus, std::move(tx));
+    if (!written) {
+      co_return written.error().context(
+          fmt::format("{}: writing process-data SyncManagers and FMMUs", who()));
+    }
+  }
+
+  // Publish. Output images start as zeros, or keep what was staged before (a reconnect).
+  std::lock_guard lock(mutex);
+  for (const auto& a : plan) {
+    if (a.direction != PdoDirection::output) continue;
+    auto& img = output_images[a.sync_manager];
+    if (img.size() != a.size) img.assign(a.size, 0);
+    auto* domain = session.find_domain(a.domain);
+    (void)domain->write(PdoKey{station, a.sync_manager}, img);
+  }
+  driver = chosen;
+  driver_state = std::move(*made_state);
+  layout = std::move(pdo_layout);
+  signals = std::move(*model);
+  attachments = std::move(plan);
+  configuration_error.reset();
+  co_return ok();
+}
+
+void Slave::Impl::record_al_error(const Error& error) {
+  if (auto code = al_status_code(error)) {
+    std::lock_guard lock(mutex);
+    al_code = *code;
+  }
+}
+
+exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_ptr<Session> keep) {
+  (void)keep;
+  auto& loop = session.loop;
+  auto& bus = *session.bus;
+  const auto station = self.station();
+  if (state.load() == SlaveState::down) {
+    co_return Error(Errc::wrong_state, fmt::format("{} is down", who()));
+  }
+  struct Busy {
+    int& count;
+    explicit Busy(int& c) : count(c) { ++count; }
+    ~Busy() { --count; }
+    Busy(const Busy&) = delete;
+    Busy& operator=(const Busy&) = delete;
+  } busy_guard(busy);
+  if (target == wire::AlState::safeop || target == wire::AlState::op) {
+    std::lock_guard lock(mutex);
+    if (configuration_error) {
+      co_return Error(Errc::wrong_state,
+                      fmt::format("{}: PREOP configuration failed, {} refused until it is "
+                                  "retried: {}",
+                                  who(), wire::to_string(target), *configuration_error));
+    }
+  }
+  auto status = co_await read_al_status(loop, bus, station, session.config.al.transact);
+  if (!status) co_return status.error().context(fmt::format("{}: reading AL status", who()));
+  if (status->status.error) {
+    auto acked = co_await al_acknowledge(loop, bus, station, session.config.al);
+    if (!acked) co_return acked.error();
+    status = *acked;
+  }
+  const auto from = status->status.state;
+  set_state(slave_state_of(from));
+  auto path = al_path(from, target);
+  if (!path) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: no AL path from {} to {}", who(), wire::to_string(from),
+                                wire::to_string(target)));
+  }
+  for (auto step : *path) {
+    auto stepped = co_await al_step(loop, bus, station, step, session.config.al);
+    if (!stepped) {
+      record_al_error(stepped.error());
+      // What the slave is in now (it may have fallen back).
+      if (auto now = co_await read_al_status(loop, bus, station, session.config.al.transact)) {
+        set_state(slave_state_of(now->status.state));
+      }
+      co_return stepped.error().context(
+          fmt::format("{}: requesting {}", who(), wire::to_string(target)));
+    }
+    set_state(slave_state_of(step));
+    if (step == wire::AlState::init) {
+      // Leaving PREOP for INIT drops the mailbox and process-data configuration on the device.
+    }
+  }
+  co_return ok();
+}
+
+exec::Task<Result<std::vector<std::uint8_t>>> Slave::Impl::sdo_upload(
+    std::uint16_t index, std::uint8_t subindex, SdoOptions options, std::shared_ptr<Session> keep) {
+  (void)keep;
+  auto checked = check_mailbox();
+  if (!checked) co_return checked.error();
+  co_return co_await master::upload_sdo(*mailbox, index, subindex, options);
+}
+
+exec::Task<Result<void>> Slave::Impl::sdo_download(std::uint16_t index, std::uint8_t subindex,
+                                                   std::vector<std::uint8_t> data,
+                                                   SdoOptions options,
+                                                   std::shared_ptr<Session> keep) {
+  (void)keep;
+  auto checked = check_mailbox();
+  if (!checked) co_return checked.error();
+  if (data.empty()) {
+    co_return Error(
+        Errc::invalid_argument,
+        fmt::format("{}: SDO download of 0x{:04x}:{:02x} with no data", who(), index, subindex));
+  }
+  co_return co_await master::download_sdo(*mailbox, index, subindex, std::move(data), options);
+}
+
+Result<void> Slave::Impl::check_mailbox() const {
+  const auto s = state.load();
+  if (s == SlaveState::down) return Error(Errc::wrong_state, fmt::format("{} is down", who()));
+  if (s == SlaveState::init || s == SlaveState::bootstrap) {
+    return Error(Errc::wrong_state,
+                 fmt::format("{}: mailbox not ready in {}", who(), to_string(s)));
+  }
+  if (!mailbox) {
+    return Error(Errc::unsupported, fmt::format("{} has no mailbox (no CoE)", who()));
+  }
+  return ok();
+}
+
+const Signal* Slave::Impl::find_signal(std::string_view name) const noexcept {
+  for (const auto& s : signals) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+const SmAttachment* Slave::Impl::attachment_for(std::uint8_t sm) const noexcept {
+  for (const auto& a : attachments) {
+    if (a.sync_manager == sm) return &a;
+  }
+  return nullptr;
+}
+
+void Slave::Impl::project(const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs) {
+  if (!driver) return;
+  std::vector<Value> values;
+  values.reserve(signals.size());
+  for (const auto& sig : signals) {
+    const auto& images = sig.direction == PdoDirection::output ? output_images : inputs;
+    auto it = images.find(sig.sync_manager);
+    Value v = std::int64_t{0};
+    if (it != images.end()) {
+      if (auto d = decode_scaled(sig, it->second)) v = std::move(*d);
+    }
+    values.push_back(std::move(v));
+  }
+  SignalValues current(signals, values);
+  auto next = driver->project_state(current, &device_state, driver_state.get());
+  if (next) device_state = std::move(*next);
+}
+
+void Slave::Impl::on_input_change(const InputChange& change) {
+  std::vector<std::pair<std::function<void(const SignalEvent&)>, SignalEvent>> calls;
+  {
+    std::lock_guard lock(mutex);
+    if (driver) {
+      // The driver's projected device state follows the inputs.
+      std::map<std::uint8_t, std::vector<std::uint8_t>> inputs;
+      for (const auto& a : attachments) {
+        if (a.direction != PdoDirection::input || inputs.count(a.sync_manager)) continue;
+        auto* domain = session.find_domain(a.domain);
+        std::vector<std::uint8_t> image(a.size);
+        if (domain && domain->read(PdoKey{self.station(), a.sync_manager}, image)) {
+          inputs.emplace(a.sync_manager, std::move(image));
+        }
+      }
+      project(inputs);
+    }
+    if (subscriptions.empty()) return;
+    const auto* a = attachment_for(change.key.sync_manager);
+    if (!a) return;
+    auto* domain = session.find_domain(a->domain);
+    if (!domain) return;
+    std::vector<std::uint8_t> image(a->size);
+    if (!domain->read(change.key, image)) return;
+    for (auto& sub : subscriptions) {
+      const Signal* sig = find_signal(sub.signal);
+      if (!sig || sig->sync_manager != change.key.sync_manager) continue;
+      auto value = decode_scaled(*sig, image);
+      if (!value) continue;
+      if (sub.last && *sub.last == *value) continue;
+      sub.last = *value;
+      calls.emplace_back(sub.callback,
+                         SignalEvent{self.name(), sub.signal, *value, change.cycle, change.at});
+    }
+  }
+  for (auto& [cb, ev] : calls)
+    cb(ev);
+}
+
+void Slave::Impl::start_health(std::shared_ptr<Session> keep) {
+  if (health_running || !config.health_poll) return;
+  health_running = true;
+  exec::spawn(session.loop, health_loop(std::move(keep)));
+}
+
+exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
+  auto& loop = session.loop;
+  auto& bus = *session.bus;
+  const auto station = self.station();
+  while (!session.stopping) {
+    std::chrono::nanoseconds period;
+    {
+      std::lock_guard lock(mutex);
+      if (!config.health_poll) break;
+      period = *config.health_poll;
+    }
+    co_await exec::sleep_for(loop, period);
+    if (session.stopping) break;
+    const auto now = state.load();
+    if (now == SlaveState::down) {
+      if (co_await probe_and_rebuild(keep)) {
+        ++reconnects;
+        session.notify({SlaveNotice::Kind::reconnected, self.name(), "back in PREOP"});
+      }
+      continue;
+    }
+    if (busy > 0) continue;  // a request is walking the AL states right now
+    ++health_checks;
+    const bus::TransactOptions quick{std::max<std::chrono::nanoseconds>(period, 20ms), 1};
+    auto status = co_await read_al_status(loop, bus, station, quick);
+    if (session.stopping) break;
+    if (busy > 0) continue;
+    if (!status) {
+      state.store(SlaveState::down);
+      {
+        std::lock_guard lock(mutex);
+        fault = fmt::format("down: {}", status.error().message());
+      }
+      session.notify({SlaveNotice::Kind::down, self.name(), status.error().describe()});
+      continue;
+    }
+    const auto seen = slave_state_of(status->status.state);
+    if (status->status.error) {
+      std::lock_guard lock(mutex);
+      al_code = status->code;
+    }
+    if (now == SlaveState::op && (seen != SlaveState::op || status->status.error)) {
+      // Retreat to SAFEOP, acknowledging the error; the master decides when to go back to OP.
+      auto retreat = co_await go_to(wire::AlState::safeop, keep);
+      const auto why =
+          fmt::format("left OP (AL status {}{}, code 0x{:04x} {})",
+                      wire::to_string(status->status.state), status->status.error ? " + error" : "",
+                      status->code, wire::al_status_code_text(status->code));
+      {
+        std::lock_guard lock(mutex);
+        fault = why;
+      }
+      if (!retreat) {
+        state.store(SlaveState::down);
+        session.notify(
+            {SlaveNotice::Kind::down, self.name(), retreat.error().context(why).describe()});
+      } else {
+        session.notify({SlaveNotice::Kind::retreated, self.name(), why});
+      }
+      continue;
+    }
+    // Held in PREOP or SAFEOP: only a fall to a lower state counts.
+    auto rank = [](SlaveState st) {
+      switch (st) {
+        case SlaveState::op:
+          return 4;
+        case SlaveState::safeop:
+          return 3;
+        case SlaveState::preop:
+          return 2;
+        default:
+          return 1;
+      }
+    };
+    if (rank(seen) < rank(now)) {
+      state.store(seen);
+      const auto why = fmt::format("fell from {} to {}", to_string(now), to_string(seen));
+      {
+        std::lock_guard lock(mutex);
+        fault = why;
+      }
+      session.notify({SlaveNotice::Kind::retreated, self.name(), why});
+    }
+  }
+  health_running = false;
+}
+
+exec::Task<bool> Slave::Impl::probe_and_rebuild(std::shared_ptr<Session> keep) {
+  auto& loop = session.loop;
+  auto& bus = *session.bus;
+  const auto station = self.station();
+  const bus::TransactOptions quick{50ms, 0};
+  bus::Transaction probe;
+  probe.fprd(station, reg::kAlStatus, 2);
+  auto by_station = co_await exec::transact(loop, bus, std::move(probe), quick);
+  if (!by_station || by_station->wkc(0) == 0) {
+    // Not at its station: a power-cycled slave has station 0. Look at its position.
+    bus::Transaction at_position;
+    at_position.aprd(self.position(), reg::kStationAddress, 2);
+    auto found = co_await exec::transact(loop, bus, std::move(at_position), quick);
+    if (!found || found->wkc(0) == 0) co_return false;
+    const auto there = wire::load_le16(found->data(0).data());
+    if (there != 0 && there != station) co_return false;  // another slave: keep waiting
+    if (there == 0) {
+      bus::Transaction assign;
+      std::array<std::uint8_t, 2> value{};
+      wire::store_le16(value.data(), station);
+      assign.apwr(self.position(), reg::kStationAddress, value, 1);
+      if (!co_await exec::transact(loop, bus, std::move(assign), quick)) co_return false;
+    }
+  }
+  // Rebuild to PREOP (the SII identity must be the one seen before).
+  auto up = co_await bring_up(keep);
+  if (!up) {
+    std::lock_guard lock(mutex);
+    fault = fmt::format("down; rebuild failed: {}", up.error().describe());
+    co_return false;
+  }
+  std::lock_guard lock(mutex);
+  fault.reset();
+  co_return true;
+}
+
+// ---- Slave: public, any thread ----------------------------------------------------------------
+
+Slave::Slave(Session& session, SlaveConfig config, std::uint16_t position, std::uint16_t station)
+    : name_(config.name),
+      position_(position),
+      station_(station),
+      impl_(std::make_unique<Impl>(*this, session, std::move(config))) {}
+
+Slave::~Slave() = default;
+
+SlaveState Slave::state() const noexcept {
+  return impl_->state.load();
+}
+
+TargetState Slave::target() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->config.target;
+}
+
+std::optional<std::uint16_t> Slave::error() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->al_code;
+}
+
+Result<wire::SiiIdentity> Slave::identity() const {
+  std::lock_guard lock(impl_->mutex);
+  if (!impl_->known_identity) {
+    return Error(Errc::not_ready, fmt::format("{}: SII not read yet", impl_->who()));
+  }
+  return *impl_->known_identity;
+}
+
+SlaveInfo Slave::info() const {
+  std::lock_guard lock(impl_->mutex);
+  SlaveInfo out;
+  out.name = name_;
+  out.position = position_;
+  out.station = station_;
+  out.state = impl_->state.load();
+  out.target = impl_->config.target;
+  out.al_status_code = impl_->al_code;
+  out.identity = impl_->known_identity;
+  if (impl_->sii) out.device_name = std::string(impl_->sii->decoded.image.device_name());
+  out.esc = impl_->esc;
+  out.has_mailbox = impl_->mailbox != nullptr;
+  out.coe = impl_->sii &&
+            (impl_->sii->decoded.image.mailbox_protocols & wire::mailbox_protocol::kCoe) != 0;
+  out.driver = impl_->driver ? std::string(impl_->driver->name()) : std::string();
+  out.layout = impl_->layout;
+  out.signals = impl_->signals;
+  out.attachments = impl_->attachments;
+  out.configuration_error = impl_->configuration_error;
+  out.fault = impl_->fault;
+  out.device_state = impl_->device_state;
+  return out;
+}
+
+namespace {
+
+template <class T>
+Result<T> blocking(Session& session, exec::Task<Result<T>> task, std::chrono::nanoseconds timeout,
+                   std::string_view what) {
+  if (session.loop.in_loop_thread()) {
+    return Error(Errc::wrong_state,
+                 fmt::format("{}: called on the control thread (it would wait for itself)", what));
+  }
+  auto result = exec::run_blocking(session.loop, std::move(task), timeout);
+  if (!result) {
+    return Error(
+        Errc::timeout,
+        fmt::format("{}: no answer within {} ms", what,
+                    std::chrono::duration_cast<std::chrono::milliseconds>(timeout).count()));
+  }
+  return std::move(*result);
+}
+
+}  // namespace
+
+Result<void> Slave::request(wire::AlState target, std::chrono::nanoseconds timeout) {
+  auto keep = impl_->session.shared_from_this();
+  return blocking(impl_->session, impl_->go_to(target, keep), timeout,
+                  fmt::format("request {} of slave {}", wire::to_string(target), name_));
+}
+
+exec::Task<Result<void>> Slave::Impl::reconfigure(SlaveConfig next, std::shared_ptr<Session> keep) {
+  if (state.load() != SlaveState::preop) {
+    co_return Error(Errc::wrong_state, fmt::format("{}: configure needs PREOP, the slave is in {}",
+                                                   who(), to_string(state.load())));
+  }
+  if (next.name != self.name()) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: configure got the configuration of \"{}\"", who(), next.name));
+  }
+  {
+    std::lock_guard lock(mutex);
+    config = std::move(next);
+  }
+  auto done = co_await configure_preop(keep);
+  std::lock_guard lock(mutex);
+  if (!done) {
+    configuration_error = done.error().describe();
+    co_return done.error();
+  }
+  co_return ok();
+}
+
+exec::Task<Result<void>> Slave::Impl::retry_configuration(std::shared_ptr<Session> keep) {
+  {
+    std::lock_guard lock(mutex);
+    if (!configuration_error) co_return ok();
+  }
+  if (state.load() != SlaveState::preop) {
+    co_return Error(Errc::wrong_state, fmt::format("{}: retry needs PREOP, the slave is in {}",
+                                                   who(), to_string(state.load())));
+  }
+  auto done = co_await configure_preop(keep);
+  std::lock_guard lock(mutex);
+  if (!done) {
+    configuration_error = done.error().describe();
+    co_return done.error();
+  }
+  co_return ok();
+}
+
+Result<void> Slave::configure(SlaveConfig config, std::chrono::nanoseconds timeout) {
+  auto keep = impl_->session.shared_from_this();
+  return blocking(impl_->session, impl_->reconfigure(std::move(config), keep), timeout,
+                  fmt::format("configure slave {}", name_));
+}
+
+Result<void> Slave::retry(std::chrono::nanoseconds timeout) {
+  auto keep = impl_->session.shared_from_this();
+  return blocking(impl_->session, impl_->retry_configuration(keep), timeout,
+                  fmt::format("retry slave {}", name_));
+}
+
+Result<std::vector<std::uint8_t>> Slave::upload_sdo(std::uint16_t index, std::uint8_t subindex,
+                                                    SdoOptions options) {
+  auto keep = impl_->session.shared_from_this();
+  const auto timeout = options.timeout * 2 + 1s;
+  return blocking(impl_->session, impl_->sdo_upload(index, subindex, options, keep), timeout,
+                  fmt::format("SDO upload 0x{:04x}:{:02x} of slave {}", index, subindex, name_));
+}
+
+Result<void> Slave::download_sdo(std::uint16_t index, std::uint8_t subindex,
+                                 std::vector<std::uint8_t> data, SdoOptions options) {
+  auto keep = impl_->session.shared_from_this();
+  const auto timeout = options.timeout * 2 + 1s;
+  return blocking(impl_->session,
+                  impl_->sdo_download(index, subindex, std::move(data), options, keep), timeout,
+                  fmt::format("SDO download 0x{:04x}:{:02x} of slave {}", index, subindex, name_));
+}
+
+std::vector<Signal> Slave::signals() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->signals;
+}
+
+Result<Value> Slave::read_input(std::string_view name) const {
+  std::lock_guard lock(impl_->mutex);
+  const Signal* sig = impl_->find_signal(name);
+  if (!sig) {
+    return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
+  }
+  const SmAttachment* a = impl_->attachment_for(sig->sync_manager);
+  if (!a) {
+    return Error(Errc::not_found,
+                 fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
+  }
+  if (sig->direction == PdoDirection::output) {
+    auto it = impl_->output_images.find(sig->sync_manager);
+    if (it == impl_->output_images.end()) {
+      return Error(Errc::not_ready,
+                   fmt::format("output \"{}\" of slave {} not staged", name, name_));
+    }
+    return decode_scaled(*sig, it->second);
+  }
+  Domain* domain = impl_->session.find_domain(a->domain);
+  std::array<std::uint8_t, 512> small{};
+  std::vector<std::uint8_t> large;
+  wire::MutableBytes buffer(small.data(), small.size());
+  if (a->size > small.size()) {
+    large.resize(a->size);
+    buffer = wire::MutableBytes(large.data(), large.size());
+  }
+  auto got = domain->read_fresh(PdoKey{station_, sig->sync_manager}, buffer);
+  if (!got) {
+    return got.error().context(fmt::format("input \"{}\" of slave {}", name, name_));
+  }
+  return decode_scaled(*sig, buffer.first(*got));
+}
+
+Result<void> Slave::write_output(std::string_view name, const Value& value) {
+  std::lock_guard lock(impl_->mutex);
+  const Signal* sig = impl_->find_signal(name);
+  if (!sig) {
+    return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
+  }
+  if (sig->direction != PdoDirection::output) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("signal \"{}\" of slave {} is an input", name, name_));
+  }
+  auto it = impl_->output_images.find(sig->sync_manager);
+  if (it == impl_->output_images.end()) {
+    return Error(Errc::not_found,
+                 fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
+  }
+  std::vector<std::uint8_t> staged = it->second;
+  if (auto encoded = encode_scaled(*sig, value, staged); !encoded) {
+    return encoded.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
+  }
+  for (const auto& a : impl_->attachments) {
+    if (a.sync_manager != sig->sync_manager) continue;
+    Domain* domain = impl_->session.find_domain(a.domain);
+    if (auto w = domain->write(PdoKey{station_, a.sync_manager}, staged); !w) {
+      return w.error().context(
+          fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name, name_, a.domain));
+    }
+  }
+  it->second = std::move(staged);
+  return ok();
+}
+
+Result<void> Slave::command(std::string_view name, const CommandArgs& args) {
+  std::vector<OutputWrite> writes;
+  {
+    std::lock_guard lock(impl_->mutex);
+    if (!impl_->driver) {
+      return Error(Errc::not_ready, fmt::format("slave {} is not configured yet", name_));
+    }
+    std::vector<Value> values;
+    values.reserve(impl_->signals.size());
+    for (const auto& sig : impl_->signals) {
+      Value v = std::int64_t{0};
+      if (sig.direction == PdoDirection::output) {
+        auto it = impl_->output_images.find(sig.sync_manager);
+        if (it != impl_->output_images.end()) {
+          if (auto d = decode_scaled(sig, it->second)) v = *d;
+        }
+      }
+      values.push_back(std::move(v));
+    }
+    SignalValues current(impl_->signals, values);
+    auto made =
+        impl_->driver->command(name, args, current, impl_->device_state, impl_->driver_state.get());
+    if (!made) return made.error().context(fmt::format("command {} of slave {}", name, name_));
+    writes = std::move(*made);
+  }
+  for (const auto& w : writes) {
+    if (auto r = write_output(w.signal, w.value); !r) return r;
+  }
+  return ok();
+}
+
+Result<SubscriptionId> Slave::subscribe(std::string_view signal,
+                                        std::function<void(const SignalEvent&)> callback) {
+  std::lock_guard lock(impl_->mutex);
+  if (!impl_->find_signal(signal)) {
+    return Error(Errc::not_found,
+                 fmt::format("slave {} has no signal \"{}\" to subscribe to", name_, signal));
+  }
+  const SubscriptionId id = ++impl_->next_subscription;
+  impl_->subscriptions.push_back({id, std::string(signal), std::move(callback), std::nullopt});
+  return id;
+}
+
+void Slave::unsubscribe(SubscriptionId id) {
+  std::lock_guard lock(impl_->mutex);
+  std::erase_if(impl_->subscriptions, [id](const auto& s) { return s.id == id; });
+}
+
+}  // namespace ecat::master

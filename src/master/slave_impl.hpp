@@ -1,0 +1,98 @@
+// Slave::Impl: the control-loop side of a slave. Private to src/master.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <ecat/exec/task.hpp>
+#include <ecat/master/sii_reader.hpp>
+#include <ecat/master/slave.hpp>
+
+#include "session.hpp"
+
+namespace ecat::master {
+
+struct Slave::Impl {
+  Impl(Slave& owner, Session& s, SlaveConfig c);
+
+  Slave& self;
+  Session& session;
+  SlaveConfig config;
+  std::atomic<SlaveState> state{SlaveState::init};
+
+  // Guards everything below (application threads read snapshots; the loop writes).
+  mutable std::mutex mutex;
+  std::optional<std::uint16_t> al_code;
+  wire::EscInformation esc{};
+  std::optional<SiiReadResult> sii;
+  std::optional<wire::SiiIdentity> known_identity;
+  std::unique_ptr<Mailbox> mailbox;
+  std::shared_ptr<const Driver> driver;
+  std::unique_ptr<DriverState> driver_state;
+  DeviceState device_state;
+  PdoLayout layout;
+  std::vector<Signal> signals;
+  std::vector<SmAttachment> attachments;
+  // The retained output image of each output SyncManager: what write_output staged; written to
+  // every domain the SyncManager is in, and again after a reconnect.
+  std::map<std::uint8_t, std::vector<std::uint8_t>> output_images;
+  std::optional<std::string> configuration_error;
+  std::optional<std::string> fault;
+
+  struct Subscription {
+    SubscriptionId id;
+    std::string signal;
+    std::function<void(const SignalEvent&)> callback;
+    std::optional<Value> last;
+  };
+  std::vector<Subscription> subscriptions;
+  SubscriptionId next_subscription = 0;
+
+  std::string who() const;
+  void set_state(SlaveState next);
+  void record_al_error(const Error& error);
+  Result<void> check_mailbox() const;
+  const Signal* find_signal(std::string_view name) const noexcept;
+  const SmAttachment* attachment_for(std::uint8_t sm) const noexcept;
+  // The driver's projected device state from these input images and the staged outputs
+  // (mutex held).
+  void project(const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs);
+  // Called on the loop with an input change of this slave (subscriptions).
+  void on_input_change(const InputChange& change);
+
+  // INIT -> ESC info -> SII -> mailbox -> PREOP -> PREOP configuration (whose failure is
+  // retained, not returned).
+  exec::Task<Result<void>> bring_up(std::shared_ptr<Session> keep);
+  // Health: while the slave is in PREOP or above, reads AL status every health_poll; a slave
+  // that stops answering goes `down` and is probed (by station, then by position) until it is
+  // back, then rebuilt to PREOP (identity checked) and reported to the master. An OP slave
+  // found below OP or with its error flag set is retreated to SAFEOP and reported.
+  void start_health(std::shared_ptr<Session> keep);
+  exec::Task<void> health_loop(std::shared_ptr<Session> keep);
+  exec::Task<bool> probe_and_rebuild(std::shared_ptr<Session> keep);
+  bool health_running = false;
+  int busy = 0;  // go_to() calls in progress (loop thread only)
+  std::uint64_t health_checks = 0;
+  std::uint64_t reconnects = 0;
+  exec::Task<Result<void>> configure_preop(std::shared_ptr<Session> keep);
+  exec::Task<Result<void>> run_sdos(const std::vector<SdoWrite>& writes);
+  exec::Task<Result<PdoLayout>> read_coe_layout(const PdoLayout& known);
+  exec::Task<Result<void>> go_to(wire::AlState target, std::shared_ptr<Session> keep);
+  exec::Task<Result<void>> reconfigure(SlaveConfig next, std::shared_ptr<Session> keep);
+  exec::Task<Result<void>> retry_configuration(std::shared_ptr<Session> keep);
+  exec::Task<Result<std::vector<std::uint8_t>>> sdo_upload(std::uint16_t index,
+                                                           std::uint8_t subindex,
+                                                           SdoOptions options,
+                                                           std::shared_ptr<Session> keep);
+  exec::Task<Result<void>> sdo_download(std::uint16_t index, std::uint8_t subindex,
+                                        std::vector<std::uint8_t> data, SdoOptions options,
+                                        std::shared_ptr<Session> keep);
+};
+
+}  // namespace ecat::master

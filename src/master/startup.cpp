@@ -1,0 +1,253 @@
+#include <algorithm>
+#include <array>
+#include <string>
+
+#include <fmt/format.h>
+
+#include <ecat/exec/transact.hpp>
+#include <ecat/master/al_control.hpp>
+#include <ecat/master/startup.hpp>
+#include <ecat/wire/bytes.hpp>
+
+namespace ecat::master {
+namespace {
+
+namespace reg = wire::reg;
+using Clock = exec::Clock;
+
+// Auto-increment addressing reaches positions 0 .. 0x8000 (ADP = -position as a 16-bit value).
+constexpr std::uint32_t kMaxAutoIncrementSlaves = 32769;
+
+std::array<std::uint8_t, 2> le16(std::uint16_t v) {
+  std::array<std::uint8_t, 2> out{};
+  wire::store_le16(out.data(), v);
+  return out;
+}
+
+}  // namespace
+
+std::chrono::nanoseconds auto_frame_timeout(std::uint16_t count) noexcept {
+  const auto us = 200 + 40 * static_cast<std::int64_t>(count);
+  const auto ms = (us + 999) / 1000;
+  return std::chrono::milliseconds(std::clamp<std::int64_t>(ms, 5, 10));
+}
+
+exec::Task<Result<std::uint16_t>> count_slaves(exec::EventLoop& loop, bus::Bus& bus,
+                                               bus::TransactOptions options) {
+  bus::Transaction tx;
+  tx.brd(reg::kType, 1);
+  auto reply = co_await exec::transact(loop, bus, std::move(tx), options);
+  if (!reply) co_return reply.error().context("counting slaves (BRD 0x0000)");
+  co_return reply->wkc(0);
+}
+
+exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
+                                                     ScanOptions options) {
+  const auto start = Clock::now();
+  std::optional<std::uint16_t> current;
+  Clock::time_point since{};
+  unsigned samples = 0;
+  std::optional<Error> last_error;
+  while (true) {
+    auto count =
+        co_await count_slaves(loop, bus, {options.poll + std::chrono::milliseconds(50), 0});
+    const auto now = Clock::now();
+    if (!count) {
+      last_error = count.error();
+      current.reset();
+      samples = 0;
+    } else if (!current || *current != *count) {
+      current = *count;
+      since = now;
+      samples = 1;
+    } else {
+      ++samples;
+    }
+    if (current && *current > 0 && samples >= 2 && now - since >= options.stable) {
+      co_return *current;
+    }
+    if (now - start >= options.timeout) {
+      std::string seen = current ? fmt::format("last count {}", *current) : "no reply";
+      Error error(
+          Errc::timeout,
+          fmt::format(
+              "no stable slave count within {} ms ({})",
+              std::chrono::duration_cast<std::chrono::milliseconds>(options.timeout).count(),
+              seen));
+      if (last_error && !current) co_return last_error->context(error.message());
+      co_return error;
+    }
+    co_await exec::sleep_for(loop, options.poll);
+  }
+}
+
+Result<void> check_addressing(std::uint16_t count, std::uint16_t base_station) {
+  if (count > kMaxAutoIncrementSlaves) {
+    return Error(Errc::out_of_range,
+                 fmt::format("{} slaves exceed the {} that auto-increment addressing reaches",
+                             count, kMaxAutoIncrementSlaves));
+  }
+  if (base_station == 0) {
+    return Error(Errc::invalid_argument, "base station 0 is not a valid station address");
+  }
+  if (count > 0 && static_cast<std::uint32_t>(base_station) + count - 1 > 0xFFFF) {
+    return Error(Errc::out_of_range,
+                 fmt::format("stations 0x{:04x} + {} slaves run past 0xffff", base_station, count));
+  }
+  return ok();
+}
+
+exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
+                                         std::uint16_t base_station) {
+  if (auto checked = check_addressing(count, base_station); !checked) co_return checked.error();
+  bus::Transaction write;
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    write.apwr(pos, reg::kStationAddress, le16(static_cast<std::uint16_t>(base_station + pos)));
+  }
+  auto written = co_await exec::transact(loop, bus, std::move(write));
+  if (!written) co_return written.error().context("assigning station addresses");
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    if (written->wkc(pos) != 1) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("assigning station 0x{:04x} to position {}: working counter "
+                                  "{} (expected 1)",
+                                  base_station + pos, pos, written->wkc(pos)));
+    }
+  }
+  bus::Transaction check;
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    check.fprd(static_cast<std::uint16_t>(base_station + pos), reg::kStationAddress, 2);
+  }
+  auto read = co_await exec::transact(loop, bus, std::move(check));
+  if (!read) co_return read.error().context("reading back station addresses");
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    const auto station = static_cast<std::uint16_t>(base_station + pos);
+    if (read->wkc(pos) != 1 || wire::load_le16(read->data(pos).data()) != station) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("station 0x{:04x} (position {}) does not answer after "
+                                  "assignment (working counter {}): two slaves share it, or the "
+                                  "ring changed",
+                                  station, pos, read->wkc(pos)));
+    }
+  }
+  co_return ok();
+}
+
+exec::Task<Result<std::vector<wire::DlStatus>>> read_dl_status(exec::EventLoop& loop, bus::Bus& bus,
+                                                               std::uint16_t count,
+                                                               std::uint16_t base_station) {
+  bus::Transaction tx;
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    tx.fprd(static_cast<std::uint16_t>(base_station + pos), reg::kDlStatus, 2);
+  }
+  auto reply = co_await exec::transact(loop, bus, std::move(tx));
+  if (!reply) co_return reply.error().context("reading DL status");
+  std::vector<wire::DlStatus> out;
+  out.reserve(count);
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    if (reply->wkc(pos) != 1) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("DL status of station 0x{:04x}: working counter {}",
+                                  base_station + pos, reply->wkc(pos)));
+    }
+    out.push_back(wire::DlStatus::decode(wire::load_le16(reply->data(pos).data())));
+  }
+  co_return out;
+}
+
+exec::Task<Result<void>> reset_slaves(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count) {
+  struct Step {
+    std::uint16_t offset;
+    std::vector<std::uint8_t> data;
+    bool required;
+    const char* what;
+  };
+  const std::vector<Step> steps{
+      {reg::kDlPortControl, {0x00}, true, "DL port control"},
+      {reg::kEcatEventMask, {0x04, 0x00}, true, "ECAT event mask"},
+      {reg::kRxErrorCounter, std::vector<std::uint8_t>(8, 0), true, "RX error counters"},
+      {reg::kFmmuBase, std::vector<std::uint8_t>(3 * reg::kFmmuSize, 0), true, "FMMU 0-2"},
+      {reg::kSyncManagerBase, std::vector<std::uint8_t>(4 * reg::kSyncManagerSize, 0), true,
+       "SyncManager 0-3"},
+      {reg::kDcActivation, {0x00}, false, "DC activation"},
+      {reg::kDcSystemTime, std::vector<std::uint8_t>(4, 0), false, "DC system time"},
+      {reg::kDcSpeedCounterStart, {0x00, 0x10}, false, "DC speed counter start"},
+      {reg::kDcSystemTimeFilterDepth, {0x00, 0x0C}, false, "DC time filter depths"},
+      {reg::kDlAliasControl, {0x00}, true, "DL alias control"},
+      {reg::kAlControl, {0x11, 0x00}, true, "AL control INIT + acknowledge"},
+      {reg::kSiiAccess, {0x02}, true, "EEPROM access (force ECAT)"},
+      {reg::kSiiAccess, {0x00}, true, "EEPROM access (ECAT)"},
+  };
+  bus::Transaction tx;
+  for (const auto& step : steps)
+    tx.bwr(step.offset, step.data);
+  auto reply = co_await exec::transact(loop, bus, std::move(tx));
+  if (!reply) co_return reply.error().context("resetting slaves (broadcast reset block)");
+  for (std::size_t i = 0; i < steps.size(); ++i) {
+    const auto wkc = reply->wkc(i);
+    if (steps[i].required ? wkc != count : wkc > count) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("reset block: {} (BWR 0x{:04x}) reached {} of {} slaves",
+                                  steps[i].what, steps[i].offset, wkc, count));
+    }
+  }
+  co_return ok();
+}
+
+exec::Task<Result<void>> init_all(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
+                                  std::uint16_t base_station, InitOptions options) {
+  {
+    bus::Transaction tx;
+    tx.bwr(reg::kAlControl, le16(wire::encode_al_control(wire::AlState::init, true)));
+    auto reply = co_await exec::transact(loop, bus, std::move(tx));
+    if (!reply) co_return reply.error().context("requesting INIT from all slaves");
+    if (reply->wkc(0) == 0 || reply->wkc(0) > count) {
+      co_return Error(
+          Errc::wkc_mismatch,
+          fmt::format("INIT request reached {} slaves (expected {})", reply->wkc(0), count));
+    }
+  }
+  std::vector<std::uint16_t> blocking;
+  std::string why;
+  for (unsigned attempt = 0; attempt < std::max(1u, options.attempts); ++attempt) {
+    bus::Transaction tx;
+    for (std::uint16_t pos = 0; pos < count; ++pos) {
+      tx.fprd(static_cast<std::uint16_t>(base_station + pos), reg::kAlStatus, 6);
+    }
+    auto reply = co_await exec::transact(loop, bus, std::move(tx));
+    if (!reply) co_return reply.error().context("verifying INIT");
+    blocking.clear();
+    why.clear();
+    bus::Transaction again;
+    for (std::uint16_t pos = 0; pos < count; ++pos) {
+      const auto station = static_cast<std::uint16_t>(base_station + pos);
+      auto block = wire::decode_al_status_block(reply->data(pos));
+      if (reply->wkc(pos) != 1 || !block) {
+        blocking.push_back(station);
+        why += fmt::format(" 0x{:04x}: no answer;", station);
+        continue;
+      }
+      // A slave in INIT with an error still latched is accepted: its code is read later.
+      if (block->status.state == wire::AlState::init) continue;
+      blocking.push_back(station);
+      why += fmt::format(" 0x{:04x}: {}{};", station, wire::to_string(block->status.state),
+                         block->status.error ? fmt::format(" error 0x{:04x}", block->code) : "");
+      if (block->status.error) {
+        again.fpwr(station, reg::kAlControl,
+                   le16(wire::encode_al_control(block->status.state, true)));
+      }
+      again.fpwr(station, reg::kAlControl, le16(wire::encode_al_control(wire::AlState::init)));
+    }
+    if (blocking.empty()) co_return ok();
+    if (!again.empty()) {
+      auto sent = co_await exec::transact(loop, bus, std::move(again));
+      if (!sent) co_return sent.error().context("re-requesting INIT");
+    }
+    co_await exec::sleep_for(loop, options.interval);
+  }
+  if (!why.empty() && why.back() == ';') why.pop_back();
+  co_return Error(Errc::timeout, fmt::format("{} slave(s) did not reach INIT after {} attempts:{}",
+                                             blocking.size(), options.attempts, why));
+}
+
+}  // namespace ecat::master

@@ -1,0 +1,134 @@
+// The master's sections of a ring file: every key read, and bad input named by file:line.
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include <ecat/master/config.hpp>
+
+namespace ecat::master {
+namespace {
+
+using namespace std::chrono_literals;
+
+TEST(MasterConfigFile, ReadsEverySection) {
+  auto config = parse_master_config(R"(version: 1
+simulator:
+  slaves: [{name: a, profile: EK1100}]
+master:
+  base_station: 0x2000
+  frame_timeout_us: 800
+  scan_poll_ms: 5
+  scan_stable_ms: 50
+  awaiting_preop_timeout_ms: 7000
+  retry_interval_ms: 250
+domains:
+  - {id: fast, period_us: 250, miss_threshold: 10, recovery_threshold: 2}
+  - {id: slow, period_us: 4000}
+slaves:
+  - name: coupler
+  - name: io
+    position: 2
+    vendor_id: 2
+    product_code: 0x07113052
+    process_data: fast
+    target: safeop
+    health_poll_ms: 0
+  - name: drive
+    driver: cia402
+    driver_options: {mode: csp}
+    process_data:
+      - {signal: statusword, domain: fast}
+      - {signal: controlword, domain: slow}
+    startup_sdos:
+      - {index: 0x6060, subindex: 0, type: i8, value: 8}
+      - {index: 0x1C12, type: bytes, value: "01 00 00 16", complete_access: true}
+    pdo_source: coe
+    sync: {mode: sync0, pulse_ns: 1000, shift_ns: -2000, assign_activate: 0x0300}
+dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns: 50}
+)");
+  ASSERT_TRUE(config) << config.error().describe();
+  EXPECT_EQ(config->base_station, 0x2000);
+  EXPECT_EQ(config->frame_timeout, std::chrono::nanoseconds(800us));
+  EXPECT_EQ(config->scan.poll, std::chrono::nanoseconds(5ms));
+  EXPECT_EQ(config->awaiting_preop_timeout, std::chrono::nanoseconds(7s));
+  ASSERT_EQ(config->domains.size(), 2u);
+  EXPECT_EQ(config->domains[0].period, std::chrono::nanoseconds(250us));
+  EXPECT_EQ(config->domains[0].miss_threshold, 10u);
+  ASSERT_EQ(config->slaves.size(), 3u);
+  const auto& io = config->slaves[1];
+  EXPECT_EQ(io.position, 2);
+  EXPECT_EQ(io.product_code, 0x07113052u);
+  EXPECT_EQ(io.process_data.kind, ProcessDataRequest::Kind::all);
+  EXPECT_EQ(io.process_data.domain, "fast");
+  EXPECT_EQ(io.target, TargetState::safeop);
+  EXPECT_FALSE(io.health_poll.has_value());
+  const auto& drive = config->slaves[2];
+  EXPECT_EQ(drive.driver, "cia402");
+  EXPECT_EQ(drive.driver_config.options.at("mode"), "csp");
+  ASSERT_EQ(drive.process_data.routes.size(), 2u);
+  EXPECT_EQ(drive.process_data.routes[1].domain, "slow");
+  ASSERT_EQ(drive.startup_sdos.size(), 2u);
+  EXPECT_EQ(drive.startup_sdos[0].data, (std::vector<std::uint8_t>{8}));
+  EXPECT_EQ(drive.startup_sdos[1].data, (std::vector<std::uint8_t>{1, 0, 0, 0x16}));
+  EXPECT_TRUE(drive.startup_sdos[1].complete_access);
+  EXPECT_EQ(drive.pdo_source, SlaveConfig::PdoSource::coe);
+  ASSERT_TRUE(drive.sync.has_value());
+  EXPECT_EQ(drive.sync->mode, SyncMode::sync0);
+  EXPECT_EQ(drive.sync->sync0_shift, std::chrono::nanoseconds(-2000));
+  EXPECT_EQ(drive.sync->assign_activate, 0x0300);
+  ASSERT_TRUE(config->dc.has_value());
+  EXPECT_EQ(config->dc->cycle, std::chrono::nanoseconds(500us));
+  EXPECT_EQ(config->dc->lock_policy, LockPolicy::recovering);
+}
+
+TEST(MasterConfigFile, DcFalseDisablesAndDefaultsHold) {
+  auto config = parse_master_config("dc: false\n");
+  ASSERT_TRUE(config) << config.error().describe();
+  EXPECT_FALSE(config->dc.has_value());
+  EXPECT_EQ(config->base_station, 0x1000);
+  EXPECT_TRUE(config->slaves.empty());
+}
+
+struct BadCase {
+  const char* yaml;
+  const char* expect;  // in the message
+};
+
+class MasterConfigBad : public ::testing::TestWithParam<BadCase> {};
+
+TEST_P(MasterConfigBad, NamesWhatIsWrong) {
+  auto config = parse_master_config(GetParam().yaml, "ring.yaml");
+  ASSERT_FALSE(config) << GetParam().yaml;
+  EXPECT_NE(config.error().describe().find(GetParam().expect), std::string::npos)
+      << config.error().describe();
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Cases, MasterConfigBad,
+    ::testing::Values(
+        BadCase{"master: {base_station: 0}\n", "master.base_station"},
+        BadCase{"master: {bogus: 1}\n", "bogus"},
+        BadCase{"domains: [{period_us: 1000}]\n", "needs an id"},
+        BadCase{"domains: [{id: a, period_us: 10}]\n", "ring.yaml:1"},
+        BadCase{"domains: [{id: a}, {id: a}]\n", "used twice"},
+        BadCase{"slaves: [{name: x, process_data: nowhere}]\n", "unknown domain \"nowhere\""},
+        BadCase{"slaves: [{name: x, target: run}]\n", "unknown target"},
+        BadCase{"slaves: [{name: x}, {name: x}]\n", "used twice"},
+        BadCase{"slaves: [{name: x, startup_sdos: [{index: 0x1000, type: u8, value: 300}]}]\n",
+                "value"},
+        BadCase{"slaves: [{name: x, startup_sdos: [{index: 0x1000, type: bytes, value: zz}]}]\n",
+                "not a hex byte"},
+        BadCase{"slaves: [{name: x, sync: {mode: sync7}}]\n", "unknown mode"},
+        BadCase{"dc: {lock_policy: maybe}\n", "unknown lock_policy"},
+        BadCase{"slaves: {name: x}\n", "must be a list"},
+        BadCase{"slaves: [ {name: x\n", "YAML syntax error"}));
+
+TEST(MasterConfigFile, MissingFileIsNamed) {
+  auto config = load_master_config("/nonexistent/ring.yaml");
+  ASSERT_FALSE(config);
+  EXPECT_EQ(config.error().code(), Errc::not_found);
+  EXPECT_NE(config.error().message().find("/nonexistent/ring.yaml"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace ecat::master

@@ -1,0 +1,406 @@
+// The master session end to end against the simulator: discovery, every slave to PREOP and OP,
+// process data through a domain (outputs wired back to inputs), SDOs through a slave, the state
+// machine's public calls in the right and the wrong states.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include <ecat/master/master.hpp>
+#include <ecat/sim/ring.hpp>
+#include <ecat/sim/server.hpp>
+
+namespace ecat::master {
+namespace {
+
+using namespace std::chrono_literals;
+
+constexpr const char* kRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: rtd, profile: EL3202}
+    - {name: drive, profile: servo}
+  wiring:
+    - {from: outputs.channel_1, to: inputs.channel_1}
+    - {from: outputs.channel_5, to: inputs.channel_5}
+)";
+
+std::string explain(Master& master) {
+  auto status = master.status();
+  std::string out = std::string(to_string(status.state));
+  for (const auto& f : status.activation_failures)
+    out += "\n  " + f.error.describe();
+  for (const auto& f : status.runtime_faults)
+    out += "\n  fault: " + f;
+  for (const auto& s : status.slaves) {
+    out += "\n  " + s.name + " " + std::string(to_string(s.state));
+    if (s.fault) out += " " + *s.fault;
+  }
+  return out;
+}
+
+MasterConfig fast_config() {
+  MasterConfig config;
+  config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};
+  config.awaiting_preop_timeout = 5s;
+  config.retry_interval = 50ms;
+  config.dc.reset();
+  DomainConfig main;
+  main.id = "main";
+  main.period = 1ms;
+  config.domains.push_back(main);
+  return config;
+}
+
+SlaveConfig slave(std::string name, ProcessDataRequest pd = ProcessDataRequest::all("main"),
+                  TargetState target = TargetState::op) {
+  SlaveConfig c;
+  c.name = std::move(name);
+  c.process_data = std::move(pd);
+  c.target = target;
+  return c;
+}
+
+class MasterTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto ring = sim::parse_ring(kRing);
+    ASSERT_TRUE(ring) << ring.error().describe();
+    auto server = sim::make_server(*ring);
+    ASSERT_TRUE(server) << server.error().describe();
+    server_ = std::move(*server);
+  }
+  std::unique_ptr<link::Link> link() {
+    if (server_->serving()) server_->stop();
+    auto l = server_->serve_memory();
+    EXPECT_TRUE(l) << l.error().describe();
+    return std::move(*l);
+  }
+  MasterConfig full_config() {
+    auto config = fast_config();
+    config.slaves = {slave("coupler", {}), slave("inputs"), slave("outputs"), slave("rtd"),
+                     slave("drive")};
+    return config;
+  }
+  std::unique_ptr<sim::SimServer> server_;
+};
+
+TEST_F(MasterTest, ReachesOperationalAndExchangesProcessData) {
+  Master master(full_config());
+  std::vector<std::pair<MasterState, MasterState>> seen;
+  std::mutex seen_mutex;
+  master.on_state_change([&](MasterState from, MasterState to) {
+    std::lock_guard lock(seen_mutex);
+    seen.emplace_back(from, to);
+  });
+  ASSERT_TRUE(master.start(link()));
+  auto op = master.await_operational(10s);
+  ASSERT_TRUE(op) << op.error().describe() << "\n" << explain(master);
+  EXPECT_EQ(master.state(), MasterState::operational);
+  {
+    std::lock_guard lock(seen_mutex);
+    ASSERT_EQ(seen.size(), 3u);
+    EXPECT_EQ(seen[0], std::make_pair(MasterState::idle, MasterState::discovering));
+    EXPECT_EQ(seen[1], std::make_pair(MasterState::discovering, MasterState::awaiting_preop));
+    EXPECT_EQ(seen[2], std::make_pair(MasterState::awaiting_preop, MasterState::operational));
+  }
+  auto slaves = master.slaves();
+  ASSERT_EQ(slaves.size(), 5u);
+  for (const auto& s : slaves) {
+    EXPECT_EQ(s.state, SlaveState::op) << s.name;
+    EXPECT_FALSE(s.fault.has_value()) << s.name << ": " << *s.fault;
+  }
+  EXPECT_EQ(slaves[2].station, 0x1002);
+
+  auto out = master.slave("outputs");
+  ASSERT_TRUE(out);
+  auto in = master.slave("inputs");
+  ASSERT_TRUE(in);
+  EXPECT_EQ((*out)->info().driver, "EL2809");
+  ASSERT_TRUE((*out)->write_output("channel_1", true));
+  ASSERT_TRUE((*out)->write_output("channel_5", true));
+  bool seen_high = false;
+  for (int i = 0; i < 500 && !seen_high; ++i) {
+    auto v1 = (*in)->read_input("channel_1");
+    auto v5 = (*in)->read_input("channel_5");
+    auto v2 = (*in)->read_input("channel_2");
+    if (v1 && v5 && v2 && as_bool(*v1) == true && as_bool(*v5) == true) {
+      EXPECT_EQ(as_bool(*v2), false);
+      seen_high = true;
+    }
+    std::this_thread::sleep_for(2ms);
+  }
+  EXPECT_TRUE(seen_high) << "outputs never came back through the wiring";
+  // The domain: EL1809 inputs (1), EL2809 outputs (2), EL3202 inputs (1), the drive both (3).
+  auto domains = master.domains();
+  for (int i = 0; i < 500 && domains.at(0).cycles <= 10; ++i) {
+    std::this_thread::sleep_for(2ms);
+    domains = master.domains();
+  }
+  ASSERT_EQ(domains.size(), 1u);
+  EXPECT_EQ(domains[0].state, "cycling");
+  EXPECT_EQ(domains[0].expected_wkc, 7);
+  EXPECT_GT(domains[0].cycles, 10u);
+  // Healthy = the latest cycle was valid; on a loaded machine a single exchange may time out,
+  // so look a few times.
+  bool healthy = domains[0].healthy;
+  for (int i = 0; i < 200 && !healthy; ++i) {
+    std::this_thread::sleep_for(2ms);
+    healthy = master.domains().at(0).healthy;
+  }
+  EXPECT_TRUE(healthy);
+
+  ASSERT_TRUE(master.stop());
+  EXPECT_EQ(master.state(), MasterState::idle);
+  auto again = master.stop();
+  ASSERT_FALSE(again);
+  EXPECT_EQ(again.error().code(), Errc::wrong_state);
+}
+
+TEST_F(MasterTest, SubscribersSeeSignalChanges) {
+  Master master(full_config());
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_operational(10s));
+  auto in = master.slave("inputs");
+  auto out = master.slave("outputs");
+  ASSERT_TRUE(in && out);
+  std::atomic<int> rising{0};
+  auto sub = (*in)->subscribe("channel_1", [&](const SignalEvent& e) {
+    if (as_bool(e.value) == true) ++rising;
+  });
+  ASSERT_TRUE(sub) << sub.error().describe();
+  ASSERT_FALSE((*in)->subscribe("no_such_signal", [](const SignalEvent&) {}));
+  ASSERT_TRUE((*out)->write_output("channel_1", true));
+  for (int i = 0; i < 500 && rising == 0; ++i)
+    std::this_thread::sleep_for(2ms);
+  EXPECT_EQ(rising.load(), 1);
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, SdosThroughTheSlave) {
+  Master master(full_config());
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_operational(10s));
+  auto drive = master.slave("drive");
+  ASSERT_TRUE(drive);
+  // Device type (0x1000) of a CiA 402 drive: profile 402 in the low word.
+  auto type = (*drive)->upload_sdo(0x1000, 0);
+  ASSERT_TRUE(type) << type.error().describe();
+  ASSERT_EQ(type->size(), 4u);
+  EXPECT_EQ((*type)[0] | ((*type)[1] << 8), 402);
+  auto missing = (*drive)->upload_sdo(0x5FFF, 0);
+  ASSERT_FALSE(missing);
+  EXPECT_EQ(missing.error().code(), Errc::sdo_abort);
+  auto coupler = master.slave("coupler");
+  ASSERT_TRUE(coupler);
+  auto none = (*coupler)->upload_sdo(0x1000, 0);
+  ASSERT_FALSE(none);
+  EXPECT_EQ(none.error().code(), Errc::unsupported);
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, DynamicSessionHoldsEverySlaveInPreop) {
+  auto config = fast_config();
+  config.domains.clear();
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  auto running = master.await_running(10s);
+  ASSERT_TRUE(running) << running.error().describe();
+  EXPECT_EQ(master.state(), MasterState::preop_ready);
+  auto slaves = master.slaves();
+  ASSERT_EQ(slaves.size(), 5u);
+  EXPECT_EQ(slaves[0].name, "slave_0");
+  for (const auto& s : slaves)
+    EXPECT_EQ(s.state, SlaveState::preop);
+  auto d = master.deactivate(TargetState::safeop);
+  ASSERT_FALSE(d);
+  EXPECT_EQ(d.error().code(), Errc::wrong_state);
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, PreopFirstThenActivateAndDeactivate) {
+  auto config = full_config();
+  for (auto& s : config.slaves)
+    s.target = TargetState::preop;
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_running(10s));
+  EXPECT_EQ(master.state(), MasterState::preop_ready);
+  // Reconfigure in PREOP: the EL2809 with a startup SDO-free configuration, routed differently.
+  auto reconf = slave("outputs");
+  ASSERT_TRUE(master.configure_slave("outputs", reconf));
+  auto unknown = master.configure_slave("nobody", slave("nobody"));
+  ASSERT_FALSE(unknown);
+  EXPECT_EQ(unknown.error().code(), Errc::not_found);
+  for (auto& s : config.slaves)
+    s.target = TargetState::op;
+  for (const char* name : {"coupler", "inputs", "outputs", "rtd", "drive"}) {
+    auto sl = master.slave(name);
+    ASSERT_TRUE(sl);
+    auto c = (*sl)->info();
+    (void)c;
+  }
+  // Only the reconfigured slave targets OP now: activate() brings it to OP, the others stay in
+  // PREOP (min(op, their preop target)).
+  auto activated = master.activate();
+  ASSERT_TRUE(activated) << activated.error().describe() << "\n" << explain(master);
+  EXPECT_EQ(master.state(), MasterState::operational);
+  for (const auto& s : master.slaves()) {
+    EXPECT_EQ(s.state, s.name == "outputs" ? SlaveState::op : SlaveState::preop) << s.name;
+  }
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, ActivateDeactivateCycle) {
+  Master master(full_config());
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_operational(10s));
+  auto again = master.activate();
+  ASSERT_FALSE(again);
+  EXPECT_EQ(again.error().code(), Errc::wrong_state);
+  ASSERT_TRUE(master.deactivate(TargetState::safeop));
+  EXPECT_EQ(master.state(), MasterState::deactivated);
+  for (const auto& s : master.slaves())
+    EXPECT_EQ(s.state, SlaveState::safeop) << s.name;
+  ASSERT_TRUE(master.activate());
+  EXPECT_EQ(master.state(), MasterState::operational);
+  ASSERT_TRUE(master.deactivate(TargetState::preop));
+  EXPECT_EQ(master.state(), MasterState::preop_ready);
+  for (const auto& s : master.slaves())
+    EXPECT_EQ(s.state, SlaveState::preop) << s.name;
+  ASSERT_FALSE(master.deactivate(TargetState::op));
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, BadConfigurationsAreRefusedByName) {
+  auto config = full_config();
+  config.slaves[1].process_data = ProcessDataRequest::all("nowhere");
+  Master master(config);
+  auto started = master.start(link());
+  ASSERT_FALSE(started);
+  EXPECT_EQ(started.error().code(), Errc::invalid_argument);
+  EXPECT_NE(started.error().message().find("nowhere"), std::string::npos);
+
+  auto dup = full_config();
+  dup.slaves[2].name = "inputs";
+  EXPECT_FALSE(validate(dup));
+  auto period = full_config();
+  period.domains[0].period = 1us;
+  EXPECT_FALSE(validate(period));
+
+  // More slaves configured than the ring has: startup fails, the master returns to idle and
+  // keeps the failure.
+  auto too_many = full_config();
+  too_many.slaves.push_back(slave("ghost", {}));
+  Master m2(too_many);
+  ASSERT_TRUE(m2.start(link()));
+  auto running = m2.await_running(10s);
+  ASSERT_FALSE(running);
+  EXPECT_NE(running.error().describe().find("6 slaves configured, the ring has 5"),
+            std::string::npos)
+      << running.error().describe();
+  EXPECT_EQ(m2.state(), MasterState::idle);
+  ASSERT_TRUE(m2.last_failure().has_value());
+  EXPECT_EQ(m2.last_failure()->kind, "startup_failed");
+}
+
+TEST_F(MasterTest, ActivationBlockedNamesTheSlaveAndCode) {
+  // The EL3202 routed nowhere keeps its SyncManager unconfigured: it refuses SAFEOP with 0x001E.
+  auto config = full_config();
+  config.slaves[3].process_data = {};
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  auto running = master.await_running(10s);
+  ASSERT_FALSE(running);
+  EXPECT_EQ(master.state(), MasterState::activation_blocked);
+  auto status = master.status();
+  ASSERT_EQ(status.activation_failures.size(), 1u);
+  EXPECT_EQ(status.activation_failures[0].slave, "rtd");
+  ASSERT_TRUE(status.activation_failures[0].al_status_code.has_value());
+  EXPECT_EQ(*status.activation_failures[0].al_status_code, 0x001E);
+  EXPECT_NE(running.error().describe().find("0x001e"), std::string::npos)
+      << running.error().describe();
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, PdoLayoutReadFromCoe) {
+  auto config = full_config();
+  config.slaves[4].pdo_source = SlaveConfig::PdoSource::coe;
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  auto op = master.await_operational(10s);
+  ASSERT_TRUE(op) << op.error().describe() << "\n" << explain(master);
+  auto drive = master.slave("drive");
+  ASSERT_TRUE(drive);
+  auto info = (*drive)->info();
+  EXPECT_EQ(info.driver, "cia402");
+  ASSERT_FALSE(info.layout.sync_managers.empty());
+  std::vector<std::string> names;
+  for (const auto& s : info.signals)
+    names.push_back(s.name);
+  EXPECT_NE(std::find(names.begin(), names.end(), "statusword"), names.end());
+  EXPECT_NE(std::find(names.begin(), names.end(), "controlword"), names.end());
+  // The drive's statusword arrives through the CoE-described layout.
+  bool fresh = false;
+  for (int i = 0; i < 500 && !fresh; ++i) {
+    fresh = static_cast<bool>((*drive)->read_input("statusword"));
+    std::this_thread::sleep_for(2ms);
+  }
+  EXPECT_TRUE(fresh);
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, StartupSdoFailureIsRetainedAndBlocksSafeop) {
+  auto config = full_config();
+  // An object the drive does not have: the PREOP configuration fails, the slave stays in PREOP
+  // with the failure retained, and activation is blocked naming it.
+  config.slaves[4].startup_sdos.push_back(SdoWrite{0x5FFF, 0, {1}, false});
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  auto running = master.await_running(10s);
+  ASSERT_FALSE(running);
+  EXPECT_EQ(master.state(), MasterState::activation_blocked);
+  auto drive = master.slave("drive");
+  ASSERT_TRUE(drive);
+  auto info = (*drive)->info();
+  ASSERT_TRUE(info.configuration_error.has_value());
+  EXPECT_NE(info.configuration_error->find("0x5fff"), std::string::npos)
+      << *info.configuration_error;
+  EXPECT_EQ((*drive)->state(), SlaveState::preop);
+  auto refused = (*drive)->request(wire::AlState::op);
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code(), Errc::wrong_state);
+  // Retrying does not help while the object is missing.
+  EXPECT_FALSE((*drive)->retry());
+  ASSERT_TRUE(master.stop());
+}
+
+TEST_F(MasterTest, TwoMastersInOneProcess) {
+  auto ring2 = sim::parse_ring(kRing);
+  ASSERT_TRUE(ring2);
+  auto server2 = sim::make_server(*ring2);
+  ASSERT_TRUE(server2);
+  auto link2 = (*server2)->serve_memory();
+  ASSERT_TRUE(link2);
+  Master a(full_config());
+  Master b(full_config());
+  ASSERT_TRUE(a.start(link()));
+  ASSERT_TRUE(b.start(std::move(*link2)));
+  ASSERT_TRUE(a.await_operational(10s));
+  ASSERT_TRUE(b.await_operational(10s));
+  EXPECT_NE(a.bus(), b.bus());
+  ASSERT_TRUE(a.stop());
+  EXPECT_EQ(b.state(), MasterState::operational);
+  ASSERT_TRUE(b.stop());
+}
+
+}  // namespace
+}  // namespace ecat::master

@@ -1,0 +1,180 @@
+// The master's startup steps and AL transitions against the simulator, and the state tables.
+#include <chrono>
+#include <memory>
+#include <set>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/exec/event_loop.hpp>
+#include <ecat/exec/task.hpp>
+#include <ecat/exec/transact.hpp>
+#include <ecat/master/al_control.hpp>
+#include <ecat/master/startup.hpp>
+#include <ecat/master/states.hpp>
+#include <ecat/sim/ring.hpp>
+#include <ecat/sim/server.hpp>
+
+namespace ecat::master {
+namespace {
+
+using namespace std::chrono_literals;
+using wire::AlState;
+
+constexpr const char* kRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: rtd, profile: EL3202}
+)";
+
+class StartupTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto ring = sim::parse_ring(kRing);
+    ASSERT_TRUE(ring) << ring.error().describe();
+    auto server = sim::make_server(*ring);
+    ASSERT_TRUE(server) << server.error().describe();
+    server_ = std::move(*server);
+    auto link = server_->serve_memory();
+    ASSERT_TRUE(link) << link.error().describe();
+    bus_ = std::make_unique<bus::Bus>(std::move(*link));
+    ASSERT_TRUE(bus_->start());
+    loop_.start_thread("test-control");
+  }
+  void TearDown() override {
+    loop_.stop();
+    loop_.join();
+    if (bus_) bus_->stop();
+  }
+  template <class T>
+  T run(exec::Task<T> task) {
+    auto result = exec::run_blocking(loop_, std::move(task), 10s);
+    EXPECT_TRUE(result.has_value()) << "task did not finish";
+    return std::move(*result);
+  }
+
+  std::unique_ptr<sim::SimServer> server_;
+  std::unique_ptr<bus::Bus> bus_;
+  exec::EventLoop loop_;
+};
+
+TEST_F(StartupTest, CountsAssignsResetsAndReachesInit) {
+  auto count = run(await_stable_count(loop_, *bus_, {.poll = 2ms, .stable = 10ms, .timeout = 2s}));
+  ASSERT_TRUE(count) << count.error().describe();
+  EXPECT_EQ(*count, 4);
+  auto assigned = run(assign_stations(loop_, *bus_, 4, 0x1000));
+  ASSERT_TRUE(assigned) << assigned.error().describe();
+  auto dl = run(read_dl_status(loop_, *bus_, 4, 0x1000));
+  ASSERT_TRUE(dl) << dl.error().describe();
+  ASSERT_EQ(dl->size(), 4u);
+  // The first slave's port 0 faces the master and its port 1 the next slave.
+  EXPECT_TRUE((*dl)[0].ports[0].physical_link);
+  EXPECT_TRUE((*dl)[0].ports[1].communication);
+  // The last slave's port 1 is open: the ESC closes the loop there.
+  EXPECT_FALSE((*dl)[3].ports[1].communication);
+  auto reset = run(reset_slaves(loop_, *bus_, 4));
+  ASSERT_TRUE(reset) << reset.error().describe();
+  // A reset block that expects more slaves than answer names the write.
+  auto short_reset = run(reset_slaves(loop_, *bus_, 5));
+  ASSERT_FALSE(short_reset);
+  EXPECT_NE(short_reset.error().message().find("reached 4 of 5"), std::string::npos)
+      << short_reset.error().message();
+  auto init = run(init_all(loop_, *bus_, 4, 0x1000));
+  ASSERT_TRUE(init) << init.error().describe();
+  for (std::uint16_t s = 0x1000; s < 0x1004; ++s) {
+    auto status = run(read_al_status(loop_, *bus_, s));
+    ASSERT_TRUE(status);
+    EXPECT_EQ(status->status.state, AlState::init);
+  }
+}
+
+TEST_F(StartupTest, WrongCountsAndStationRangesAreNamed) {
+  EXPECT_FALSE(check_addressing(3, 0));
+  auto overflow = check_addressing(3, 0xFFFE);
+  ASSERT_FALSE(overflow);
+  EXPECT_NE(overflow.error().message().find("0xfffe"), std::string::npos);
+  EXPECT_TRUE(check_addressing(2, 0xFFFE));
+  // Assigning more slaves than exist: the APWR to position 4 is not taken.
+  auto assigned = run(assign_stations(loop_, *bus_, 5, 0x1000));
+  ASSERT_FALSE(assigned);
+  EXPECT_EQ(assigned.error().code(), Errc::wkc_mismatch);
+  EXPECT_NE(assigned.error().message().find("position 4"), std::string::npos);
+}
+
+TEST_F(StartupTest, AlRequestWalksThePathAndReportsRefusals) {
+  ASSERT_TRUE(run(assign_stations(loop_, *bus_, 4, 0x1000)));
+  ASSERT_TRUE(run(init_all(loop_, *bus_, 4, 0x1000)));
+  // The coupler has no process data: it reaches OP through PREOP and SAFEOP.
+  auto op = run(al_request(loop_, *bus_, 0x1000, AlState::op));
+  ASSERT_TRUE(op) << op.error().describe();
+  EXPECT_EQ(*op, AlState::op);
+  auto back = run(al_request(loop_, *bus_, 0x1000, AlState::init));
+  ASSERT_TRUE(back) << back.error().describe();
+  // The EL3202 (firmware, mailbox) without its mailbox SyncManagers configured refuses PREOP
+  // with "invalid mailbox configuration" (0x0016). (The EL1809 would not: like the real
+  // terminal it is a device-emulation ESC that takes any state.)
+  auto refused = run(al_request(loop_, *bus_, 0x1003, AlState::safeop));
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code(), Errc::al_error);
+  auto code = al_status_code(refused.error());
+  ASSERT_TRUE(code.has_value()) << refused.error().describe();
+  EXPECT_EQ(*code, wire::al_status::kInvalidMailboxConfigurationPreop)
+      << refused.error().describe();
+  EXPECT_NE(refused.error().describe().find("0x1003"), std::string::npos);
+  // The error was acknowledged: the slave sits in INIT without the error flag.
+  auto status = run(read_al_status(loop_, *bus_, 0x1003));
+  ASSERT_TRUE(status);
+  EXPECT_EQ(status->status.state, AlState::init);
+  EXPECT_FALSE(status->status.error);
+  // A station nobody has: the write is not taken.
+  auto gone = run(al_request(loop_, *bus_, 0x2000, AlState::preop));
+  ASSERT_FALSE(gone);
+}
+
+TEST(AlPath, MatchesTheReferenceTable) {
+  EXPECT_EQ(al_path(AlState::init, AlState::op),
+            (std::vector<AlState>{AlState::preop, AlState::safeop, AlState::op}));
+  EXPECT_EQ(al_path(AlState::op, AlState::init),
+            (std::vector<AlState>{AlState::safeop, AlState::preop, AlState::init}));
+  EXPECT_EQ(al_path(AlState::op, AlState::preop),
+            (std::vector<AlState>{AlState::safeop, AlState::preop}));
+  EXPECT_EQ(al_path(AlState::safeop, AlState::safeop), std::vector<AlState>{});
+  EXPECT_FALSE(al_path(AlState::preop, AlState::bootstrap).has_value());
+  EXPECT_FALSE(al_path(AlState::op, AlState::bootstrap).has_value());
+  EXPECT_EQ(al_path_table().size(), 15u);
+}
+
+TEST(StateTables, MasterTableIsTheSeedDiagram) {
+  EXPECT_EQ(master_transitions().size(), 29u);
+  EXPECT_TRUE(master_transition_allowed(MasterState::idle, MasterState::discovering));
+  EXPECT_TRUE(master_transition_allowed(MasterState::recovering, MasterState::deactivated));
+  EXPECT_FALSE(master_transition_allowed(MasterState::idle, MasterState::operational));
+  EXPECT_FALSE(master_transition_allowed(MasterState::discovering, MasterState::operational));
+  EXPECT_FALSE(
+      master_transition_allowed(MasterState::operational, MasterState::activation_blocked));
+  // Every state but idle can be left to idle (stop), and idle is reachable from all of them.
+  for (auto t : master_transitions())
+    EXPECT_NE(t.trigger, "");
+  for (int s = 1; s < 8; ++s) {
+    EXPECT_TRUE(master_transition_allowed(static_cast<MasterState>(s), MasterState::idle))
+        << to_string(static_cast<MasterState>(s));
+    EXPECT_EQ(master_state_from_string(to_string(static_cast<MasterState>(s))),
+              static_cast<MasterState>(s));
+  }
+}
+
+TEST(StateTables, SlaveTableIsTheSeedDiagram) {
+  EXPECT_EQ(slave_transitions().size(), 22u);
+  EXPECT_TRUE(slave_transition_allowed(SlaveState::op, SlaveState::down));
+  EXPECT_TRUE(slave_transition_allowed(SlaveState::down, SlaveState::preop));
+  EXPECT_FALSE(slave_transition_allowed(SlaveState::down, SlaveState::op));
+  EXPECT_FALSE(slave_transition_allowed(SlaveState::init, SlaveState::down));
+  EXPECT_FALSE(slave_transition_allowed(SlaveState::bootstrap, SlaveState::preop));
+}
+
+}  // namespace
+}  // namespace ecat::master

@@ -1,0 +1,338 @@
+// ecat run: runs a master session. With a ring file that has a `simulator:` section and no
+// --link, the master runs against that simulated ring in this process (no hardware, no root).
+//
+//   ecat run --ring examples/default.yaml --duration 3
+//   ecat run --ring my-line.yaml --link raw:eth0
+//   ecat slaves --link udp:127.0.0.1:34980       (dynamic session: every slave held in PREOP)
+//
+// Exit codes: 0 the session reached its target and ran; 1 it did not (the error is printed);
+// 2 bad arguments or files.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <ecat/master/master.hpp>
+#include <ecat/sim/backend.hpp>
+#include <ecat/sim/ring.hpp>
+
+#include "command.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+using ecat::master::Master;
+using ecat::master::MasterConfig;
+using ecat::master::MasterState;
+using nlohmann::json;
+
+struct Options {
+  std::string ring;
+  std::string link;
+  double duration_s = 2.0;
+  double timeout_s = 20.0;
+  bool json = false;
+  bool chase = true;
+};
+
+// The link and configuration a run uses.
+struct Setup {
+  std::unique_ptr<ecat::link::Link> link;
+  MasterConfig config;
+  std::string link_name;
+};
+
+std::optional<Setup> prepare(const Options& options, bool dynamic) {
+  Setup setup;
+  std::string spec = options.link;
+  if (!options.ring.empty()) {
+    if (!dynamic) {
+      auto config = ecat::master::load_master_config(options.ring);
+      if (!config) {
+        fmt::print(stderr, "ecat: {}\n", config.error().describe());
+        return std::nullopt;
+      }
+      setup.config = std::move(*config);
+    }
+    if (spec.empty()) {
+      auto ring = ecat::sim::load_ring(options.ring);
+      if (!ring) {
+        fmt::print(stderr, "ecat: {}\n", ring.error().describe());
+        return std::nullopt;
+      }
+      if (ring->slaves.empty()) {
+        fmt::print(stderr,
+                   "ecat: {} has no simulator section: give the master's link with --link\n",
+                   options.ring);
+        return std::nullopt;
+      }
+      spec = "sim:" + options.ring;
+    }
+  }
+  if (spec.empty()) {
+    fmt::print(stderr, "ecat: give --ring FILE (a simulated ring) or --link SPEC\n");
+    return std::nullopt;
+  }
+  if (dynamic) {
+    setup.config.slaves.clear();
+    setup.config.domains.clear();
+  }
+  auto backend = ecat::sim::open_backend(spec);
+  if (!backend) {
+    fmt::print(stderr, "ecat: {}\n", backend.error().describe());
+    return std::nullopt;
+  }
+  setup.link = std::move(backend->link);
+  setup.link_name = spec;
+  return setup;
+}
+
+std::string identity_text(const ecat::master::SlaveInfo& info) {
+  if (!info.identity) return "-";
+  return fmt::format("{:08x}:{:08x} rev {:08x}", info.identity->vendor_id,
+                     info.identity->product_code, info.identity->revision);
+}
+
+void print_slaves(Master& master, bool with_signals) {
+  fmt::print("{:>3}  {:<6}  {:<12} {:<7} {:<10} {:<34} {}\n", "pos", "station", "name", "state",
+             "driver", "identity", "device");
+  for (const auto& s : master.slaves()) {
+    auto slave = master.slave(s.name);
+    if (!slave) continue;
+    auto info = (*slave)->info();
+    fmt::print("{:>3}  0x{:04x}  {:<12} {:<7} {:<10} {:<34} {}\n", info.position, info.station,
+               info.name, to_string(info.state), info.driver.empty() ? "-" : info.driver,
+               identity_text(info), info.device_name);
+    if (info.configuration_error) fmt::print("       ! {}\n", *info.configuration_error);
+    if (with_signals && !info.signals.empty()) {
+      std::string names;
+      for (const auto& sig : info.signals) {
+        if (!names.empty()) names += ' ';
+        names += sig.name;
+      }
+      fmt::print("       signals: {}\n", names);
+    }
+  }
+}
+
+void print_domains(Master& master) {
+  for (const auto& d : master.domains()) {
+    fmt::print(
+        "domain {}: {} every {} us, {} bytes at 0x{:08x}, expected wkc {}, {} cycles, {} "
+        "missed, {}\n",
+        d.id, d.state, d.period.count() / 1000, d.image_size, d.logical_base, d.expected_wkc,
+        d.cycles, d.total_misses, d.healthy ? "healthy" : "unhealthy");
+  }
+}
+
+json status_json(Master& master) {
+  json out;
+  out["state"] = std::string(to_string(master.state()));
+  out["slaves"] = json::array();
+  for (const auto& s : master.slaves()) {
+    auto slave = master.slave(s.name);
+    if (!slave) continue;
+    auto info = (*slave)->info();
+    json j{{"name", info.name},       {"position", info.position},
+           {"station", info.station}, {"state", std::string(to_string(info.state))},
+           {"driver", info.driver},   {"device", info.device_name}};
+    if (info.identity) {
+      j["vendor_id"] = info.identity->vendor_id;
+      j["product_code"] = info.identity->product_code;
+      j["revision"] = info.identity->revision;
+      j["serial"] = info.identity->serial;
+    }
+    if (info.configuration_error) j["configuration_error"] = *info.configuration_error;
+    j["signals"] = json::array();
+    for (const auto& sig : info.signals)
+      j["signals"].push_back(sig.name);
+    out["slaves"].push_back(std::move(j));
+  }
+  out["domains"] = json::array();
+  for (const auto& d : master.domains()) {
+    out["domains"].push_back({{"id", d.id},
+                              {"state", d.state},
+                              {"period_ns", d.period.count()},
+                              {"image_size", d.image_size},
+                              {"expected_wkc", d.expected_wkc},
+                              {"cycles", d.cycles},
+                              {"misses", d.total_misses},
+                              {"healthy", d.healthy}});
+  }
+  return out;
+}
+
+int report_failure(Master& master, const ecat::Error& error) {
+  fmt::print(stderr, "ecat: the session did not get running: {}\n", error.describe());
+  auto status = master.status();
+  for (const auto& f : status.activation_failures) {
+    fmt::print(stderr, "  slave {}: {}\n", f.slave, f.error.describe());
+  }
+  if (status.last_failure) {
+    fmt::print(stderr, "  last failure ({}): {}\n", status.last_failure->kind,
+               status.last_failure->error.describe());
+  }
+  return 1;
+}
+
+// Walks a lit bit over every boolean output the session has, so the run shows process data
+// moving (on the default ring the EL2809 outputs are wired to the EL1809 inputs).
+struct Chase {
+  std::vector<std::pair<ecat::master::Slave*, std::string>> outputs;
+  std::size_t step = 0;
+
+  void collect(Master& master) {
+    for (const auto& s : master.slaves()) {
+      auto slave = master.slave(s.name);
+      if (!slave) continue;
+      for (const auto& sig : (*slave)->signals()) {
+        if (sig.direction == ecat::master::PdoDirection::output &&
+            sig.type == ecat::master::SignalType::boolean) {
+          outputs.emplace_back(*slave, sig.name);
+        }
+      }
+    }
+  }
+  void advance() {
+    if (outputs.empty()) return;
+    for (std::size_t i = 0; i < outputs.size(); ++i) {
+      (void)outputs[i].first->write_output(outputs[i].second,
+                                           ecat::master::Value(i == step % outputs.size()));
+    }
+    ++step;
+  }
+};
+
+int run_session(const Options& options) {
+  auto setup = prepare(options, false);
+  if (!setup) return 2;
+  Master master(setup->config);
+  if (!options.json) {
+    master.on_state_change([](MasterState from, MasterState to) {
+      fmt::print("master: {} -> {}\n", to_string(from), to_string(to));
+      std::fflush(stdout);
+    });
+  }
+  const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::duration<double>(options.timeout_s));
+  if (auto started = master.start(std::move(setup->link)); !started) {
+    fmt::print(stderr, "ecat: {}\n", started.error().describe());
+    return 1;
+  }
+  if (auto running = master.await_running(timeout); !running) {
+    return report_failure(master, running.error());
+  }
+  if (!options.json) {
+    fmt::print("\nsession on {}: {}\n", setup->link_name, to_string(master.state()));
+    print_slaves(master, true);
+    print_domains(master);
+  }
+  Chase chase;
+  if (options.chase) chase.collect(master);
+  const auto end =
+      std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                             std::chrono::duration<double>(options.duration_s));
+  while (std::chrono::steady_clock::now() < end) {
+    chase.advance();
+    std::this_thread::sleep_for(100ms);
+  }
+  if (options.json) {
+    fmt::print("{}\n", status_json(master).dump(2));
+  } else {
+    fmt::print("\nafter {:.1f} s:\n", options.duration_s);
+    print_domains(master);
+    for (const auto& s : master.slaves()) {
+      auto slave = master.slave(s.name);
+      if (!slave) continue;
+      std::string line;
+      for (const auto& sig : (*slave)->signals()) {
+        if (sig.direction != ecat::master::PdoDirection::input) continue;
+        auto v = (*slave)->read_input(sig.name);
+        if (!v) {
+          line += fmt::format(" {}: {}", sig.name, v.error().message());
+          break;
+        }
+        if (line.size() > 90) {
+          line += " ...";
+          break;
+        }
+        line += fmt::format(" {}={}", sig.name, ecat::master::to_string(*v));
+      }
+      if (!line.empty()) fmt::print("  {} inputs:{}\n", s.name, line);
+    }
+    if (auto* bus = master.bus()) {
+      auto stats = bus->stats();
+      fmt::print("bus: {} frames sent ({} cyclic), {} lost, {} cycle deadlines missed\n",
+                 stats.frames_sent, stats.realtime_frames_sent, stats.frames_lost,
+                 stats.cycle_deadlines_missed);
+    }
+  }
+  const bool operational =
+      master.state() == MasterState::operational || master.state() == MasterState::preop_ready;
+  (void)master.stop();
+  if (!options.json) fmt::print("stopped\n");
+  return operational ? 0 : 1;
+}
+
+int list_slaves(const Options& options) {
+  auto setup = prepare(options, true);
+  if (!setup) return 2;
+  Master master(setup->config);
+  if (auto started = master.start(std::move(setup->link)); !started) {
+    fmt::print(stderr, "ecat: {}\n", started.error().describe());
+    return 1;
+  }
+  const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::duration<double>(options.timeout_s));
+  if (auto running = master.await_running(timeout); !running) {
+    return report_failure(master, running.error());
+  }
+  if (options.json) {
+    fmt::print("{}\n", status_json(master).dump(2));
+  } else {
+    print_slaves(master, true);
+  }
+  (void)master.stop();
+  return 0;
+}
+
+void add_common(CLI::App* app, Options& o) {
+  app->add_option("--ring", o.ring,
+                  "Ring file: the master's sections, and with a simulator section the simulated "
+                  "ring to run against");
+  app->add_option("--link", o.link,
+                  "What the master talks to: raw:IFACE, udp:HOST:PORT or sim:RING.yaml");
+  app->add_option("--timeout", o.timeout_s, "Seconds to wait for the session to get running")
+      ->check(CLI::PositiveNumber);
+  app->add_flag("--json", o.json, "Print JSON");
+}
+
+ecat::tool::Command setup_run(CLI::App& parent) {
+  auto* app = parent.add_subcommand("run", "Run a master session (default: on a simulated ring)");
+  auto options = std::make_shared<Options>();
+  add_common(app, *options);
+  app->add_option("--duration", options->duration_s, "Seconds to run once operational")
+      ->check(CLI::NonNegativeNumber);
+  app->add_flag("!--no-chase", options->chase, "Do not walk a lit bit over the boolean outputs");
+  return {app, [options] { return run_session(*options); }};
+}
+
+ecat::tool::Command setup_slaves(CLI::App& parent) {
+  auto* app = parent.add_subcommand(
+      "slaves", "Discover the ring and list its slaves (every slave held in PREOP)");
+  auto options = std::make_shared<Options>();
+  add_common(app, *options);
+  return {app, [options] { return list_slaves(*options); }};
+}
+
+const bool registered_run = ecat::tool::register_command(&setup_run);
+const bool registered_slaves = ecat::tool::register_command(&setup_slaves);
+
+}  // namespace
