@@ -3,6 +3,7 @@
 #include <map>
 #include <mutex>
 #include <set>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -530,6 +531,10 @@ struct Master::Impl : DomainObserver {
   void teardown() {
     auto s = session;
     if (!s) return;
+    {
+      std::lock_guard lock(mutex);
+      ending = s;
+    }
     s->stopping = true;
     if (s->cycler) (void)s->cycler->stop();
     if (s->bus) s->bus->stop();
@@ -538,9 +543,27 @@ struct Master::Impl : DomainObserver {
   }
 
   void shutdown() {
-    if (current() == MasterState::idle && !session) return;
-    auto done = exec::run_blocking(loop, stop_task(), 10s);
-    (void)done;
+    if (current() != MasterState::idle || session) {
+      auto done = exec::run_blocking(loop, stop_task(), 10s);
+      (void)done;
+    }
+    await_session_end();
+  }
+
+  // Waits (on the caller's thread, the loop running) until the tasks of the last session have run
+  // out: a task sleeping in a health poll wakes, sees `stopping` and ends, releasing the session.
+  // Without this, a loop stopped under a sleeping task would never free what it holds.
+  std::weak_ptr<Session> ending;
+  void await_session_end() {
+    std::weak_ptr<Session> previous;
+    {
+      std::lock_guard lock(mutex);
+      previous = ending;
+    }
+    const auto deadline = std::chrono::steady_clock::now() + 10s;
+    while (!previous.expired() && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(1ms);
+    }
   }
 
   exec::Task<Result<void>> stop_task() {
@@ -606,6 +629,7 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
 Result<void> Master::stop() {
   auto done = exec::run_blocking(impl_->loop, impl_->stop_task(), 10s);
   if (!done) return Error(Errc::timeout, "stop: the control thread did not answer");
+  impl_->await_session_end();
   return std::move(*done);
 }
 
