@@ -13,8 +13,8 @@
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/master/master.hpp>
-#include <ecat/sim/backend.hpp>
 #include <ecat/result.hpp>
+#include <ecat/sim/backend.hpp>
 #include <ecat/version.hpp>
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/bytes.hpp>

@@ -54,7 +54,6 @@ struct Master::Impl : DomainObserver {
   std::map<std::string, ActivationFailure> activation_failures;
   std::map<std::string, std::string> runtime_faults;
   std::optional<Failure> last;
-  std::uint64_t generation = 0;
   std::uint64_t refused_transitions = 0;
   std::function<void(MasterState, MasterState)> on_change;
   std::atomic<bool> inputs_pending{false};
@@ -161,7 +160,8 @@ struct Master::Impl : DomainObserver {
       co_return Error(Errc::invalid_argument, fmt::format("{} slaves configured, the ring has {}",
                                                           s->config.slaves.size(), *count));
     }
-    for (const auto& c : effective_slaves(*count)) {
+    auto configs = effective_slaves(*count);
+    for (const auto& c : configs) {
       if (*c.position >= *count) {
         co_return Error(Errc::invalid_argument,
                         fmt::format("slave {} is configured at position {}, the ring has {} "
@@ -197,7 +197,7 @@ struct Master::Impl : DomainObserver {
     }
 
     // Slaves.
-    for (auto& c : effective_slaves(*count)) {
+    for (auto& c : configs) {
       const auto pos = *c.position;
       const auto station = static_cast<std::uint16_t>(s->config.base_station + pos);
       auto slave = std::make_unique<Slave>(*s, std::move(c), pos, station);
@@ -376,23 +376,37 @@ struct Master::Impl : DomainObserver {
   void on_inputs_changed(Domain&, std::size_t) override {
     inputs_pending.store(true, std::memory_order_release);
   }
+  // Rare events: the bus thread only posts (no formatting, no string copies); the text is made on
+  // the loop, for a domain of the current session only.
   void on_cycle_degraded(Domain& domain, const CycleInvalid& invalid) override {
-    // Rare: posting (which allocates) is acceptable here, never per cycle.
-    const std::string id = domain.id();
-    const std::string why =
-        fmt::format("domain {}: {} (expected wkc {}, got {})", id, to_string(invalid.reason),
-                    invalid.expected_wkc, invalid.actual_wkc);
-    loop.post([this, id, why] { raise_runtime_fault("domain:" + id, why); });
+    loop.post([this, d = &domain, invalid] {
+      if (!owns(d)) return;
+      raise_runtime_fault(
+          "domain:" + d->id(),
+          fmt::format("domain {}: {} (expected wkc {}, got {})", d->id(), to_string(invalid.reason),
+                      invalid.expected_wkc, invalid.actual_wkc));
+    });
   }
   void on_cycle_recovered(Domain& domain) override {
-    const std::string id = domain.id();
-    loop.post([this, id] { clear_runtime_fault("domain:" + id); });
+    loop.post([this, d = &domain] {
+      if (owns(d)) clear_runtime_fault("domain:" + d->id());
+    });
   }
   void on_stopped(Domain& domain, const CycleInvalid& invalid, std::uint64_t misses) override {
-    const std::string id = domain.id();
-    const std::string why = fmt::format("domain {} stopped after {} consecutive misses ({})", id,
-                                        misses, to_string(invalid.reason));
-    loop.post([this, id, why] { raise_runtime_fault("domain:" + id, why); });
+    loop.post([this, d = &domain, reason = invalid.reason, misses] {
+      if (!owns(d)) return;
+      raise_runtime_fault("domain:" + d->id(),
+                          fmt::format("domain {} stopped after {} consecutive misses ({})", d->id(),
+                                      misses, to_string(reason)));
+    });
+  }
+  // Whether `d` belongs to the running session (a late event may outlive its session).
+  bool owns(const Domain* d) const {
+    if (!session || session->stopping) return false;
+    for (const auto& mine : session->domains) {
+      if (mine.get() == d) return true;
+    }
+    return false;
   }
 
   void raise_runtime_fault(const std::string& key, const std::string& why) {
@@ -448,10 +462,7 @@ struct Master::Impl : DomainObserver {
         arm_slave_retry(s);
         break;
       case SlaveNotice::Kind::reconnected:
-      case SlaveNotice::Kind::fault_cleared:
         exec::spawn(loop, restore_slave(s, slave, key));
-        break;
-      case SlaveNotice::Kind::ready_preop:
         break;
     }
   }
@@ -611,7 +622,6 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
           impl.activation_error.reset();
           impl.activation_failures.clear();
           impl.runtime_faults.clear();
-          ++impl.generation;
         }
         {
           std::lock_guard lock(impl.mutex);
@@ -712,9 +722,6 @@ Result<void> Master::activate() {
           std::lock_guard lock(impl.mutex);
           impl.desired = TargetState::op;
         }
-        for (auto& slave : s->slaves) {
-          if (slave->impl().config.target == TargetState::preop) continue;
-        }
         co_await impl.run_activation(s);
         std::lock_guard lock(impl.mutex);
         if (impl.state == MasterState::activation_blocked && impl.activation_error) {
@@ -788,65 +795,45 @@ bus::Bus* Master::bus() noexcept {
 }
 
 std::vector<SlaveSummary> Master::slaves() const {
-  std::shared_ptr<Session> s;
-  {
-    std::lock_guard lock(impl_->mutex);
-    s = impl_->session;
-  }
+  // Slave::info() is thread-safe; the list only grows during startup, under this mutex.
+  std::lock_guard lock(impl_->mutex);
   std::vector<SlaveSummary> out;
-  if (!s) return out;
-  auto done = exec::run_blocking(
-      impl_->loop,
-      [](std::shared_ptr<Session> sess) -> exec::Task<std::vector<SlaveSummary>> {
-        std::vector<SlaveSummary> list;
-        for (const auto& slave : sess->slaves) {
-          auto info = slave->info();
-          SlaveSummary summary;
-          summary.name = info.name;
-          summary.position = info.position;
-          summary.station = info.station;
-          summary.state = info.state;
-          summary.target = info.target;
-          if (info.configuration_error) summary.fault = *info.configuration_error;
-          if (info.fault) summary.fault = *info.fault;
-          list.push_back(std::move(summary));
-        }
-        co_return list;
-      }(s),
-      kCallTimeout);
-  return done ? std::move(*done) : out;
+  if (!impl_->session) return out;
+  for (const auto& slave : impl_->session->slaves) {
+    auto info = slave->info();
+    SlaveSummary summary;
+    summary.name = info.name;
+    summary.position = info.position;
+    summary.station = info.station;
+    summary.state = info.state;
+    summary.target = info.target;
+    if (info.configuration_error) summary.fault = *info.configuration_error;
+    if (info.fault) summary.fault = *info.fault;
+    out.push_back(std::move(summary));
+  }
+  return out;
 }
 
 std::vector<DomainSummary> Master::domains() const {
-  std::shared_ptr<Session> s;
-  {
-    std::lock_guard lock(impl_->mutex);
-    s = impl_->session;
-  }
+  // Domain::info() is thread-safe; the list only grows during startup, under this mutex.
+  std::lock_guard lock(impl_->mutex);
   std::vector<DomainSummary> out;
-  if (!s) return out;
-  auto done = exec::run_blocking(
-      impl_->loop,
-      [](std::shared_ptr<Session> sess) -> exec::Task<std::vector<DomainSummary>> {
-        std::vector<DomainSummary> list;
-        for (const auto& d : sess->domains) {
-          auto info = d->info();
-          DomainSummary summary;
-          summary.id = info.id;
-          summary.period = info.period;
-          summary.state = std::string(to_string(info.state));
-          summary.logical_base = info.logical_base;
-          summary.image_size = info.image_size;
-          summary.expected_wkc = static_cast<std::uint16_t>(info.expected_wkc);
-          summary.cycles = info.stats.cycle_count;
-          summary.total_misses = info.stats.total_miss_count;
-          summary.healthy = info.stats.health.healthy;
-          list.push_back(std::move(summary));
-        }
-        co_return list;
-      }(s),
-      kCallTimeout);
-  return done ? std::move(*done) : out;
+  if (!impl_->session) return out;
+  for (const auto& d : impl_->session->domains) {
+    auto info = d->info();
+    DomainSummary summary;
+    summary.id = info.id;
+    summary.period = info.period;
+    summary.state = std::string(to_string(info.state));
+    summary.logical_base = info.logical_base;
+    summary.image_size = info.image_size;
+    summary.expected_wkc = static_cast<std::uint16_t>(info.expected_wkc);
+    summary.cycles = info.stats.cycle_count;
+    summary.total_misses = info.stats.total_miss_count;
+    summary.healthy = info.stats.health.healthy;
+    out.push_back(std::move(summary));
+  }
+  return out;
 }
 
 std::optional<Failure> Master::last_failure() const {
@@ -861,6 +848,7 @@ MasterStatus Master::status() const {
     out.state = impl_->state;
     out.desired_target = impl_->desired;
     out.last_failure = impl_->last;
+    out.illegal_transitions = impl_->refused_transitions;
     for (const auto& [name, f] : impl_->activation_failures)
       out.activation_failures.push_back(f);
     for (const auto& [key, why] : impl_->runtime_faults)

@@ -24,8 +24,8 @@ namespace ecat::master {
 
 // What a slave tells its master (on the control loop).
 struct SlaveNotice {
-  enum class Kind : std::uint8_t { ready_preop, retreated, down, reconnected, fault_cleared };
-  Kind kind = Kind::ready_preop;
+  enum class Kind : std::uint8_t { retreated, down, reconnected };
+  Kind kind = Kind::down;
   std::string slave;
   std::string detail;
 };

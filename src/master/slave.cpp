@@ -38,14 +38,6 @@ std::string Slave::Impl::who() const {
   return fmt::format("slave {} (station 0x{:04x})", self.name(), self.station());
 }
 
-void Slave::Impl::set_state(SlaveState next) {
-  const SlaveState now = state.load();
-  if (now == next) return;
-  // The seed diagram has no INIT -> down edge etc.; a slave found in an unexpected state is
-  // adopted (what the hardware says wins), but transitions the diagram draws are the norm.
-  state.store(next);
-}
-
 exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   (void)keep;
   auto& loop = session.loop;
@@ -57,7 +49,7 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   }
   auto init = co_await al_request(loop, bus, station, wire::AlState::init, session.config.al);
   if (!init) co_return init.error().context(fmt::format("{}: reaching INIT", who()));
-  set_state(SlaveState::init);
+  state.store(SlaveState::init);
 
   bus::Transaction esc_tx;
   esc_tx.fprd(station, reg::kType, static_cast<std::uint16_t>(reg::kEscInformationSize), 1);
@@ -142,7 +134,7 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
     record_al_error(preop.error());
     co_return preop.error().context(fmt::format("{}: reaching PREOP", who()));
   }
-  set_state(SlaveState::preop);
+  state.store(SlaveState::preop);
 
   auto configured = co_await configure_preop(keep);
   if (!configured) {
@@ -452,7 +444,7 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
     status = *acked;
   }
   const auto from = status->status.state;
-  set_state(slave_state_of(from));
+  state.store(slave_state_of(from));
   auto path = al_path(from, target);
   if (!path) {
     co_return Error(Errc::invalid_argument,
@@ -465,15 +457,12 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
       record_al_error(stepped.error());
       // What the slave is in now (it may have fallen back).
       if (auto now = co_await read_al_status(loop, bus, station, session.config.al.transact)) {
-        set_state(slave_state_of(now->status.state));
+        state.store(slave_state_of(now->status.state));
       }
       co_return stepped.error().context(
           fmt::format("{}: requesting {}", who(), wire::to_string(target)));
     }
-    set_state(slave_state_of(step));
-    if (step == wire::AlState::init) {
-      // Leaving PREOP for INIT drops the mailbox and process-data configuration on the device.
-    }
+    state.store(slave_state_of(step));
   }
   co_return ok();
 }
@@ -528,8 +517,8 @@ const SmAttachment* Slave::Impl::attachment_for(std::uint8_t sm) const noexcept 
   return nullptr;
 }
 
-void Slave::Impl::project(const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs) {
-  if (!driver) return;
+std::vector<Value> Slave::Impl::signal_values(
+    const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs) const {
   std::vector<Value> values;
   values.reserve(signals.size());
   for (const auto& sig : signals) {
@@ -541,6 +530,12 @@ void Slave::Impl::project(const std::map<std::uint8_t, std::vector<std::uint8_t>
     }
     values.push_back(std::move(v));
   }
+  return values;
+}
+
+void Slave::Impl::project(const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs) {
+  if (!driver) return;
+  const auto values = signal_values(inputs);
   SignalValues current(signals, values);
   auto next = driver->project_state(current, &device_state, driver_state.get());
   if (next) device_state = std::move(*next);
@@ -607,13 +602,11 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
     const auto now = state.load();
     if (now == SlaveState::down) {
       if (co_await probe_and_rebuild(keep)) {
-        ++reconnects;
         session.notify({SlaveNotice::Kind::reconnected, self.name(), "back in PREOP"});
       }
       continue;
     }
     if (busy > 0) continue;  // a request is walking the AL states right now
-    ++health_checks;
     const bus::TransactOptions quick{std::max<std::chrono::nanoseconds>(period, 20ms), 1};
     auto status = co_await read_al_status(loop, bus, station, quick);
     if (session.stopping) break;
@@ -944,18 +937,8 @@ Result<void> Slave::command(std::string_view name, const CommandArgs& args) {
     if (!impl_->driver) {
       return Error(Errc::not_ready, fmt::format("slave {} is not configured yet", name_));
     }
-    std::vector<Value> values;
-    values.reserve(impl_->signals.size());
-    for (const auto& sig : impl_->signals) {
-      Value v = std::int64_t{0};
-      if (sig.direction == PdoDirection::output) {
-        auto it = impl_->output_images.find(sig.sync_manager);
-        if (it != impl_->output_images.end()) {
-          if (auto d = decode_scaled(sig, it->second)) v = *d;
-        }
-      }
-      values.push_back(std::move(v));
-    }
+    // The driver sees the staged outputs (what a command changes); inputs are not needed.
+    const auto values = impl_->signal_values({});
     SignalValues current(impl_->signals, values);
     auto made =
         impl_->driver->command(name, args, current, impl_->device_state, impl_->driver_state.get());

@@ -24,6 +24,7 @@ struct Slave::Impl {
   Slave& self;
   Session& session;
   SlaveConfig config;
+  // What the hardware last showed (adopted as found: a slave may be discovered in any state).
   std::atomic<SlaveState> state{SlaveState::init};
 
   // Guards everything below (application threads read snapshots; the loop writes).
@@ -55,11 +56,14 @@ struct Slave::Impl {
   SubscriptionId next_subscription = 0;
 
   std::string who() const;
-  void set_state(SlaveState next);
   void record_al_error(const Error& error);
   Result<void> check_mailbox() const;
   const Signal* find_signal(std::string_view name) const noexcept;
   const SmAttachment* attachment_for(std::uint8_t sm) const noexcept;
+  // Engineering values of every signal: inputs from `inputs` (per SM image), outputs as staged;
+  // 0 where an image is missing (mutex held).
+  std::vector<Value> signal_values(
+      const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs) const;
   // The driver's projected device state from these input images and the staged outputs
   // (mutex held).
   void project(const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs);
@@ -78,8 +82,6 @@ struct Slave::Impl {
   exec::Task<bool> probe_and_rebuild(std::shared_ptr<Session> keep);
   bool health_running = false;
   int busy = 0;  // go_to() calls in progress (loop thread only)
-  std::uint64_t health_checks = 0;
-  std::uint64_t reconnects = 0;
   exec::Task<Result<void>> configure_preop(std::shared_ptr<Session> keep);
   exec::Task<Result<void>> run_sdos(const std::vector<SdoWrite>& writes);
   exec::Task<Result<PdoLayout>> read_coe_layout(const PdoLayout& known);

@@ -16,82 +16,9 @@
 #include <ecat/bus/bus.hpp>
 
 #include "bus/bus_test_support.hpp"
+#include "support/counting_allocator.hpp"
 
-namespace {
-
-thread_local bool t_count_allocations = false;
-thread_local bool t_is_bus_thread = false;
-std::atomic<bool> g_count_bus_thread{false};
-std::atomic<std::size_t> g_realtime_thread_allocations{0};
-std::atomic<std::size_t> g_bus_thread_allocations{0};
-
-void note_allocation() noexcept {
-  if (t_count_allocations) g_realtime_thread_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (t_is_bus_thread && g_count_bus_thread.load(std::memory_order_relaxed)) {
-    g_bus_thread_allocations.fetch_add(1, std::memory_order_relaxed);
-  }
-}
-
-void* allocate(std::size_t size) {
-  note_allocation();
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-
-void* allocate_aligned(std::size_t size, std::align_val_t alignment) {
-  note_allocation();
-  const auto align = static_cast<std::size_t>(alignment);
-  const std::size_t rounded = (size + align - 1) / align * align;
-  if (void* p = std::aligned_alloc(align, rounded == 0 ? align : rounded)) return p;
-  throw std::bad_alloc();
-}
-
-}  // namespace
-
-void* operator new(std::size_t size) {
-  return allocate(size);
-}
-void* operator new[](std::size_t size) {
-  return allocate(size);
-}
-void* operator new(std::size_t size, const std::nothrow_t&) noexcept {
-  note_allocation();
-  return std::malloc(size == 0 ? 1 : size);
-}
-void* operator new[](std::size_t size, const std::nothrow_t&) noexcept {
-  note_allocation();
-  return std::malloc(size == 0 ? 1 : size);
-}
-void* operator new(std::size_t size, std::align_val_t alignment) {
-  return allocate_aligned(size, alignment);
-}
-void* operator new[](std::size_t size, std::align_val_t alignment) {
-  return allocate_aligned(size, alignment);
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t, std::align_val_t) noexcept {
-  std::free(p);
-}
+namespace allocs = ecat::test::allocations;
 
 namespace ecat::bus::test {
 namespace {
@@ -104,7 +31,7 @@ struct CycleOutcome {
 // Runs `cycles` realtime LRW exchanges; allocations on this thread are counted while `count`.
 CycleOutcome run_cycles(Bus& bus, RealtimeTransaction& rt, int cycles, bool count) {
   CycleOutcome outcome;
-  t_count_allocations = count;
+  allocs::count_this_thread = count;
   for (int i = 0; i < cycles; ++i) {
     auto out = rt.output(0);
     out[0] = static_cast<std::uint8_t>(i);
@@ -123,7 +50,7 @@ CycleOutcome run_cycles(Bus& bus, RealtimeTransaction& rt, int cycles, bool coun
       ++outcome.wrong_data;
     }
   }
-  t_count_allocations = false;
+  allocs::count_this_thread = false;
   return outcome;
 }
 
@@ -138,7 +65,7 @@ TEST(RealtimeAllocations, RealtimePathAllocatesNothing) {
 
   BusOptions options;
   options.frame_timeout = std::chrono::seconds(1);  // no spurious loss on a loaded machine
-  options.on_thread_start = [] { t_is_bus_thread = true; };
+  options.on_thread_start = [] { allocs::is_bus_thread = true; };
   auto bus = start_bus(segment, options);
 
   Transaction layout;
@@ -147,8 +74,8 @@ TEST(RealtimeAllocations, RealtimePathAllocatesNothing) {
   RealtimeTransaction rt(std::move(layout));
 
   // Counters are global: measure from here (another test may have counted before).
-  g_realtime_thread_allocations.store(0);
-  g_bus_thread_allocations.store(0);
+  allocs::counted.store(0);
+  allocs::bus_thread.store(0);
 
   constexpr int kCycles = 5000;
   CycleOutcome warmup;
@@ -158,24 +85,24 @@ TEST(RealtimeAllocations, RealtimePathAllocatesNothing) {
   // Phase A: realtime alone; count the realtime thread and the bus thread.
   std::thread realtime([&] {
     warmup = run_cycles(*bus, rt, 200, false);
-    g_count_bus_thread.store(true);
+    allocs::count_bus_thread.store(true);
     phase_a = run_cycles(*bus, rt, kCycles, true);
-    g_count_bus_thread.store(false);
+    allocs::count_bus_thread.store(false);
   });
   realtime.join();
   EXPECT_EQ(warmup.not_ok + warmup.wrong_data, 0);
   EXPECT_EQ(phase_a.not_ok, 0);
   EXPECT_EQ(phase_a.wrong_data, 0);
-  EXPECT_EQ(g_realtime_thread_allocations.load(), 0u);
-  EXPECT_EQ(g_bus_thread_allocations.load(), 0u);
+  EXPECT_EQ(allocs::counted.load(), 0u);
+  EXPECT_EQ(allocs::bus_thread.load(), 0u);
 
   // The bus-thread counter is live: a failing reliable transaction formats its message there.
-  g_count_bus_thread.store(true);
+  allocs::count_bus_thread.store(true);
   Transaction failing;
   failing.fprd(0x7777, 0x0130, 2, 1);
   EXPECT_FALSE(bus->transact(std::move(failing)));
-  g_count_bus_thread.store(false);
-  EXPECT_GT(g_bus_thread_allocations.load(), 0u);
+  allocs::count_bus_thread.store(false);
+  EXPECT_GT(allocs::bus_thread.load(), 0u);
 
   // Phase B: reliable traffic from another thread at the same time; count the realtime thread.
   std::atomic<bool> stop{false};
@@ -201,7 +128,7 @@ TEST(RealtimeAllocations, RealtimePathAllocatesNothing) {
 
   EXPECT_EQ(phase_b.not_ok, 0);
   EXPECT_EQ(phase_b.wrong_data, 0);
-  EXPECT_EQ(g_realtime_thread_allocations.load(), 0u);
+  EXPECT_EQ(allocs::counted.load(), 0u);
   EXPECT_GT(reliable_done.load(), 0);
   EXPECT_EQ(reliable_failed.load(), 0);
   const auto stats = bus->stats();
@@ -214,12 +141,12 @@ TEST(RealtimeAllocations, RealtimePathAllocatesNothing) {
 
 // The counter itself works: an allocation on a counting thread is seen.
 TEST(RealtimeAllocations, CounterSeesAllocations) {
-  const auto before = g_realtime_thread_allocations.load();
-  t_count_allocations = true;
+  const auto before = allocs::counted.load();
+  allocs::count_this_thread = true;
   void* volatile p = ::operator new(16);
-  t_count_allocations = false;
+  allocs::count_this_thread = false;
   ::operator delete(p);
-  EXPECT_EQ(g_realtime_thread_allocations.load(), before + 1);
+  EXPECT_EQ(allocs::counted.load(), before + 1);
 }
 
 }  // namespace

@@ -11,66 +11,9 @@
 
 #include <ecat/link/memory_link.hpp>
 
-// GCC inlines the replaced operators below and then mistakes free() of our own malloc() for a
-// mismatched pair.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-#endif
+#include "support/counting_allocator.hpp"
 
-// Every allocation in this test binary is counted, so that the steady-state tests can prove that
-// send() and receive() allocate nothing.
-namespace {
-std::atomic<std::uint64_t> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t size) {
-  return operator new(size);
-}
-void* operator new(std::size_t size, const std::nothrow_t&) noexcept {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  return std::malloc(size == 0 ? 1 : size);
-}
-void* operator new[](std::size_t size, const std::nothrow_t& tag) noexcept {
-  return operator new(size, tag);
-}
-void* operator new(std::size_t size, std::align_val_t align) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  const auto a = static_cast<std::size_t>(align);
-  if (void* p = std::aligned_alloc(a, (std::max<std::size_t>(size, 1) + a - 1) / a * a)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t size, std::align_val_t align) {
-  return operator new(size, align);
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t, std::align_val_t) noexcept {
-  std::free(p);
-}
+namespace allocs = ecat::test::allocations;
 
 namespace ecat::link {
 namespace {
@@ -324,11 +267,11 @@ int* volatile g_escape = nullptr;
 // The allocation tests below would pass vacuously if the replaced operator new were not the one
 // in use (a sanitizer runtime could interpose its own).
 TEST(MemoryLinkTest, AllocationCounterSeesAllocations) {
-  const auto before = g_allocations.load();
+  const auto before = allocs::total.load();
   g_escape = new int(5);
   delete g_escape;
   g_escape = nullptr;
-  EXPECT_EQ(g_allocations.load() - before, 1u);
+  EXPECT_EQ(allocs::total.load() - before, 1u);
 }
 
 TEST(MemoryLinkTest, SteadyStateSendAndReceiveDoNotAllocate) {
@@ -366,10 +309,10 @@ TEST(MemoryLinkTest, SteadyStateSendAndReceiveDoNotAllocate) {
   };
   for (int i = 0; i < 10; ++i)
     round();  // warm-up
-  const auto before = g_allocations.load();
+  const auto before = allocs::total.load();
   for (int i = 0; i < 1000; ++i)
     round();
-  const auto allocations = g_allocations.load() - before;
+  const auto allocations = allocs::total.load() - before;
   EXPECT_EQ(allocations, 0u);
   EXPECT_EQ(bad_results, 0u);
   EXPECT_EQ(received, 1010u);
@@ -532,10 +475,10 @@ TEST(FunctionLinkTest, SteadyStateDoesNotAllocate) {
   };
   for (int i = 0; i < 10; ++i)
     round();
-  const auto before = g_allocations.load();
+  const auto before = allocs::total.load();
   for (int i = 0; i < 1000; ++i)
     round();
-  EXPECT_EQ(g_allocations.load() - before, 0u);
+  EXPECT_EQ(allocs::total.load() - before, 0u);
   EXPECT_EQ(good, 1010u);
 }
 

@@ -19,82 +19,9 @@
 #include <ecat/master/domain.hpp>
 
 #include "master/domain_test_support.hpp"
+#include "support/counting_allocator.hpp"
 
-namespace {
-
-thread_local bool t_count_allocations = false;
-thread_local bool t_is_bus_thread = false;
-std::atomic<bool> g_count_bus_thread{false};
-std::atomic<std::size_t> g_app_thread_allocations{0};
-std::atomic<std::size_t> g_bus_thread_allocations{0};
-
-void note_allocation() noexcept {
-  if (t_count_allocations) g_app_thread_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (t_is_bus_thread && g_count_bus_thread.load(std::memory_order_relaxed)) {
-    g_bus_thread_allocations.fetch_add(1, std::memory_order_relaxed);
-  }
-}
-
-void* allocate(std::size_t size) {
-  note_allocation();
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-
-void* allocate_aligned(std::size_t size, std::align_val_t alignment) {
-  note_allocation();
-  const auto align = static_cast<std::size_t>(alignment);
-  const std::size_t rounded = (size + align - 1) / align * align;
-  if (void* p = std::aligned_alloc(align, rounded == 0 ? align : rounded)) return p;
-  throw std::bad_alloc();
-}
-
-}  // namespace
-
-void* operator new(std::size_t size) {
-  return allocate(size);
-}
-void* operator new[](std::size_t size) {
-  return allocate(size);
-}
-void* operator new(std::size_t size, const std::nothrow_t&) noexcept {
-  note_allocation();
-  return std::malloc(size == 0 ? 1 : size);
-}
-void* operator new[](std::size_t size, const std::nothrow_t&) noexcept {
-  note_allocation();
-  return std::malloc(size == 0 ? 1 : size);
-}
-void* operator new(std::size_t size, std::align_val_t alignment) {
-  return allocate_aligned(size, alignment);
-}
-void* operator new[](std::size_t size, std::align_val_t alignment) {
-  return allocate_aligned(size, alignment);
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t, std::align_val_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t, std::align_val_t) noexcept {
-  std::free(p);
-}
+namespace allocs = ecat::test::allocations;
 
 namespace ecat::master::test {
 namespace {
@@ -109,7 +36,7 @@ class CountingObserver : public DomainObserver {
 TEST(DomainAllocations, CycleAndHotPathAllocateNothing) {
   bus::BusOptions options;
   options.frame_timeout = std::chrono::seconds(1);  // no spurious loss on a loaded machine
-  options.on_thread_start = [] { t_is_bus_thread = true; };
+  options.on_thread_start = [] { allocs::is_bus_thread = true; };
   auto rig = make_rig(std::move(options));
   ASSERT_TRUE(rig);
   CountingObserver observer;
@@ -142,14 +69,14 @@ TEST(DomainAllocations, CycleAndHotPathAllocateNothing) {
   ASSERT_TRUE(eventually([&] { return domain.read(*in, buffer).ok() && buffer[0] == 1; }));
   (void)domain.drain_changes([](const InputChange&) {});
 
-  g_app_thread_allocations.store(0);
-  g_bus_thread_allocations.store(0);
+  allocs::counted.store(0);
+  allocs::bus_thread.store(0);
   const auto cycles_before = domain.stats().cycle_count;
   const auto changed_before = observer.changed.load();
 
   // Counted phase: the bus thread and this thread.
-  g_count_bus_thread.store(true);
-  t_count_allocations = true;
+  allocs::count_bus_thread.store(true);
+  allocs::count_this_thread = true;
   std::size_t reads_ok = 0;
   std::size_t drained = 0;
   for (int i = 0; i < 400; ++i) {
@@ -164,13 +91,13 @@ TEST(DomainAllocations, CycleAndHotPathAllocateNothing) {
     (void)domain.stats();
     std::this_thread::sleep_for(kPeriod / 2);
   }
-  t_count_allocations = false;
-  g_count_bus_thread.store(false);
+  allocs::count_this_thread = false;
+  allocs::count_bus_thread.store(false);
 
   const auto stats = domain.stats();
   const auto cycles = stats.cycle_count - cycles_before;
-  EXPECT_EQ(g_app_thread_allocations.load(), 0u);
-  EXPECT_EQ(g_bus_thread_allocations.load(), 0u);
+  EXPECT_EQ(allocs::counted.load(), 0u);
+  EXPECT_EQ(allocs::bus_thread.load(), 0u);
   EXPECT_EQ(reads_ok, 400u);
   EXPECT_GT(cycles, 100u);
   EXPECT_GT(drained, 10u);
@@ -188,10 +115,10 @@ TEST(DomainAllocations, CycleAndHotPathAllocateNothing) {
       static_cast<long long>(stats.max_latency.count() / 1000));
 
   // The counters are live: an error message on a counting thread allocates.
-  t_count_allocations = true;
+  allocs::count_this_thread = true;
   EXPECT_FALSE(domain.read(PdoKey{0x7777, 0}, buffer).ok());
-  t_count_allocations = false;
-  EXPECT_GT(g_app_thread_allocations.load(), 0u);
+  allocs::count_this_thread = false;
+  EXPECT_GT(allocs::counted.load(), 0u);
   ASSERT_TRUE(cycler.stop().ok());
 }
 

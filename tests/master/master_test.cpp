@@ -15,6 +15,8 @@
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
+#include "master/master_test_support.hpp"
+
 namespace ecat::master {
 namespace {
 
@@ -72,11 +74,8 @@ SlaveConfig slave(std::string name, ProcessDataRequest pd = ProcessDataRequest::
 class MasterTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    auto ring = sim::parse_ring(kRing);
-    ASSERT_TRUE(ring) << ring.error().describe();
-    auto server = sim::make_server(*ring);
-    ASSERT_TRUE(server) << server.error().describe();
-    server_ = std::move(*server);
+    server_ = test::make_sim_server(kRing);
+    ASSERT_TRUE(server_);
   }
   std::unique_ptr<link::Link> link() {
     if (server_->serving()) server_->stop();
@@ -158,6 +157,7 @@ TEST_F(MasterTest, ReachesOperationalAndExchangesProcessData) {
   }
   EXPECT_TRUE(healthy);
 
+  EXPECT_EQ(master.status().illegal_transitions, 0u);
   ASSERT_TRUE(master.stop());
   EXPECT_EQ(master.state(), MasterState::idle);
   auto again = master.stop();
@@ -277,6 +277,7 @@ TEST_F(MasterTest, ActivateDeactivateCycle) {
   for (const auto& s : master.slaves())
     EXPECT_EQ(s.state, SlaveState::preop) << s.name;
   ASSERT_FALSE(master.deactivate(TargetState::op));
+  EXPECT_EQ(master.status().illegal_transitions, 0u);
   ASSERT_TRUE(master.stop());
 }
 
@@ -384,11 +385,9 @@ TEST_F(MasterTest, StartupSdoFailureIsRetainedAndBlocksSafeop) {
 }
 
 TEST_F(MasterTest, TwoMastersInOneProcess) {
-  auto ring2 = sim::parse_ring(kRing);
-  ASSERT_TRUE(ring2);
-  auto server2 = sim::make_server(*ring2);
+  auto server2 = test::make_sim_server(kRing);
   ASSERT_TRUE(server2);
-  auto link2 = (*server2)->serve_memory();
+  auto link2 = server2->serve_memory();
   ASSERT_TRUE(link2);
   Master a(full_config());
   Master b(full_config());

@@ -48,21 +48,29 @@ inline std::uint16_t station_at(std::size_t position) {
   return static_cast<std::uint16_t>(kFirstStation + position);
 }
 
+// The simulated ring a YAML text describes (not serving yet); a test failure and null when the
+// ring does not build.
+inline std::unique_ptr<sim::SimServer> make_sim_server(std::string_view ring_yaml) {
+  auto ring = sim::parse_ring(ring_yaml);
+  if (!ring) {
+    ADD_FAILURE() << ring.error().describe();
+    return nullptr;
+  }
+  auto server = sim::make_server(*ring);
+  if (!server) {
+    ADD_FAILURE() << server.error().describe();
+    return nullptr;
+  }
+  return std::move(*server);
+}
+
 class SimBench {
  public:
   // The ring (YAML text) served over an in-process memory link.
   static std::unique_ptr<SimBench> make(std::string_view ring_yaml, bus::BusOptions options = {}) {
-    auto ring = sim::parse_ring(ring_yaml);
-    if (!ring) {
-      ADD_FAILURE() << ring.error().describe();
-      return nullptr;
-    }
-    auto server = sim::make_server(*ring);
-    if (!server) {
-      ADD_FAILURE() << server.error().describe();
-      return nullptr;
-    }
-    return start(std::move(*server), std::move(options));
+    auto server = make_sim_server(ring_yaml);
+    if (!server) return nullptr;
+    return start(std::move(server), std::move(options));
   }
   // A segment built by the test (custom ESC hardware, hand-made EEPROMs).
   static std::unique_ptr<SimBench> make(std::unique_ptr<sim::Segment> segment,

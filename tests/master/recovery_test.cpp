@@ -17,6 +17,8 @@
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
+#include "master/master_test_support.hpp"
+
 namespace ecat::master {
 namespace {
 
@@ -36,11 +38,8 @@ simulator:
 class RecoveryTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    auto ring = sim::parse_ring(kRing);
-    ASSERT_TRUE(ring) << ring.error().describe();
-    auto server = sim::make_server(*ring);
-    ASSERT_TRUE(server) << server.error().describe();
-    server_ = std::move(*server);
+    server_ = test::make_sim_server(kRing);
+    ASSERT_TRUE(server_);
     MasterConfig config;
     config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};
     config.retry_interval = 50ms;
@@ -114,6 +113,7 @@ TEST_F(RecoveryTest, PowerCycledSlaveIsReclaimedAndRestored) {
     auto v = (*inputs)->read_input("channel_3");
     return v && as_bool(*v) == true;
   }));
+  EXPECT_EQ(master_->status().illegal_transitions, 0u);
   auto station = server_->read_memory("outputs", 0x0010, 2);
   ASSERT_TRUE(station);
   EXPECT_EQ((*station)[0] | ((*station)[1] << 8), 0x1002);

@@ -9,38 +9,9 @@
 
 #include <ecat/master/signal.hpp>
 
-// Counts allocations so the cycle-path codecs can be shown not to allocate.
-namespace {
-std::atomic<long> g_allocations{0};
+#include "support/counting_allocator.hpp"
 
-void* allocate(std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void release(void* p) noexcept {
-  std::free(p);
-}
-}  // namespace
-
-void* operator new(std::size_t size) {
-  return allocate(size);
-}
-void* operator new[](std::size_t size) {
-  return allocate(size);
-}
-void operator delete(void* p) noexcept {
-  release(p);
-}
-void operator delete[](void* p) noexcept {
-  release(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  release(p);
-}
-void operator delete[](void* p, std::size_t) noexcept {
-  release(p);
-}
+namespace allocs = ecat::test::allocations;
 
 namespace ecat::master {
 namespace {
@@ -245,7 +216,7 @@ TEST(SignalCodec, ScalarCodecsDoNotAllocate) {
   const Signal r = field(SignalType::real64, 64, 64);
   Signal t = field(SignalType::int16, 40, 16);
   t.scale = LinearScale{0.1, 0.0, std::nullopt, std::nullopt};
-  const long before = g_allocations.load();
+  const auto before = allocs::total.load();
   double sum = 0;
   for (int k = 0; k < 1000; ++k) {
     if (!encode(u, Value(std::uint64_t(k)), image).ok()) std::abort();
@@ -255,7 +226,7 @@ TEST(SignalCodec, ScalarCodecsDoNotAllocate) {
     sum += *as_double(*decode(u, image)) + *as_double(*decode(i, image)) +
            *as_double(*decode(r, image)) + *as_double(*decode_scaled(t, image));
   }
-  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_EQ(allocs::total.load() - before, 0u);
   EXPECT_GT(sum, 0);
 }
 

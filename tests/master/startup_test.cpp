@@ -16,6 +16,8 @@
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
+#include "master/master_test_support.hpp"
+
 namespace ecat::master {
 namespace {
 
@@ -34,11 +36,8 @@ simulator:
 class StartupTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    auto ring = sim::parse_ring(kRing);
-    ASSERT_TRUE(ring) << ring.error().describe();
-    auto server = sim::make_server(*ring);
-    ASSERT_TRUE(server) << server.error().describe();
-    server_ = std::move(*server);
+    server_ = test::make_sim_server(kRing);
+    ASSERT_TRUE(server_);
     auto link = server_->serve_memory();
     ASSERT_TRUE(link) << link.error().describe();
     bus_ = std::make_unique<bus::Bus>(std::move(*link));

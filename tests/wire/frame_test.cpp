@@ -11,58 +11,10 @@
 
 #include <ecat/wire/frame.hpp>
 
+#include "support/counting_allocator.hpp"
 #include "support/shared_data.hpp"
 
-// Counts every allocation in this test program, so a test can prove that a code path allocates
-// nothing. Replacing the global operators is the only way to see allocations made anywhere.
-namespace {
-std::atomic<std::size_t> g_allocations{0};
-}  // namespace
-
-// noinline: once inlined, GCC pairs our malloc/free with new/delete expressions at call sites and
-// reports a mismatch that is not there.
-namespace {
-[[gnu::noinline]] void* counted_allocation(std::size_t size) noexcept {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  return std::malloc(size == 0 ? 1 : size);
-}
-[[gnu::noinline]] void release(void* p) noexcept {
-  std::free(p);
-}
-}  // namespace
-
-[[gnu::noinline]] void* operator new(std::size_t size) {
-  if (void* p = counted_allocation(size)) return p;
-  throw std::bad_alloc();
-}
-[[gnu::noinline]] void* operator new[](std::size_t size) {
-  if (void* p = counted_allocation(size)) return p;
-  throw std::bad_alloc();
-}
-[[gnu::noinline]] void* operator new(std::size_t size, const std::nothrow_t&) noexcept {
-  return counted_allocation(size);
-}
-[[gnu::noinline]] void* operator new[](std::size_t size, const std::nothrow_t&) noexcept {
-  return counted_allocation(size);
-}
-[[gnu::noinline]] void operator delete(void* p) noexcept {
-  release(p);
-}
-[[gnu::noinline]] void operator delete[](void* p) noexcept {
-  release(p);
-}
-[[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept {
-  release(p);
-}
-[[gnu::noinline]] void operator delete[](void* p, std::size_t) noexcept {
-  release(p);
-}
-[[gnu::noinline]] void operator delete(void* p, const std::nothrow_t&) noexcept {
-  release(p);
-}
-[[gnu::noinline]] void operator delete[](void* p, const std::nothrow_t&) noexcept {
-  release(p);
-}
+namespace allocs = ecat::test::allocations;
 
 namespace ecat::wire {
 namespace {
@@ -433,7 +385,7 @@ TEST(DecodeFrame, IterationAllocatesNothing) {
   }
   auto frame = builder.finish();
 
-  const std::size_t before = g_allocations.load();
+  const std::size_t before = allocs::total.load();
   auto decoded = decode_frame(frame);
   std::size_t count = 0;
   std::uint32_t sum = 0;
@@ -444,7 +396,7 @@ TEST(DecodeFrame, IterationAllocatesNothing) {
     }
   }
   auto failed = decode_frame(Bytes(frame.data(), 7));  // the error path allocates nothing either
-  const std::size_t after = g_allocations.load();
+  const std::size_t after = allocs::total.load();
 
   EXPECT_EQ(after - before, 0u);
   ASSERT_TRUE(decoded);
@@ -453,7 +405,7 @@ TEST(DecodeFrame, IterationAllocatesNothing) {
   EXPECT_EQ(sum, 780u + 80u);
   // The counter is live: this test would see an allocation.
   auto* probe = new int(1);
-  EXPECT_GT(g_allocations.load(), after);
+  EXPECT_GT(allocs::total.load(), after);
   delete probe;
 }
 

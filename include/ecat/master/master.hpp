@@ -78,6 +78,9 @@ struct MasterStatus {
   std::vector<ActivationFailure> activation_failures;
   std::vector<std::string> runtime_faults;  // critical faults being healed (described)
   std::optional<Failure> last_failure;
+  // State changes the seed's diagram does not draw that were asked for and refused: always 0
+  // unless the master has a bug.
+  std::uint64_t illegal_transitions = 0;
 };
 
 class Master {
