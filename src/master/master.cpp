@@ -538,6 +538,17 @@ struct Master::Impl : DomainObserver {
 
   // ---- teardown ------------------------------------------------------------------------------
 
+  // A stopped session leaves its slaves in INIT, outputs no longer driven by process data (their
+  // SyncManager watchdogs would otherwise trip in SAFEOP/OP). Best effort and bounded: slaves
+  // that are gone or do not answer are left as they are.
+  exec::Task<void> leave_slaves_in_init(std::shared_ptr<Session> s) {
+    s->stopping = true;  // health polls and retries end instead of reacting to the walk down
+    if (s->cycler) (void)s->cycler->stop();
+    if (!s->bus || s->slave_count == 0) co_return;
+    (void)co_await init_all(loop, *s->bus, s->slave_count, s->config.base_station,
+                            {.attempts = 10, .interval = 5ms});
+  }
+
   // Stops the session's cycle and bus; the objects go when the last task holding them ends.
   void teardown() {
     auto s = session;
@@ -579,6 +590,7 @@ struct Master::Impl : DomainObserver {
 
   exec::Task<Result<void>> stop_task() {
     if (!session) co_return Error(Errc::wrong_state, "the master is already stopped");
+    co_await leave_slaves_in_init(session);
     teardown();
     transition(MasterState::idle);
     co_return ok();

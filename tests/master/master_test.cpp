@@ -160,6 +160,12 @@ TEST_F(MasterTest, ReachesOperationalAndExchangesProcessData) {
   EXPECT_EQ(master.status().illegal_transitions, 0u);
   ASSERT_TRUE(master.stop());
   EXPECT_EQ(master.state(), MasterState::idle);
+  // A stopped session leaves every slave in INIT (no outputs left driven by a dead master).
+  server_->with_segment([](sim::Segment& segment, auto&) {
+    for (std::size_t i = 0; i < segment.size(); ++i) {
+      EXPECT_EQ(segment.esc(i).al_state(), wire::AlState::init) << "slave " << i;
+    }
+  });
   auto again = master.stop();
   ASSERT_FALSE(again);
   EXPECT_EQ(again.error().code(), Errc::wrong_state);
