@@ -16,56 +16,23 @@
 #include <unistd.h>
 
 #include "support/shared_data.hpp"
+#include "support/tool_runner.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
 using Bytes = std::vector<std::uint8_t>;
 
-struct ToolRun {
-  int status = -1;
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string tool_path() {
-  if (const char* env = std::getenv("ECAT_TOOL")) return env;
-  return std::string(ECAT_BINARY_DIR) + "/tools/ecat/ecat";
-}
-
 class DecodeTool : public ::testing::Test {
  protected:
   void SetUp() override {
-    ASSERT_TRUE(fs::exists(tool_path()))
-        << "ecat tool not found at " << tool_path() << " (set ECAT_TOOL)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ =
-        fs::temp_directory_path() / fmt::format("ecat-decode-test-{}-{}", ::getpid(), info->name());
-    fs::create_directories(dir_);
+    ASSERT_TRUE(fs::exists(ecat::test::tool_path()))
+        << "ecat tool not found at " << ecat::test::tool_path() << " (set ECAT_TOOL)";
+    tool_ = std::make_unique<ecat::test::ToolRunner>("decode-test");
+    dir_ = tool_->dir();
   }
-  void TearDown() override {
-    std::error_code ignored;
-    fs::remove_all(dir_, ignored);
-  }
-
-  ToolRun run_tool(const std::string& arguments) const {
-    const auto out = dir_ / "stdout";
-    const auto err = dir_ / "stderr";
-    const auto command = fmt::format("'{}' decode {} >'{}' 2>'{}'", tool_path(), arguments,
-                                     out.string(), err.string());
-    const int raw = std::system(command.c_str());
-    ToolRun result;
-    result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-    result.out = read_text(out);
-    result.err = read_text(err);
-    return result;
+  ecat::test::ToolRun run_tool(const std::string& arguments) const {
+    return tool_->run("decode " + arguments);
   }
 
   fs::path write(const std::string& name, const Bytes& bytes) const {
@@ -76,6 +43,7 @@ class DecodeTool : public ::testing::Test {
     return path;
   }
 
+  std::unique_ptr<ecat::test::ToolRunner> tool_;
   fs::path dir_;
 };
 

@@ -18,6 +18,7 @@
 #include <ecat/wire/sii.hpp>
 
 #include "support/shared_data.hpp"
+#include "support/tool_runner.hpp"
 
 namespace {
 
@@ -25,24 +26,6 @@ namespace fs = std::filesystem;
 using ecat::wire::SiiImage;
 using nlohmann::json;
 using ::testing::HasSubstr;
-
-struct ToolRun {
-  int status = -1;
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string tool_path() {
-  if (const char* env = std::getenv("ECAT_TOOL")) return env;
-  return std::string(ECAT_BINARY_DIR) + "/tools/ecat/ecat";
-}
 
 // Inside the category list of every shared image (before its END marker).
 constexpr std::size_t kTruncatedLength = 224;
@@ -99,28 +82,13 @@ SiiImage drive_image() {
 class SiiTool : public ::testing::Test {
  protected:
   void SetUp() override {
-    ASSERT_TRUE(fs::exists(tool_path()))
-        << "ecat tool not found at " << tool_path() << " (set ECAT_TOOL)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / fmt::format("ecat-sii-test-{}-{}", ::getpid(), info->name());
-    fs::create_directories(dir_);
+    ASSERT_TRUE(fs::exists(ecat::test::tool_path()))
+        << "ecat tool not found at " << ecat::test::tool_path() << " (set ECAT_TOOL)";
+    tool_ = std::make_unique<ecat::test::ToolRunner>("sii-test");
+    dir_ = tool_->dir();
   }
-  void TearDown() override {
-    std::error_code ignored;
-    fs::remove_all(dir_, ignored);
-  }
-
-  ToolRun run_tool(const std::string& arguments) const {
-    const auto out = dir_ / "stdout";
-    const auto err = dir_ / "stderr";
-    const auto command =
-        fmt::format("'{}' sii {} >'{}' 2>'{}'", tool_path(), arguments, out.string(), err.string());
-    const int raw = std::system(command.c_str());
-    ToolRun result;
-    result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-    result.out = read_text(out);
-    result.err = read_text(err);
-    return result;
+  ecat::test::ToolRun run_tool(const std::string& arguments) const {
+    return tool_->run("sii " + arguments);
   }
 
   json run_json(const fs::path& file, int expected_status = 0) const {
@@ -138,6 +106,7 @@ class SiiTool : public ::testing::Test {
     return path;
   }
 
+  std::unique_ptr<ecat::test::ToolRunner> tool_;
   fs::path dir_;
 };
 

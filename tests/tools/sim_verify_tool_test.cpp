@@ -20,29 +20,12 @@
 #include <ecat/wire/frame.hpp>
 
 #include "support/shared_data.hpp"
+#include "support/tool_runner.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
 using Bytes = std::vector<std::uint8_t>;
-
-struct ToolRun {
-  int status = -1;
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-std::string tool_path() {
-  if (const char* env = std::getenv("ECAT_TOOL")) return env;
-  return std::string(ECAT_BINARY_DIR) + "/tools/ecat/ecat";
-}
 
 std::string last_line(const std::string& text) {
   std::string t = text;
@@ -81,32 +64,14 @@ Bytes ethernet(const Bytes& payload, bool from_master) {
 class SimVerifyTool : public ::testing::Test {
  protected:
   void SetUp() override {
-    ASSERT_TRUE(fs::exists(tool_path()))
-        << "ecat tool not found at " << tool_path() << " (set ECAT_TOOL)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           fmt::format("ecat-sim-verify-test-{}-{}", ::getpid(), info->name());
-    fs::create_directories(dir_);
+    ASSERT_TRUE(fs::exists(ecat::test::tool_path()))
+        << "ecat tool not found at " << ecat::test::tool_path() << " (set ECAT_TOOL)";
+    tool_ = std::make_unique<ecat::test::ToolRunner>("sim-verify-test");
+    dir_ = tool_->dir();
     verify_ = "sim verify";
     profile_ = "sim profile";
   }
-  void TearDown() override {
-    std::error_code ignored;
-    fs::remove_all(dir_, ignored);
-  }
-
-  ToolRun run(const std::string& arguments) const {
-    const auto out = dir_ / "stdout";
-    const auto err = dir_ / "stderr";
-    const auto command =
-        fmt::format("'{}' {} >'{}' 2>'{}'", tool_path(), arguments, out.string(), err.string());
-    const int raw = std::system(command.c_str());
-    ToolRun result;
-    result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-    result.out = read_text(out);
-    result.err = read_text(err);
-    return result;
-  }
+  ecat::test::ToolRun run(const std::string& arguments) const { return tool_->run(arguments); }
 
   fs::path capture(const std::string& name, const std::vector<Bytes>& packets) const {
     std::vector<ecat::capture::OutputPacket> out;
@@ -130,6 +95,7 @@ class SimVerifyTool : public ::testing::Test {
                     ethernet(frame(0x04, 0x01301000, {0x01, 0}, 1), false)});
   }
 
+  std::unique_ptr<ecat::test::ToolRunner> tool_;
   fs::path dir_;
   std::string verify_;
   std::string profile_;
@@ -192,7 +158,7 @@ TEST_F(SimVerifyTool, ProfileWritesImagesRingAndJson) {
   EXPECT_TRUE(fs::exists(out / "slave0.bin"));
   EXPECT_TRUE(fs::exists(out / "slave1.bin"));
   EXPECT_TRUE(fs::exists(out / "ring.yaml"));
-  const auto j = nlohmann::json::parse(read_text(out / "profile.json"));
+  const auto j = nlohmann::json::parse(ecat::test::read_text_file(out / "profile.json"));
   EXPECT_EQ(j.at("slave_count"), 2);
   EXPECT_EQ(j.at("slaves").at(0).at("station"), "0x1000");
 }
