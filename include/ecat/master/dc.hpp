@@ -1,0 +1,308 @@
+// Distributed clocks on the master side: topology and delay planning from latched receive times,
+// the initialisation sequence (offsets, delays, filters, static drift compensation), the runtime
+// maintenance participant (reference time distribution, difference monitoring, lock state, phase
+// of the cycle against the reference clock's SYNC0 grid), SYNC0/SYNC1 and latch configuration.
+//
+// Time base: system time is nanoseconds since 2000-01-01 00:00 (the EtherCAT epoch). The first
+// DC-capable slave in frame order is the reference clock; the master never disciplines it, it
+// only distributes its time to the others (FRMW of 0x0910) and measures its own phase against it.
+//
+// Sequence a master runs (see also the functions' comments):
+//   1. stations assigned, slaves in INIT or PREOP;
+//   2. co_await initialize_dc(loop, bus, stations_in_ring_order, options)  -> DcInitResult;
+//   3. DcMaintainer m(bus, result, runtime_options); cycler.add(m, Cycler::kPriorityDc);
+//   4. per slave with a SyncConfig, on the way to SAFEOP: co_await configure_sync(...);
+//   5. poll m.status() / m.take_lock_lost(), and poll_latches() for slaves with latches.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/bus/realtime.hpp>
+#include <ecat/exec/event_loop.hpp>
+#include <ecat/exec/task.hpp>
+#include <ecat/master/config.hpp>
+#include <ecat/master/cycler.hpp>
+#include <ecat/result.hpp>
+#include <ecat/wire/sii.hpp>
+
+namespace ecat::master {
+
+// Nanoseconds from 1970-01-01 (Unix epoch) to 2000-01-01 (EtherCAT system time epoch).
+constexpr std::int64_t kDcEpochOffsetNs = 946'684'800'000'000'000;
+
+// The master's notion of system time: CLOCK_REALTIME converted to the EtherCAT epoch.
+std::int64_t dc_master_time_now() noexcept;
+
+// ---------------------------------------------------------------------------------------------
+// Pure planning (no I/O)
+
+// What the master read from one slave after the receive-time latch (BWR 0x0900).
+struct DcSlaveSnapshot {
+  std::uint16_t station = 0;
+  bool dc_supported = false;                 // ESC features 0x0008 bit 2
+  bool receive_times_valid = true;           // the 0x0900 read was answered
+  std::array<std::uint32_t, 4> port_time{};  // 0x0900 + 4 * port
+  std::uint64_t epu_time = 0;                // 0x0918: 64-bit receive time of the frame
+  std::uint16_t dl_status = 0;               // 0x0110 raw
+  std::uint16_t speed_counter_start = 0;     // 0x0930 as read (0 = not present)
+};
+
+// How long an ESC holds a frame internally. Only the parts a master cannot measure matter:
+// the time from port 0 to the first downstream port (through the processing unit) and from a
+// returning port to the next port. They are assumptions; the defaults are those of the ESC model
+// in the simulator (include/ecat/sim/segment.hpp HopTiming), in the range of real EBUS ESCs. An
+// error e in them shifts a delay by at most e/2 per hop where it applies.
+struct DcTimingModel {
+  std::int64_t processing_delay_ns = 100;  // port 0 in -> processing unit -> next port out
+  std::int64_t forwarding_delay_ns = 50;   // a returning frame: port in -> next port out
+};
+
+struct DcPlanOptions {
+  DcTimingModel timing;
+};
+
+struct DcPlannedSlave {
+  std::size_t position = 0;  // ring (frame) order
+  std::uint16_t station = 0;
+  bool dc = false;                    // takes part (DC supported and receive times present)
+  std::optional<std::size_t> parent;  // position of the slave whose port this one hangs on
+  std::uint8_t parent_port = 0;       // 1, 2 or 3 (0 for the first slave: the master)
+  std::array<bool, 4> open_ports{};   // from DL status: communication and loop open
+  // When the frame reaches it, relative to the first slave (fractional: halves accumulate).
+  double arrival_ns = 0.0;
+  std::uint32_t delay_ns = 0;  // to the reference clock (0x0928), DC slaves only
+  std::int64_t offset_ns = 0;  // system time offset (0x0920), DC slaves only
+};
+
+struct DcPlan {
+  std::size_t reference_position = 0;
+  std::uint16_t reference_station = 0;
+  std::vector<DcPlannedSlave> slaves;  // ring order
+  std::vector<std::size_t> dc_positions() const;
+};
+
+// The topology (which slave hangs on which port of which parent; frame order is depth first,
+// ports 0 -> 3 -> 1 -> 2), each DC slave's propagation delay from the reference clock and the
+// offsets that make every system time equal `master_time_ns` (ns since 2000) at the latch. The
+// snapshots are in ring order. Errors name the slave (position and station) and the mismatch:
+// more slaves than open ports, an open port with nothing behind it, non-monotonic receive
+// times, a slave without receive times that others hang on, no DC-capable slave (Errc::not_found).
+Result<DcPlan> plan_dc(std::span<const DcSlaveSnapshot> slaves, std::int64_t master_time_ns,
+                       const DcPlanOptions& options = {});
+
+// 0x092C: bit 31 set = own time smaller than the reference (negative), 30..0 magnitude.
+constexpr std::int64_t decode_dc_difference(std::uint32_t raw) noexcept {
+  const auto magnitude = static_cast<std::int64_t>(raw & 0x7FFF'FFFFu);
+  return (raw & 0x8000'0000u) != 0 ? -magnitude : magnitude;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Initialisation
+
+struct DcInitOptions {
+  DcPlanOptions plan;
+  std::uint8_t system_time_filter_depth = 4;     // 0x0934 (ESC power-up value)
+  std::uint8_t speed_counter_filter_depth = 12;  // 0x0935 (ESC power-up value)
+  // Static drift compensation: FRMWs of the reference time, one per frame, until every
+  // |0x092C| is below `threshold` on `settle_checks` consecutive checks (one every `check_every`
+  // frames) or `max_frames` were sent or `time_limit` passed. At least `min_frames` are sent:
+  // 0x092C is a filtered mean and can look small before the loop has learnt the drift.
+  std::uint32_t min_frames = 500;
+  std::uint32_t max_frames = 15'000;
+  std::uint32_t check_every = 100;
+  std::uint32_t settle_checks = 3;
+  std::chrono::nanoseconds threshold{100};
+  std::chrono::nanoseconds time_limit = std::chrono::seconds(3);
+  std::chrono::nanoseconds transaction_timeout = std::chrono::milliseconds(200);
+  // The master's time (ns since 2000); empty: dc_master_time_now.
+  std::function<std::int64_t()> master_clock;
+};
+
+struct DcInitResult {
+  DcPlan plan;
+  std::uint16_t reference_station = 0;
+  std::uint32_t drift_frames = 0;      // FRMWs sent during static drift compensation
+  bool converged = false;              // every |difference| below the threshold at the end
+  std::int64_t max_difference_ns = 0;  // at the last check
+  std::chrono::nanoseconds duration{0};
+};
+
+// BWR 0x0900 (latch), one transaction of reads for all slaves, plan_dc, FPWR offset/delay,
+// filter depths and filter reset per DC slave, then static drift compensation. `stations` in ring
+// order. A drift compensation that does not converge is not an error (converged = false).
+exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& bus,
+                                               std::vector<std::uint16_t> stations,
+                                               DcInitOptions options = {});
+
+// ---------------------------------------------------------------------------------------------
+// Runtime
+
+struct DcRuntimeOptions {
+  std::chrono::nanoseconds period = std::chrono::milliseconds(1);  // FRMW every period
+  std::uint32_t read_every = 10;  // 0x092C of every DC slave read every N-th tick
+  std::chrono::nanoseconds threshold{100};
+  std::uint32_t lock_samples = 5;  // consecutive samples below the threshold
+  std::size_t history = 1024;      // max-difference samples kept
+  // The SYNC0 grid the cycle's phase is measured against: start + k * cycle (system time).
+  std::uint64_t sync0_start = 0;
+  std::chrono::nanoseconds sync0_cycle{0};  // 0: `period`
+  std::chrono::nanoseconds stale_after{0};  // 0: `period`
+};
+
+struct DcSlaveStatus {
+  std::uint16_t station = 0;
+  std::int64_t difference_ns = 0;          // last 0x092C
+  std::int64_t max_abs_difference_ns = 0;  // since start
+};
+
+struct DcStatus {
+  std::uint16_t reference_station = 0;
+  bool locked = false;
+  std::int64_t max_difference_ns = 0;  // max |difference| of the last sample
+  std::vector<DcSlaveStatus> slaves;
+  std::vector<std::int64_t> history;  // max |difference| per sample, oldest first
+  std::uint64_t samples = 0;
+  std::uint64_t lock_count = 0;    // unlocked -> locked
+  std::uint64_t unlock_count = 0;  // locked -> unlocked
+  std::chrono::steady_clock::time_point last_lock_change{};
+  // Phase of the FRMW at the reference clock against the SYNC0 grid, in (-cycle/2, cycle/2]:
+  // positive = the frame passes the reference after the grid point.
+  std::int64_t phase_error_ns = 0;
+  std::int64_t max_abs_phase_error_ns = 0;
+  std::uint64_t reference_time = 0;  // system time from the last FRMW
+  // The reference clock's rate against the host's steady clock, in ppm (positive: the reference
+  // runs fast), smoothed; what a cycle that follows the reference must add to its period.
+  double reference_drift_ppm = 0.0;
+  std::uint64_t frmw_sent = 0;
+  std::uint64_t frmw_failed = 0;  // not ok (timeout, expired, wkc)
+  std::uint64_t overruns = 0;     // ticks skipped because the last exchange was pending
+};
+
+// Runs on the bus thread through a Cycler (add with Cycler::kPriorityDc). Every tick it sends
+// the FRMW of the reference's 0x0910 as realtime work; every read_every-th tick the same frame
+// also reads every DC slave's 0x092C (realtime, so the sample belongs to the cycle it was taken
+// in and costs no control-thread round trip). Allocation-free per tick.
+class DcMaintainer final : public CyclicParticipant {
+ public:
+  // `dc_stations`: the DC slaves (the reference included). The FRMW expects a WKC equal to the
+  // number of DC slaves.
+  DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
+               std::vector<std::uint16_t> dc_stations, DcRuntimeOptions options = {});
+  DcMaintainer(bus::Bus& bus, const DcInitResult& init, DcRuntimeOptions options = {});
+  ~DcMaintainer() override;
+
+  void on_tick(const bus::CycleTick& tick) override;
+  std::chrono::nanoseconds cycle_period() const noexcept override { return options_.period; }
+
+  DcStatus status() const;
+  bool locked() const noexcept { return locked_.load(std::memory_order_acquire); }
+  // True once after each loss of lock (cleared by the call).
+  bool take_lock_lost() noexcept { return lock_lost_.exchange(false, std::memory_order_acq_rel); }
+  // Called on the bus thread when the lock state changes; must not block or allocate. Set
+  // before adding to the Cycler.
+  void set_lock_callback(std::function<void(bool locked)> callback) {
+    lock_callback_ = std::move(callback);
+  }
+  // Starts counting the lock afresh (e.g. after re-initialising a slave).
+  void reset_lock();
+  const DcRuntimeOptions& options() const noexcept { return options_; }
+
+ private:
+  void on_complete(bus::RealtimeTransaction& rt, bool with_reads);
+
+  bus::Bus& bus_;
+  DcRuntimeOptions options_;
+  std::uint16_t reference_station_ = 0;
+  std::vector<std::uint16_t> stations_;
+  bus::RealtimeTransaction frmw_only_;
+  bus::RealtimeTransaction frmw_and_reads_;
+  bus::RealtimeTransaction* pending_ = nullptr;  // bus thread only
+  std::uint64_t ticks_ = 0;                      // bus thread only
+  std::uint32_t below_ = 0;                      // bus thread only
+  std::atomic<bool> locked_{false};
+  std::atomic<bool> lock_lost_{false};
+  std::atomic<bool> reset_requested_{false};
+  std::function<void(bool)> lock_callback_;
+
+  mutable std::mutex mutex_;  // guards status_ (short sections, no allocation under it)
+  DcStatus status_;
+  std::size_t history_head_ = 0;  // ring buffer in status_.history
+  std::size_t history_size_ = 0;
+  // Rate estimate: per window, the sample with the largest (reference - host reception) offset,
+  // i.e. the least host latency; the rate is the slope between two windows' best samples.
+  std::int64_t window_start_ns_ = 0;
+  std::int64_t window_best_offset_ = 0;
+  std::int64_t window_best_host_ = 0;
+  bool window_open_ = false;
+  std::int64_t last_best_offset_ = 0;
+  std::int64_t last_best_host_ = 0;
+  bool have_last_ = false;
+  bool have_rate_ = false;
+};
+
+// ---------------------------------------------------------------------------------------------
+// SYNC0/SYNC1 and latches
+
+struct DcSyncRequest {
+  std::uint16_t station = 0;
+  std::chrono::nanoseconds cycle = std::chrono::milliseconds(1);  // SYNC0 cycle
+  SyncConfig sync;
+  // The slave's SII (for the DC category), when the master has it.
+  const wire::SiiImage* sii = nullptr;
+  // How far ahead of the slave's current system time the first pulse is placed.
+  std::chrono::nanoseconds start_lead = std::chrono::milliseconds(100);
+  std::chrono::nanoseconds timeout = std::chrono::milliseconds(200);
+};
+
+enum class AssignActivateSource : std::uint8_t { config, sii, mode_default, none };
+
+struct DcSyncResult {
+  std::uint16_t assign_activate = 0;
+  AssignActivateSource source = AssignActivateSource::none;
+  std::uint64_t start_time = 0;  // first SYNC0 (system time); 0 in free run
+  std::uint32_t sync0_cycle_ns = 0;
+  std::uint32_t sync1_cycle_ns = 0;
+  std::uint8_t latch_control[2]{};
+};
+
+// AssignActivate for `sync`: SyncConfig::assign_activate, else the SII DC category's entry for
+// the mode (SYNC0 only / SYNC1), else 0x0300 (sync0) / 0x0700 (sync1); 0 for free run.
+std::pair<std::uint16_t, AssignActivateSource> resolve_assign_activate(
+    const SyncConfig& sync, const wire::SiiImage* sii) noexcept;
+
+// Reads 0x0910, places the first pulse on the next multiple of the cycle at least start_lead
+// ahead (plus sync0_shift), then: 0x0981 = 0, SYNC0/SYNC1 cycles, pulse length (when configured),
+// start time, latch controls 0x09A8/0x09A9, 0x0980 = AssignActivate low byte, 0x0981 = high byte.
+// Free run only deactivates (and configures latches).
+exec::Task<Result<DcSyncResult>> configure_sync(exec::EventLoop& loop, bus::Bus& bus,
+                                                DcSyncRequest request);
+
+struct LatchEvent {
+  std::uint16_t station = 0;
+  std::uint8_t unit = 0;  // LATCH0 / LATCH1
+  LatchEdge edge = LatchEdge::rising;
+  std::uint64_t timestamp_ns = 0;  // system time
+
+  bool operator==(const LatchEvent&) const = default;
+};
+
+// Latch control byte for `unit` from the configured latches (bit 0 rising, bit 1 falling).
+std::uint8_t latch_control(const std::vector<LatchConfig>& latches, std::uint8_t unit) noexcept;
+
+// Reads 0x09AE/0x09AF; for every edge whose event bit is set, reads its timestamp (which
+// acknowledges it) and returns the events (unit 0 before 1, rising before falling).
+exec::Task<Result<std::vector<LatchEvent>>> poll_latches(
+    exec::EventLoop& loop, bus::Bus& bus, std::uint16_t station,
+    std::chrono::nanoseconds timeout = std::chrono::milliseconds(200));
+
+}  // namespace ecat::master

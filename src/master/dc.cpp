@@ -1,0 +1,716 @@
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <utility>
+
+#include <fmt/format.h>
+
+#include <ecat/exec/transact.hpp>
+#include <ecat/master/dc.hpp>
+#include <ecat/wire/bytes.hpp>
+#include <ecat/wire/registers.hpp>
+
+namespace ecat::master {
+
+namespace reg = wire::reg;
+
+namespace {
+
+// Frame order through an ESC: port 0 in, then the downstream ports in this order.
+constexpr std::array<std::uint8_t, 3> kDownstreamOrder{3, 1, 2};
+
+// Signed difference b - a of two 32-bit receive times (they wrap every ~4.3 s).
+std::int64_t diff32(std::uint32_t a, std::uint32_t b) noexcept {
+  return static_cast<std::int32_t>(b - a);
+}
+
+std::string who(std::size_t position, std::uint16_t station) {
+  return fmt::format("slave {} (station 0x{:04X})", position, station);
+}
+
+std::array<bool, 4> open_ports(std::uint16_t dl_status) noexcept {
+  const auto dl = wire::DlStatus::decode(dl_status);
+  std::array<bool, 4> open{};
+  for (std::size_t p = 0; p < 4; ++p) {
+    // A port carries frames onward when communication is up and its loop is open.
+    open[p] = dl.ports[p].communication && !dl.ports[p].loop_closed;
+  }
+  return open;
+}
+
+bool has_receive_times(const DcSlaveSnapshot& s) noexcept {
+  if (!s.receive_times_valid) return false;
+  if (s.epu_time != 0) return true;
+  return std::any_of(s.port_time.begin(), s.port_time.end(),
+                     [](std::uint32_t t) { return t != 0; });
+}
+
+}  // namespace
+
+std::int64_t dc_master_time_now() noexcept {
+  const auto unix_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                           std::chrono::system_clock::now().time_since_epoch())
+                           .count();
+  return unix_ns - kDcEpochOffsetNs;
+}
+
+std::vector<std::size_t> DcPlan::dc_positions() const {
+  std::vector<std::size_t> out;
+  for (const auto& s : slaves)
+    if (s.dc) out.push_back(s.position);
+  return out;
+}
+
+Result<DcPlan> plan_dc(std::span<const DcSlaveSnapshot> slaves, std::int64_t master_time_ns,
+                       const DcPlanOptions& options) {
+  const std::size_t n = slaves.size();
+  if (n == 0) return Error(Errc::invalid_argument, "DC planning: no slaves");
+  const std::int64_t p_delay = options.timing.processing_delay_ns;
+  const std::int64_t f_delay = options.timing.forwarding_delay_ns;
+
+  DcPlan plan;
+  plan.slaves.resize(n);
+  std::vector<bool> times(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    auto& out = plan.slaves[i];
+    out.position = i;
+    out.station = slaves[i].station;
+    out.open_ports = open_ports(slaves[i].dl_status);
+    times[i] = has_receive_times(slaves[i]);
+    out.dc = slaves[i].dc_supported && times[i] && slaves[i].epu_time != 0;
+  }
+
+  // Tree: slave k hangs on the next unused downstream port of the deepest earlier slave that
+  // still has one (depth-first frame order).
+  std::vector<std::array<std::optional<std::size_t>, 4>> children(n);
+  struct Open {
+    std::size_t position;
+    std::size_t next;  // index into kDownstreamOrder
+  };
+  auto next_port = [&](Open& o) -> std::optional<std::uint8_t> {
+    while (o.next < kDownstreamOrder.size()) {
+      const std::uint8_t port = kDownstreamOrder[o.next];
+      if (plan.slaves[o.position].open_ports[port]) return port;
+      ++o.next;
+    }
+    return std::nullopt;
+  };
+  std::vector<Open> stack;
+  stack.push_back({0, 0});
+  for (std::size_t k = 1; k < n; ++k) {
+    std::optional<std::uint8_t> port;
+    while (!stack.empty() && !(port = next_port(stack.back())))
+      stack.pop_back();
+    if (!stack.empty()) {
+      Open& parent = stack.back();
+      plan.slaves[k].parent = parent.position;
+      plan.slaves[k].parent_port = *port;
+      children[parent.position][*port] = k;
+      ++parent.next;
+      stack.push_back({k, 0});
+      continue;
+    }
+    return Error(Errc::malformed,
+                 fmt::format("DC topology: {} has no open port left on any earlier slave to hang "
+                             "on (more slaves than open ports; DL status of slave 0 is 0x{:04X})",
+                             who(k, slaves[k].station), slaves[0].dl_status));
+  }
+  for (auto& o : stack) {
+    if (auto port = next_port(o)) {
+      return Error(Errc::malformed,
+                   fmt::format("DC topology: {} has port {} open (DL status 0x{:04X}) but no "
+                               "slave follows behind it",
+                               who(o.position, slaves[o.position].station), *port,
+                               slaves[o.position].dl_status));
+    }
+  }
+
+  // Arrival times: parents come before their children in ring order.
+  auto last_port = [&](std::size_t i) -> std::optional<std::uint8_t> {
+    std::optional<std::uint8_t> last;
+    for (std::uint8_t port : kDownstreamOrder)
+      if (children[i][port]) last = port;
+    return last;
+  };
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& s = slaves[i];
+    const bool parent = std::any_of(children[i].begin(), children[i].end(),
+                                    [](const auto& c) { return c.has_value(); });
+    if (!parent) continue;
+    if (!times[i]) {
+      return Error(Errc::unsupported,
+                   fmt::format("DC topology: {} has no receive times (0x0900 not answered or all "
+                               "zero) but slaves hang on it; their delays cannot be measured",
+                               who(i, s.station)));
+    }
+    std::uint32_t prev = s.port_time[0];
+    std::uint8_t prev_port = 0;
+    bool first = true;
+    for (std::uint8_t port : kDownstreamOrder) {
+      if (!children[i][port]) continue;
+      const std::size_t c = *children[i][port];
+      const std::int64_t loop = diff32(prev, s.port_time[port]);
+      if (loop <= 0) {
+        return Error(Errc::malformed,
+                     fmt::format("DC receive times: {}: port {} time 0x{:08X} is not after port {} "
+                                 "time 0x{:08X} (frame order 0, 3, 1, 2)",
+                                 who(i, s.station), port, s.port_time[port], prev_port, prev));
+      }
+      // The child's own turnaround: what it measured between its port 0 and its last port,
+      // plus the parts no port latches (an assumption of the timing model).
+      std::int64_t turnaround = p_delay + f_delay;
+      if (auto lp = last_port(c)) {
+        const std::int64_t span = diff32(slaves[c].port_time[0], slaves[c].port_time[*lp]);
+        turnaround = span + 2 * f_delay;
+      }
+      const std::int64_t out = first ? p_delay : f_delay;
+      const double cable = std::max(0.0, static_cast<double>(loop - out - turnaround) / 2.0);
+      plan.slaves[c].arrival_ns = plan.slaves[i].arrival_ns +
+                                  static_cast<double>(diff32(s.port_time[0], prev) + out) + cable;
+      prev = s.port_time[port];
+      prev_port = port;
+      first = false;
+    }
+  }
+
+  const auto ref = std::find_if(plan.slaves.begin(), plan.slaves.end(),
+                                [](const DcPlannedSlave& s) { return s.dc; });
+  if (ref == plan.slaves.end()) {
+    return Error(Errc::not_found,
+                 fmt::format("DC: no DC-capable slave among {} (ESC feature bit 2 with a system "
+                             "time unit answering 0x0918)",
+                             n));
+  }
+  plan.reference_position = ref->position;
+  plan.reference_station = ref->station;
+  for (auto& s : plan.slaves) {
+    if (!s.dc) continue;
+    const auto delay = std::max<std::int64_t>(
+        0, static_cast<std::int64_t>(std::llround(s.arrival_ns - ref->arrival_ns)));
+    s.delay_ns = static_cast<std::uint32_t>(std::min<std::int64_t>(delay, 0xFFFF'FFFF));
+    // System time at the latch must read master_time + delay (the frame reached it `delay`
+    // after the reference). Modular arithmetic: offsets are two's complement in the ESC.
+    s.offset_ns = static_cast<std::int64_t>(static_cast<std::uint64_t>(master_time_ns) +
+                                            s.delay_ns - slaves[s.position].epu_time);
+  }
+  return plan;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Initialisation
+
+namespace {
+
+Error wkc_error(std::string_view what, std::uint16_t station, std::uint16_t wkc) {
+  return Error(Errc::wkc_mismatch,
+               fmt::format("DC init: {} of station 0x{:04X}: working counter {}, expected 1", what,
+                           station, wkc));
+}
+
+std::array<std::uint8_t, 8> le64(std::uint64_t v) {
+  std::array<std::uint8_t, 8> b{};
+  wire::store_le64(b.data(), v);
+  return b;
+}
+std::array<std::uint8_t, 4> le32(std::uint32_t v) {
+  std::array<std::uint8_t, 4> b{};
+  wire::store_le32(b.data(), v);
+  return b;
+}
+std::array<std::uint8_t, 2> le16(std::uint16_t v) {
+  std::array<std::uint8_t, 2> b{};
+  wire::store_le16(b.data(), v);
+  return b;
+}
+
+}  // namespace
+
+exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& bus,
+                                               std::vector<std::uint16_t> stations,
+                                               DcInitOptions options) {
+  using SteadyClock = std::chrono::steady_clock;
+  const auto started = SteadyClock::now();
+  if (stations.empty()) co_return Error(Errc::invalid_argument, "DC init: no slaves");
+  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
+  const bus::TransactOptions reliable{options.transaction_timeout, 2};
+  const bus::TransactOptions once{options.transaction_timeout, 0};
+
+  // 1. Latch the receive times of every port of every slave.
+  const std::int64_t before = master_clock();
+  {
+    bus::Transaction tx;
+    const std::uint8_t zero[4]{};
+    tx.bwr(reg::kDcReceiveTimePort0, zero);
+    auto reply = co_await exec::transact(loop, bus, std::move(tx), once);
+    if (!reply) co_return reply.error().context("DC init: receive time latch (BWR 0x0900)");
+    if (reply->wkc(0) == 0) {
+      co_return Error(Errc::wkc_mismatch,
+                      "DC init: receive time latch (BWR 0x0900) not acknowledged by any slave");
+    }
+  }
+  const std::int64_t after = master_clock();
+  const std::int64_t master_time = before + (after - before) / 2;
+
+  // 2. Everything the plan needs, one transaction for all slaves.
+  std::vector<DcSlaveSnapshot> snapshots(stations.size());
+  {
+    bus::Transaction tx;
+    tx.reserve(stations.size() * 5, stations.size() * 30);
+    for (std::uint16_t station : stations) {
+      tx.fprd(station, reg::kFeatures, 2);
+      tx.fprd(station, reg::kDlStatus, 2);
+      tx.fprd(station, reg::kDcReceiveTimePort0, 16);
+      tx.fprd(station, reg::kDcReceiveTimeEpu, 8);
+      tx.fprd(station, reg::kDcSpeedCounterStart, 2);
+    }
+    auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
+    if (!reply) co_return reply.error().context("DC init: reading receive times");
+    for (std::size_t i = 0; i < stations.size(); ++i) {
+      const std::size_t base = i * 5;
+      auto& s = snapshots[i];
+      s.station = stations[i];
+      if (reply->wkc(base) != 1)
+        co_return wkc_error("read of 0x0008", stations[i], reply->wkc(base));
+      if (reply->wkc(base + 1) != 1) {
+        co_return wkc_error("read of DL status 0x0110", stations[i], reply->wkc(base + 1));
+      }
+      s.dc_supported =
+          wire::EscFeatures::decode(wire::load_le16(reply->data(base).data())).dc_supported;
+      s.dl_status = wire::load_le16(reply->data(base + 1).data());
+      s.receive_times_valid = reply->wkc(base + 2) == 1;
+      if (s.receive_times_valid) {
+        for (std::size_t p = 0; p < 4; ++p)
+          s.port_time[p] = wire::load_le32(reply->data(base + 2).data() + 4 * p);
+      }
+      // No answer from 0x0918: the ESC's system time unit is absent or powered down.
+      if (reply->wkc(base + 3) == 1) {
+        s.epu_time = wire::load_le64(reply->data(base + 3).data());
+      } else {
+        s.dc_supported = false;
+      }
+      if (reply->wkc(base + 4) == 1)
+        s.speed_counter_start = wire::load_le16(reply->data(base + 4).data());
+    }
+  }
+
+  auto plan = plan_dc(snapshots, master_time, options.plan);
+  if (!plan) co_return std::move(plan).error();
+
+  DcInitResult result;
+  result.plan = std::move(*plan);
+  result.reference_station = result.plan.reference_station;
+  std::vector<std::uint16_t> dc_stations;
+  for (const auto& s : result.plan.slaves)
+    if (s.dc) dc_stations.push_back(s.station);
+
+  // 3. Offsets, delays, filter depths, filter reset.
+  {
+    bus::Transaction tx;
+    for (const auto& s : result.plan.slaves) {
+      if (!s.dc) continue;
+      tx.fpwr(s.station, reg::kDcSystemTimeOffset, le64(static_cast<std::uint64_t>(s.offset_ns)),
+              1);
+      tx.fpwr(s.station, reg::kDcSystemTimeDelay, le32(s.delay_ns), 1);
+      const std::uint8_t depths[2] = {options.system_time_filter_depth,
+                                      options.speed_counter_filter_depth};
+      tx.fpwr(s.station, reg::kDcSystemTimeFilterDepth, depths, 1);
+      std::uint16_t start = snapshots[s.position].speed_counter_start;
+      if (start == 0) start = 0x1000;  // the ESC's power-up value
+      tx.fpwr(s.station, reg::kDcSpeedCounterStart, le16(start), 1);
+    }
+    auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
+    if (!reply) co_return reply.error().context("DC init: writing offsets, delays and filters");
+  }
+
+  // 4. Static drift compensation: the reference time to everybody, one frame at a time.
+  const std::uint16_t ref = result.reference_station;
+  const auto deadline = started + options.time_limit;
+  std::uint32_t sent = 0;
+  const std::uint32_t check_every = std::max<std::uint32_t>(1, options.check_every);
+  const std::int64_t threshold = options.threshold.count();
+  std::uint32_t settled = 0;
+  while (true) {
+    const bool check = sent + 1 >= options.min_frames && (sent + 1) % check_every == 0;
+    bus::Transaction tx;
+    tx.frmw(ref, reg::kDcSystemTime, 8);
+    if (check) {
+      for (std::uint16_t st : dc_stations)
+        tx.fprd(st, reg::kDcSystemTimeDifference, 4);
+    }
+    auto reply = co_await exec::transact(loop, bus, std::move(tx), once);
+    ++sent;
+    if (!reply) {
+      if (reply.error().code() != Errc::timeout) {
+        co_return reply.error().context("DC init: drift compensation");
+      }
+    } else if (check) {
+      std::int64_t worst = 0;
+      for (std::size_t k = 0; k < dc_stations.size(); ++k) {
+        if (reply->wkc(k + 1) != 1) {
+          co_return wkc_error("read of 0x092C", dc_stations[k], reply->wkc(k + 1));
+        }
+        const auto d = decode_dc_difference(wire::load_le32(reply->data(k + 1).data()));
+        worst = std::max(worst, std::abs(d));
+      }
+      result.max_difference_ns = worst;
+      result.converged = worst < threshold;
+      settled = result.converged ? settled + 1 : 0;
+      if (settled >= std::max<std::uint32_t>(1, options.settle_checks)) break;
+    }
+    if (sent >= options.max_frames || SteadyClock::now() >= deadline) break;
+  }
+  result.drift_frames = sent;
+  result.duration = SteadyClock::now() - started;
+  co_return result;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Runtime
+
+namespace {
+
+bus::Transaction maintainer_layout(std::uint16_t reference, std::span<const std::uint16_t> stations,
+                                   bool with_reads) {
+  bus::Transaction tx;
+  tx.frmw(reference, reg::kDcSystemTime, 8);
+  if (with_reads) {
+    for (std::uint16_t st : stations)
+      tx.fprd(st, reg::kDcSystemTimeDifference, 4);
+  }
+  return tx;
+}
+
+std::vector<std::uint16_t> dc_stations_of(const DcInitResult& init) {
+  std::vector<std::uint16_t> out;
+  for (const auto& s : init.plan.slaves)
+    if (s.dc) out.push_back(s.station);
+  return out;
+}
+
+}  // namespace
+
+DcMaintainer::DcMaintainer(bus::Bus& bus, const DcInitResult& init, DcRuntimeOptions options)
+    : DcMaintainer(bus, init.reference_station, dc_stations_of(init), std::move(options)) {}
+
+DcMaintainer::DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
+                           std::vector<std::uint16_t> dc_stations, DcRuntimeOptions options)
+    : bus_(bus),
+      options_(std::move(options)),
+      reference_station_(reference_station),
+      stations_(std::move(dc_stations)),
+      frmw_only_(maintainer_layout(reference_station, stations_, false)),
+      frmw_and_reads_(maintainer_layout(reference_station, stations_, true)) {
+  if (options_.read_every == 0) options_.read_every = 1;
+  if (options_.history == 0) options_.history = 1;
+  if (options_.sync0_cycle.count() <= 0) options_.sync0_cycle = options_.period;
+  if (options_.stale_after.count() <= 0) options_.stale_after = options_.period;
+  status_.reference_station = reference_station;
+  status_.slaves.resize(stations_.size());
+  for (std::size_t i = 0; i < stations_.size(); ++i)
+    status_.slaves[i].station = stations_[i];
+  status_.history.assign(options_.history, 0);
+  frmw_only_.set_completion([this](bus::RealtimeTransaction& rt) { on_complete(rt, false); });
+  frmw_and_reads_.set_completion([this](bus::RealtimeTransaction& rt) { on_complete(rt, true); });
+}
+
+DcMaintainer::~DcMaintainer() {
+  detach_from_cycler();
+  // The bus completes every pending exchange (reply, timeout, expiry or stop).
+  frmw_only_.wait();
+  frmw_and_reads_.wait();
+}
+
+void DcMaintainer::reset_lock() {
+  reset_requested_.store(true, std::memory_order_release);
+}
+
+void DcMaintainer::on_tick(const bus::CycleTick& tick) {
+  (void)tick;
+  if (pending_ != nullptr && pending_->pending()) {
+    std::lock_guard lock(mutex_);
+    ++status_.overruns;
+    return;
+  }
+  const bool reads = ticks_ % options_.read_every == 0;
+  ++ticks_;
+  bus::RealtimeTransaction& rt = reads ? frmw_and_reads_ : frmw_only_;
+  pending_ = &rt;
+  if (!bus_.submit_realtime(rt, options_.stale_after)) {
+    pending_ = nullptr;
+    std::lock_guard lock(mutex_);
+    ++status_.frmw_failed;
+  }
+}
+
+void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
+  const bool replied =
+      rt.status() == bus::RealtimeStatus::ok || rt.status() == bus::RealtimeStatus::wkc_mismatch;
+  const bool frmw_ok = replied && rt.wkc(0) > 0;
+  std::optional<bool> lock_change;
+  {
+    std::lock_guard lock(mutex_);
+    ++status_.frmw_sent;
+    if (!frmw_ok) {
+      ++status_.frmw_failed;
+    } else {
+      const std::uint64_t ref_time = wire::load_le64(rt.input(0).data());
+      status_.reference_time = ref_time;
+      const auto cycle = static_cast<std::uint64_t>(options_.sync0_cycle.count());
+      const auto icycle = static_cast<std::int64_t>(cycle);
+      const auto since = static_cast<std::int64_t>(ref_time - options_.sync0_start);
+      std::int64_t phase = ((since % icycle) + icycle) % icycle;
+      if (phase > icycle / 2) phase -= icycle;
+      status_.phase_error_ns = phase;
+      status_.max_abs_phase_error_ns = std::max(status_.max_abs_phase_error_ns, std::abs(phase));
+      std::int64_t host = rt.reply_timestamp_ns();
+      if (host == 0) {
+        host = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                   std::chrono::steady_clock::now().time_since_epoch())
+                   .count();
+      }
+      // Host reception time = when the frame passed the reference + a latency that is never
+      // negative; the window's least-latency sample is the cleanest view of the reference.
+      const std::int64_t offset = static_cast<std::int64_t>(ref_time) - host;
+      if (!window_open_) {
+        window_open_ = true;
+        window_start_ns_ = host;
+        window_best_offset_ = offset;
+        window_best_host_ = host;
+      } else if (offset > window_best_offset_) {
+        window_best_offset_ = offset;
+        window_best_host_ = host;
+      }
+      if (host - window_start_ns_ >= 200'000'000) {
+        if (have_last_ && window_best_host_ > last_best_host_) {
+          const auto dh = static_cast<double>(window_best_host_ - last_best_host_);
+          const double ppm =
+              static_cast<double>(window_best_offset_ - last_best_offset_) / dh * 1e6;
+          status_.reference_drift_ppm =
+              have_rate_ ? 0.7 * status_.reference_drift_ppm + 0.3 * ppm : ppm;
+          have_rate_ = true;
+        }
+        last_best_offset_ = window_best_offset_;
+        last_best_host_ = window_best_host_;
+        have_last_ = true;
+        window_open_ = false;
+      }
+    }
+    if (reset_requested_.exchange(false, std::memory_order_acq_rel)) {
+      below_ = 0;
+      if (locked_.load(std::memory_order_relaxed)) {
+        locked_.store(false, std::memory_order_release);
+        ++status_.unlock_count;
+        status_.last_lock_change = std::chrono::steady_clock::now();
+        lock_change = false;
+      }
+    }
+    if (with_reads && replied) {
+      std::int64_t worst = 0;
+      bool all_answered = true;
+      for (std::size_t i = 0; i < stations_.size(); ++i) {
+        if (rt.wkc(i + 1) != 1) {
+          all_answered = false;
+          continue;
+        }
+        const auto d = decode_dc_difference(wire::load_le32(rt.input(i + 1).data()));
+        auto& s = status_.slaves[i];
+        s.difference_ns = d;
+        s.max_abs_difference_ns = std::max(s.max_abs_difference_ns, std::abs(d));
+        worst = std::max(worst, std::abs(d));
+      }
+      ++status_.samples;
+      status_.max_difference_ns = worst;
+      status_.history[history_head_] = worst;
+      history_head_ = (history_head_ + 1) % status_.history.size();
+      history_size_ = std::min(history_size_ + 1, status_.history.size());
+      const bool good = all_answered && worst < options_.threshold.count();
+      const bool was_locked = locked_.load(std::memory_order_relaxed);
+      if (good) {
+        ++below_;
+        if (!was_locked && below_ >= options_.lock_samples) {
+          locked_.store(true, std::memory_order_release);
+          ++status_.lock_count;
+          status_.last_lock_change = std::chrono::steady_clock::now();
+          lock_change = true;
+        }
+      } else {
+        below_ = 0;
+        if (was_locked) {
+          locked_.store(false, std::memory_order_release);
+          ++status_.unlock_count;
+          status_.last_lock_change = std::chrono::steady_clock::now();
+          lock_change = false;
+        }
+      }
+    }
+    status_.locked = locked_.load(std::memory_order_relaxed);
+  }
+  if (lock_change) {
+    if (!*lock_change) lock_lost_.store(true, std::memory_order_release);
+    if (lock_callback_) lock_callback_(*lock_change);
+  }
+}
+
+DcStatus DcMaintainer::status() const {
+  std::lock_guard lock(mutex_);
+  DcStatus out = status_;
+  // Unroll the ring buffer: oldest first, only the samples taken.
+  out.history.clear();
+  out.history.reserve(history_size_);
+  const std::size_t cap = status_.history.size();
+  const std::size_t first = (history_head_ + cap - history_size_) % cap;
+  for (std::size_t k = 0; k < history_size_; ++k)
+    out.history.push_back(status_.history[(first + k) % cap]);
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// SYNC and latches
+
+namespace {
+
+constexpr std::uint16_t kSync0Bit = 0x0200;
+constexpr std::uint16_t kSync1Bit = 0x0400;
+
+}  // namespace
+
+std::pair<std::uint16_t, AssignActivateSource> resolve_assign_activate(
+    const SyncConfig& sync, const wire::SiiImage* sii) noexcept {
+  if (sync.mode == SyncMode::free_run) return {0, AssignActivateSource::none};
+  if (sync.assign_activate) return {*sync.assign_activate, AssignActivateSource::config};
+  if (sii != nullptr) {
+    const bool want_sync1 = sync.mode == SyncMode::sync1;
+    for (const auto& op : sii->dc) {
+      const std::uint16_t aa = op.assign_activate;
+      if ((aa & kSync0Bit) == 0) continue;
+      if (((aa & kSync1Bit) != 0) == want_sync1) return {aa, AssignActivateSource::sii};
+    }
+  }
+  return {sync.mode == SyncMode::sync1 ? std::uint16_t{0x0700} : std::uint16_t{0x0300},
+          AssignActivateSource::mode_default};
+}
+
+std::uint8_t latch_control(const std::vector<LatchConfig>& latches, std::uint8_t unit) noexcept {
+  std::uint8_t control = 0;
+  for (const auto& l : latches) {
+    if (l.unit != unit) continue;
+    control |= l.edge == LatchEdge::rising ? 0x01 : 0x02;
+  }
+  return control;
+}
+
+exec::Task<Result<DcSyncResult>> configure_sync(exec::EventLoop& loop, bus::Bus& bus,
+                                                DcSyncRequest request) {
+  const std::uint16_t st = request.station;
+  const bus::TransactOptions options{request.timeout, 2};
+  DcSyncResult result;
+  const auto [aa, source] = resolve_assign_activate(request.sync, request.sii);
+  result.assign_activate = aa;
+  result.source = source;
+  result.latch_control[0] = latch_control(request.sync.latches, 0);
+  result.latch_control[1] = latch_control(request.sync.latches, 1);
+  const bool cyclic = request.sync.mode != SyncMode::free_run;
+
+  if (cyclic) {
+    if (request.cycle.count() <= 0 || request.cycle.count() > 0xFFFF'FFFF) {
+      co_return Error(Errc::invalid_argument,
+                      fmt::format("DC sync of station 0x{:04X}: cycle {} ns outside 1..2^32-1", st,
+                                  request.cycle.count()));
+    }
+    if (request.sync.sync1_offset.count() < 0 || request.sync.sync1_offset.count() > 0xFFFF'FFFF) {
+      co_return Error(Errc::invalid_argument,
+                      fmt::format("DC sync of station 0x{:04X}: SYNC1 offset {} ns outside "
+                                  "0..2^32-1",
+                                  st, request.sync.sync1_offset.count()));
+    }
+    bus::Transaction tx;
+    tx.fprd(st, reg::kDcSystemTime, 8);
+    auto now = co_await exec::transact(loop, bus, std::move(tx), options);
+    if (!now)
+      co_return now.error().context(fmt::format("DC sync of station 0x{:04X}: reading 0x0910", st));
+    if (now->wkc(0) != 1) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("DC sync of station 0x{:04X}: read of 0x0910 got working "
+                                  "counter {} (no DC system time)",
+                                  st, now->wkc(0)));
+    }
+    const std::uint64_t time = wire::load_le64(now->data(0).data());
+    const auto cycle = static_cast<std::uint64_t>(request.cycle.count());
+    const auto lead =
+        static_cast<std::uint64_t>(std::max<std::int64_t>(0, request.start_lead.count()));
+    // The next grid point at least `lead` ahead: every slave configured with the same cycle
+    // lands on the same grid (multiples of the cycle in system time), whenever it is configured.
+    const std::uint64_t start = ((time + lead) / cycle + 1) * cycle;
+    result.start_time = start + static_cast<std::uint64_t>(request.sync.sync0_shift.count());
+    result.sync0_cycle_ns = static_cast<std::uint32_t>(cycle);
+    result.sync1_cycle_ns = static_cast<std::uint32_t>(request.sync.sync1_offset.count());
+  }
+
+  bus::Transaction tx;
+  const std::uint8_t off = 0;
+  tx.fpwr(st, reg::kDcActivation, wire::Bytes(&off, 1), 1);
+  if (cyclic) {
+    tx.fpwr(st, reg::kDcSync0CycleTime, le32(result.sync0_cycle_ns), 1);
+    tx.fpwr(st, reg::kDcSync1CycleTime, le32(result.sync1_cycle_ns), 1);
+    if (request.sync.sync0_pulse.count() > 0) {
+      // 10 ns units; many ESCs take it from the SII only and ignore the write (no WKC check).
+      const auto units = static_cast<std::uint16_t>(
+          std::min<std::int64_t>(0xFFFF, request.sync.sync0_pulse.count() / 10));
+      tx.fpwr(st, reg::kDcPulseLength, le16(units));
+    }
+    tx.fpwr(st, reg::kDcStartTime, le64(result.start_time), 1);
+  }
+  tx.fpwr(st, reg::kDcLatch0Control, wire::Bytes(&result.latch_control[0], 1), 1);
+  tx.fpwr(st, reg::kDcLatch1Control, wire::Bytes(&result.latch_control[1], 1), 1);
+  if (cyclic) {
+    const std::uint8_t low = static_cast<std::uint8_t>(aa & 0xFF);
+    const std::uint8_t high = static_cast<std::uint8_t>(aa >> 8);
+    tx.fpwr(st, reg::kDcCyclicUnitControl, wire::Bytes(&low, 1), 1);
+    tx.fpwr(st, reg::kDcActivation, wire::Bytes(&high, 1), 1);
+  }
+  auto written = co_await exec::transact(loop, bus, std::move(tx), options);
+  if (!written) {
+    co_return written.error().context(
+        fmt::format("DC sync of station 0x{:04X}: writing the "
+                    "SYNC configuration",
+                    st));
+  }
+  co_return result;
+}
+
+exec::Task<Result<std::vector<LatchEvent>>> poll_latches(exec::EventLoop& loop, bus::Bus& bus,
+                                                         std::uint16_t station,
+                                                         std::chrono::nanoseconds timeout) {
+  const bus::TransactOptions options{timeout, 2};
+  bus::Transaction status_tx;
+  status_tx.fprd(station, reg::kDcLatch0Status, 2, 1);
+  auto status = co_await exec::transact(loop, bus, std::move(status_tx), options);
+  if (!status) {
+    co_return status.error().context(
+        fmt::format("latch poll of station 0x{:04X}: reading 0x09AE", station));
+  }
+  const std::uint8_t bits[2] = {status->data(0)[0], status->data(0)[1]};
+  static constexpr std::uint16_t kTimestamp[2][2] = {
+      {reg::kDcLatch0PositiveEdge, reg::kDcLatch0NegativeEdge},
+      {reg::kDcLatch1PositiveEdge, reg::kDcLatch1NegativeEdge}};
+  std::vector<LatchEvent> events;
+  bus::Transaction tx;
+  for (std::uint8_t unit = 0; unit < 2; ++unit) {
+    for (std::uint8_t edge = 0; edge < 2; ++edge) {
+      if ((bits[unit] & (1u << edge)) == 0) continue;
+      tx.fprd(station, kTimestamp[unit][edge], 8, 1);
+      events.push_back({station, unit, edge == 0 ? LatchEdge::rising : LatchEdge::falling, 0});
+    }
+  }
+  if (events.empty()) co_return events;
+  auto times = co_await exec::transact(loop, bus, std::move(tx), options);
+  if (!times) {
+    co_return times.error().context(
+        fmt::format("latch poll of station 0x{:04X}: reading timestamps", station));
+  }
+  for (std::size_t i = 0; i < events.size(); ++i)
+    events[i].timestamp_ns = wire::load_le64(times->data(i).data());
+  co_return events;
+}
+
+}  // namespace ecat::master
