@@ -58,6 +58,49 @@ Mailbox::ReplyFilter sdo_filter(std::uint16_t index, std::uint8_t subindex) {
   };
 }
 
+// The failure as an error's value (coe_client.hpp).
+Error tagged(Error error, SdoFailure failure) {
+  return std::move(error).with_value(kSdoFailureValueBase + static_cast<std::uint32_t>(failure));
+}
+
+// Which stage of a transfer a reply answers, and the server command specifier it must carry.
+enum class Stage : std::uint8_t { upload_init, upload_segment, download_init, download_segment };
+
+constexpr std::uint8_t expected_specifier(Stage stage) {
+  switch (stage) {
+    case Stage::upload_init:
+      return 2;
+    case Stage::upload_segment:
+      return 0;
+    case Stage::download_init:
+      return 3;
+    case Stage::download_segment:
+      return 1;
+  }
+  return 0;
+}
+
+constexpr bool is_segment(Stage stage) {
+  return stage == Stage::upload_segment || stage == Stage::download_segment;
+}
+
+constexpr std::string_view specifier_name(std::uint8_t scs) {
+  switch (scs) {
+    case 0:
+      return "upload segment response";
+    case 1:
+      return "download segment response";
+    case 2:
+      return "initiate upload response";
+    case 3:
+      return "initiate download response";
+    case 4:
+      return "abort";
+    default:
+      return "unknown command";
+  }
+}
+
 bool info_filter(const MailboxMessage& message) {
   return coe_service_of(message) != wire::CoeService::sdo_response;
 }
@@ -75,9 +118,10 @@ class Transfer {
 
   const std::string& what() const noexcept { return what_; }
 
-  // Sends `request` and returns the SDO reply; a slave's abort becomes Errc::sdo_abort.
+  // Sends `request` and returns the SDO reply; a slave's abort becomes Errc::sdo_abort. A reply
+  // that breaks the protocol fails with its SdoFailure and the transfer is aborted on the slave.
   exec::Task<Result<wire::SdoMessage>> exchange(const Mailbox::Guard& guard,
-                                                const wire::SdoMessage& request) {
+                                                const wire::SdoMessage& request, Stage stage) {
     auto data = wire::encode_sdo(request);
     if (!data) co_return data.error().context(Errc::invalid_argument, what_);
     auto reply = co_await mailbox_.exchange(guard, wire::MailboxType::coe, std::move(*data),
@@ -89,46 +133,85 @@ class Transfer {
       }
       co_return reply.error();
     }
-    co_return parse(*reply);
+    last_command_ = reply->data.size() > wire::kCoeHeaderSize ? reply->data[wire::kCoeHeaderSize]
+                                                              : std::uint8_t{0};
+    auto parsed = parse(*reply, stage);
+    if (!parsed && parsed.error().code() != Errc::sdo_abort) {
+      co_await abort(guard, wire::SdoAbortCode::general_error);
+    }
+    co_return parsed;
   }
 
   // A protocol violation by the slave: the transfer is aborted on its side too.
-  exec::Task<Error> violation(const Mailbox::Guard& guard, Errc code, std::string problem,
-                              wire::SdoAbortCode abort_code) {
+  exec::Task<Error> violation(const Mailbox::Guard& guard, Errc code, SdoFailure failure,
+                              std::string problem, wire::SdoAbortCode abort_code) {
     co_await abort(guard, abort_code);
-    co_return Error(code, fmt::format("{}: {}", what_, problem));
+    co_return tagged(Error(code, fmt::format("{}: {}", what_, problem)), failure);
   }
 
+  // The command byte of the last SDO reply (0 when it had none).
+  std::uint8_t last_command() const noexcept { return last_command_; }
+
  private:
-  Result<wire::SdoMessage> parse(const MailboxMessage& reply) {
+  Result<wire::SdoMessage> parse(const MailboxMessage& reply, Stage stage) {
     const auto station = mailbox_.station();
+    if (reply.expected_counter) {
+      return tagged(
+          Error(Errc::mailbox_error,
+                fmt::format("{}: the reply of slave {:#06x} carries mailbox counter {}, "
+                            "expected {} (the slave's sequence skipped a message)",
+                            what_, station, reply.header.counter, *reply.expected_counter)),
+          SdoFailure::counter_mismatch);
+    }
     if (reply.header.type != wire::MailboxType::coe) {
-      return Error(Errc::mailbox_error,
-                   fmt::format("{}: slave {:#06x} answered with a {} mailbox (type {}) instead of "
-                               "CoE",
-                               what_, station, wire::to_string(reply.header.type),
-                               static_cast<unsigned>(reply.header.type)));
+      return tagged(
+          Error(Errc::mailbox_error,
+                fmt::format("{}: slave {:#06x} answered with a {} mailbox (type {}) instead of "
+                            "CoE",
+                            what_, station, wire::to_string(reply.header.type),
+                            static_cast<unsigned>(reply.header.type))),
+          SdoFailure::unexpected_mailbox_type);
     }
     auto coe = wire::decode_coe_header(reply.data);
     if (!coe) {
-      return coe.error().context(
-          Errc::malformed, fmt::format("{}: the reply of slave {:#06x} has no complete CoE header "
-                                       "({} bytes of mailbox data)",
-                                       what_, station, reply.data.size()));
+      return tagged(coe.error().context(Errc::malformed,
+                                        fmt::format("{}: the reply of slave {:#06x} has no "
+                                                    "complete CoE header ({} bytes of mailbox "
+                                                    "data)",
+                                                    what_, station, reply.data.size())),
+                    SdoFailure::invalid_response);
     }
     if (coe->service != wire::CoeService::sdo_response) {
-      return Error(Errc::mailbox_error,
-                   fmt::format("{}: slave {:#06x} answered with CoE service {} ({}), expected 3 "
-                               "(SDO response)",
-                               what_, station, static_cast<unsigned>(coe->service),
-                               wire::to_string(coe->service)));
+      return tagged(
+          Error(Errc::mailbox_error,
+                fmt::format("{}: slave {:#06x} answered with CoE service {} ({}), expected 3 "
+                            "(SDO response)",
+                            what_, station, static_cast<unsigned>(coe->service),
+                            wire::to_string(coe->service))),
+          SdoFailure::unexpected_coe_service);
     }
     auto message = wire::decode_sdo(reply.data);
     if (!message) {
-      return message.error().context(
-          Errc::malformed, fmt::format("{}: slave {:#06x} sent an SDO response that does not "
-                                       "decode ({})",
-                                       what_, station, hex_bytes(reply.data)));
+      // A reply of the wrong kind for this stage that does not decode either (a bare command
+      // byte) is named by its command; one of the right kind is broken.
+      const std::uint8_t scs = static_cast<std::uint8_t>(last_command_ >> 5);
+      if (reply.data.size() > wire::kCoeHeaderSize && scs != 4 &&
+          scs != expected_specifier(stage)) {
+        return tagged(
+            Error(Errc::mailbox_error,
+                  fmt::format("{}: slave {:#06x} answered with SDO command {:#04x} ({}) instead "
+                              "of the expected {} ({} bytes: {})",
+                              what_, station, last_command_, specifier_name(scs),
+                              specifier_name(expected_specifier(stage)), reply.data.size(),
+                              hex_bytes(reply.data))),
+            is_segment(stage) ? SdoFailure::unexpected_segment_command
+                              : SdoFailure::unexpected_sdo_command);
+      }
+      return tagged(message.error().context(Errc::malformed,
+                                            fmt::format("{}: slave {:#06x} sent an SDO response "
+                                                        "that does not decode ({})",
+                                                        what_, station, hex_bytes(reply.data))),
+                    SdoFailure::invalid_response);
     }
     if (const auto* a = std::get_if<wire::SdoAbort>(&*message)) {
       return Error(Errc::sdo_abort, fmt::format("{} aborted: 0x{:08X} {}", what_, a->code,
@@ -152,6 +235,7 @@ class Transfer {
   std::uint16_t index_;
   std::uint8_t subindex_;
   SdoOptions options_;
+  std::uint8_t last_command_ = 0;
 };
 
 std::string transfer_name(const char* direction, const Mailbox& mailbox, std::uint16_t index,
@@ -185,6 +269,67 @@ std::optional<std::uint32_t> sdo_abort_code(const Error& error) noexcept {
   return error.code_value(Errc::sdo_abort);
 }
 
+std::string_view to_string(SdoFailure failure) noexcept {
+  switch (failure) {
+    case SdoFailure::none:
+      return "none";
+    case SdoFailure::aborted:
+      return "aborted";
+    case SdoFailure::response_timeout:
+      return "response_timeout";
+    case SdoFailure::mailbox_error:
+      return "mailbox_error";
+    case SdoFailure::counter_mismatch:
+      return "counter_mismatch";
+    case SdoFailure::unexpected_mailbox_type:
+      return "unexpected_mailbox_type";
+    case SdoFailure::unexpected_coe_service:
+      return "unexpected_coe_service";
+    case SdoFailure::invalid_response:
+      return "invalid_response";
+    case SdoFailure::unexpected_sdo_command:
+      return "unexpected_sdo_command";
+    case SdoFailure::unexpected_object:
+      return "unexpected_object";
+    case SdoFailure::toggle_mismatch:
+      return "toggle_mismatch";
+    case SdoFailure::invalid_segment_padding:
+      return "invalid_segment_padding";
+    case SdoFailure::unexpected_segment_command:
+      return "unexpected_segment_command";
+    case SdoFailure::size_mismatch:
+      return "size_mismatch";
+    case SdoFailure::too_large:
+      return "too_large";
+  }
+  return "unknown";
+}
+
+SdoFailure sdo_failure(const Error& error) noexcept {
+  constexpr auto kLast = static_cast<std::uint32_t>(SdoFailure::too_large);
+  for (const Error* e = &error; e != nullptr; e = e->cause()) {
+    const auto& value = e->value();
+    if (value && *value >= kSdoFailureValueBase && *value <= kSdoFailureValueBase + kLast &&
+        (e->code() == Errc::mailbox_error || e->code() == Errc::malformed ||
+         e->code() == Errc::out_of_range)) {
+      return static_cast<SdoFailure>(*value - kSdoFailureValueBase);
+    }
+    switch (e->code()) {
+      case Errc::sdo_abort:
+        if (value) return SdoFailure::aborted;
+        break;
+      case Errc::timeout:
+        return SdoFailure::response_timeout;
+      case Errc::mailbox_error:
+        if (value && *value <= 0xFFFF) return SdoFailure::mailbox_error;
+        break;
+      default:
+        break;
+    }
+  }
+  return SdoFailure::none;
+}
+
 exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::uint16_t index,
                                                          std::uint8_t subindex,
                                                          SdoOptions options) {
@@ -197,19 +342,20 @@ exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::
   }
   auto guard = co_await mailbox.lock();
   auto reply = co_await transfer.exchange(
-      guard, wire::SdoInitiateUploadRequest{index, subindex, options.complete_access});
+      guard, wire::SdoInitiateUploadRequest{index, subindex, options.complete_access},
+      Stage::upload_init);
   if (!reply) co_return reply.error();
   const auto* init = std::get_if<wire::SdoInitiateUploadResponse>(&*reply);
   if (init == nullptr) {
     co_return co_await transfer.violation(
-        guard, Errc::mailbox_error,
+        guard, Errc::mailbox_error, SdoFailure::unexpected_sdo_command,
         fmt::format("the slave answered with an SDO {} instead of an initiate upload response",
                     wire::to_string(*reply)),
         wire::SdoAbortCode::command_specifier_unknown);
   }
   if (init->index != index || init->subindex != subindex) {
     co_return co_await transfer.violation(
-        guard, Errc::mailbox_error,
+        guard, Errc::mailbox_error, SdoFailure::unexpected_object,
         fmt::format("the initiate upload response names {} instead",
                     object_name(init->index, init->subindex)),
         wire::SdoAbortCode::general_error);
@@ -221,7 +367,7 @@ exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::
   const std::size_t size = init->complete_size;
   if (sized && size > options.max_upload_size) {
     co_return co_await transfer.violation(
-        guard, Errc::out_of_range,
+        guard, Errc::out_of_range, SdoFailure::too_large,
         fmt::format("the slave announces {} bytes, more than SdoOptions::max_upload_size ({})",
                     size, options.max_upload_size),
         wire::SdoAbortCode::out_of_memory);
@@ -234,12 +380,13 @@ exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::
 
   bool toggle = false;
   for (std::size_t segment = 1;; ++segment) {
-    auto seg_reply = co_await transfer.exchange(guard, wire::SdoUploadSegmentRequest{toggle});
+    auto seg_reply = co_await transfer.exchange(guard, wire::SdoUploadSegmentRequest{toggle},
+                                                Stage::upload_segment);
     if (!seg_reply) co_return seg_reply.error();
     const auto* seg = std::get_if<wire::SdoUploadSegmentResponse>(&*seg_reply);
     if (seg == nullptr) {
       co_return co_await transfer.violation(
-          guard, Errc::mailbox_error,
+          guard, Errc::mailbox_error, SdoFailure::unexpected_segment_command,
           fmt::format("the slave answered segment {} with an SDO {} instead of an upload segment "
                       "response",
                       segment, wire::to_string(*seg_reply)),
@@ -247,16 +394,23 @@ exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::
     }
     if (seg->toggle != toggle) {
       co_return co_await transfer.violation(
-          guard, Errc::mailbox_error,
+          guard, Errc::mailbox_error, SdoFailure::toggle_mismatch,
           fmt::format("upload segment {} carries toggle bit {}, expected {}", segment,
                       seg->toggle ? 1 : 0, toggle ? 1 : 0),
           wire::SdoAbortCode::toggle_bit_not_changed);
+    }
+    // Seven unused bytes of seven: a segment without data (a slave's padding gone wrong).
+    if (seg->data.empty() && ((transfer.last_command() >> 1) & 0x07) == 0x07) {
+      co_return co_await transfer.violation(
+          guard, Errc::malformed, SdoFailure::invalid_segment_padding,
+          fmt::format("upload segment {} declares 7 unused bytes: it carries no data", segment),
+          wire::SdoAbortCode::general_error);
     }
     value.insert(value.end(), seg->data.begin(), seg->data.end());
     const std::size_t limit = sized ? size : options.max_upload_size;
     if (value.size() > limit) {
       co_return co_await transfer.violation(
-          guard, Errc::malformed,
+          guard, Errc::malformed, SdoFailure::size_mismatch,
           sized ? fmt::format("the slave sent {} bytes by segment {}, more than the {} it "
                               "announced",
                               value.size(), segment, size)
@@ -269,8 +423,10 @@ exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::
     toggle = !toggle;
   }
   if (sized && value.size() != size) {
-    co_return Error(Errc::malformed, fmt::format("{}: the slave announced {} bytes and sent {}",
-                                                 what, size, value.size()));
+    co_return tagged(Error(Errc::malformed, fmt::format("{}: the slave announced {} bytes and "
+                                                        "sent {}",
+                                                        what, size, value.size())),
+                     SdoFailure::size_mismatch);
   }
   co_return value;
 }
@@ -311,19 +467,19 @@ exec::Task<Result<void>> download_sdo(Mailbox& mailbox, std::uint16_t index, std
   }
 
   auto guard = co_await mailbox.lock();
-  auto reply = co_await transfer.exchange(guard, init);
+  auto reply = co_await transfer.exchange(guard, init, Stage::download_init);
   if (!reply) co_return reply.error();
   const auto* response = std::get_if<wire::SdoInitiateDownloadResponse>(&*reply);
   if (response == nullptr) {
     co_return co_await transfer.violation(
-        guard, Errc::mailbox_error,
+        guard, Errc::mailbox_error, SdoFailure::unexpected_sdo_command,
         fmt::format("the slave answered with an SDO {} instead of an initiate download response",
                     wire::to_string(*reply)),
         wire::SdoAbortCode::command_specifier_unknown);
   }
   if (response->index != index || response->subindex != subindex) {
     co_return co_await transfer.violation(
-        guard, Errc::mailbox_error,
+        guard, Errc::mailbox_error, SdoFailure::unexpected_object,
         fmt::format("the initiate download response names {} instead",
                     object_name(response->index, response->subindex)),
         wire::SdoAbortCode::general_error);
@@ -339,12 +495,12 @@ exec::Task<Result<void>> download_sdo(Mailbox& mailbox, std::uint16_t index, std
     request.last = sent + n == data.size();
     request.data.assign(data.begin() + static_cast<std::ptrdiff_t>(sent),
                         data.begin() + static_cast<std::ptrdiff_t>(sent + n));
-    auto seg_reply = co_await transfer.exchange(guard, request);
+    auto seg_reply = co_await transfer.exchange(guard, request, Stage::download_segment);
     if (!seg_reply) co_return seg_reply.error();
     const auto* seg = std::get_if<wire::SdoDownloadSegmentResponse>(&*seg_reply);
     if (seg == nullptr) {
       co_return co_await transfer.violation(
-          guard, Errc::mailbox_error,
+          guard, Errc::mailbox_error, SdoFailure::unexpected_segment_command,
           fmt::format("the slave answered segment {} with an SDO {} instead of a download "
                       "segment response",
                       segment, wire::to_string(*seg_reply)),
@@ -352,7 +508,7 @@ exec::Task<Result<void>> download_sdo(Mailbox& mailbox, std::uint16_t index, std
     }
     if (seg->toggle != toggle) {
       co_return co_await transfer.violation(
-          guard, Errc::mailbox_error,
+          guard, Errc::mailbox_error, SdoFailure::toggle_mismatch,
           fmt::format("download segment response {} carries toggle bit {}, expected {}", segment,
                       seg->toggle ? 1 : 0, toggle ? 1 : 0),
           wire::SdoAbortCode::toggle_bit_not_changed);

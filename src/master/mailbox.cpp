@@ -99,6 +99,17 @@ Result<Mailbox::Arrival> Mailbox::take(wire::Bytes raw, const ReplyFilter& is_re
   MailboxMessage message;
   message.header = decoded->header;
   message.data.assign(decoded->data.begin(), decoded->data.end());
+  // The slave numbers its messages 1..7 (0: it does not count). The same counter again is
+  // tolerated (a slave repeating with new content); any other jump is reported with the message.
+  if (const std::uint8_t counter = decoded->header.counter; counter != 0) {
+    if (reply_counter_ != 0 && counter != reply_counter_ &&
+        counter != wire::next_mailbox_counter(reply_counter_)) {
+      message.expected_counter = wire::next_mailbox_counter(reply_counter_);
+      reply_counter_ = 0;
+    } else {
+      reply_counter_ = counter;
+    }
+  }
 
   if (is_emergency(message)) {
     auto emergency = wire::decode_emergency(message.data);
@@ -379,6 +390,7 @@ std::vector<MailboxMessage> Mailbox::unsolicited() {
 
 void Mailbox::reset() noexcept {
   counter_ = 0;
+  reply_counter_ = 0;
   last_message_.clear();
   inbox_.clear();
 }

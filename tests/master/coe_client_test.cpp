@@ -348,10 +348,11 @@ TEST_F(CoeClientTest, CorruptRepliesFailWithWhatWasWrong) {
        "expected 3 (SDO response)"},
       {protocol_fault(0x2002, 1, S::upload_segment, K::toggle_mismatch), Errc::mailbox_error,
        "SDO upload 0x2002:01 of slave 0x1002: upload segment 1 carries toggle bit 1, expected 0"},
-      // One command byte and no data: not even a segment.
-      {protocol_fault(0x2002, 1, S::upload_segment, K::segment_command, 0x20), Errc::malformed,
-       "SDO upload 0x2002:01 of slave 0x1002: slave 0x1002 sent an SDO response that does not "
-       "decode (00 30 20)"},
+      // One command byte and no data, of another kind: named by its command (SdoFailure).
+      {protocol_fault(0x2002, 1, S::upload_segment, K::segment_command, 0x20), Errc::mailbox_error,
+       "SDO upload 0x2002:01 of slave 0x1002: slave 0x1002 answered with SDO command 0x20 "
+       "(download segment response) instead of the expected upload segment response (3 bytes: "
+       "00 30 20)"},
       // A segment where the initiate response belongs.
       {protocol_fault(0x2002, 1, S::upload_init, K::sdo_command, 0x00), Errc::mailbox_error,
        "SDO upload 0x2002:01 of slave 0x1002: the slave answered with an SDO upload segment "

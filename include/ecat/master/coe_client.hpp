@@ -23,6 +23,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <optional>
+#include <string_view>
 #include <type_traits>
 #include <vector>
 
@@ -55,6 +56,33 @@ exec::Task<Result<void>> download_sdo(Mailbox& mailbox, std::uint16_t index, std
 
 // The SDO abort code of an Errc::sdo_abort error (searching its causes), or nullopt.
 std::optional<std::uint32_t> sdo_abort_code(const Error& error) noexcept;
+
+// Why a transfer failed, for callers that branch on it (the message says it in words, with the
+// expected and received values). Protocol violations are Errc::mailbox_error (Errc::malformed
+// for replies that do not decode) whose value() is kSdoFailureValueBase + the failure; the value
+// is outside the 16-bit range of mailbox error details, so the two never mix.
+enum class SdoFailure : std::uint8_t {
+  none,                        // not a failed transfer (or a cause none of these names)
+  aborted,                     // the slave aborted: sdo_abort_code() has the code
+  response_timeout,            // no reply within SdoOptions::timeout (Errc::timeout)
+  mailbox_error,               // the slave answered with a mailbox error reply (value: detail)
+  counter_mismatch,            // the reply's mailbox counter broke the slave's sequence
+  unexpected_mailbox_type,     // the reply is not a CoE mailbox
+  unexpected_coe_service,      // the reply is CoE but not an SDO response
+  invalid_response,            // no complete CoE header, or an SDO response that does not decode
+  unexpected_sdo_command,      // an initiate stage answered with another kind of SDO
+  unexpected_object,           // the initiate response names another index:subindex
+  toggle_mismatch,             // a segment response carries the wrong toggle bit
+  invalid_segment_padding,     // a segment's unused-bytes count leaves it no data
+  unexpected_segment_command,  // a segment stage answered with another command
+  size_mismatch,               // the uploaded bytes disagree with the announced size
+  too_large,                   // the announced size exceeds SdoOptions::max_upload_size
+};
+inline constexpr std::uint32_t kSdoFailureValueBase = 0x0001'0000;
+// "aborted", "response_timeout", "counter_mismatch", ...
+std::string_view to_string(SdoFailure failure) noexcept;
+// The failure an error (or the first of its causes that names one) stands for.
+SdoFailure sdo_failure(const Error& error) noexcept;
 
 // ---- Typed helpers for integral values (little-endian, exactly sizeof(T) bytes) -------------
 

@@ -32,6 +32,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -62,6 +63,11 @@ struct MailboxConfig {
 struct MailboxMessage {
   wire::MailboxHeader header{};
   std::vector<std::uint8_t> data;
+  // Set when the message's counter breaks the slave's own sequence (neither the counter of the
+  // slave's previous message nor the one after it): the counter the sequence called for. A
+  // message was lost or the slave miscounts; the mailbox follows the slave again from the next
+  // message on. Never set for the first message after reset() (nothing to compare with).
+  std::optional<std::uint8_t> expected_counter;
 };
 
 struct MailboxOptions {
@@ -184,6 +190,8 @@ class Mailbox {
   MailboxOptions options_;
   exec::AsyncMutex mutex_;
   std::uint8_t counter_ = 0;
+  // The counter of the slave's last message (0: not known yet, or lost after a break).
+  std::uint8_t reply_counter_ = 0;
   // The last message read (header + data), to recognise a repeat of it.
   std::vector<std::uint8_t> last_message_;
   // Messages read in a send's frame, not yet looked at.
