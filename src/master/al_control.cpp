@@ -24,9 +24,14 @@ constexpr std::array kPreopToOp{AlState::safeop, AlState::op};
 constexpr std::array kOpToPreop{AlState::safeop, AlState::preop};
 constexpr std::array kOpToInit{AlState::safeop, AlState::preop, AlState::init};
 constexpr std::array kBootToPreop{AlState::init, AlState::preop};
+constexpr std::array kBootToSafeop{AlState::init, AlState::preop, AlState::safeop};
+constexpr std::array kBootToOp{AlState::init, AlState::preop, AlState::safeop, AlState::op};
+constexpr std::array kViaInitToBoot{AlState::init, AlState::bootstrap};
+constexpr std::array kOpToBoot{AlState::safeop, AlState::preop, AlState::init, AlState::bootstrap};
 
-// The reference design's path table (upstream-inventory §2.6) plus the ways out of BOOT that a
-// slave accepts (BOOT -> INIT only, so BOOT -> PREOP walks through INIT).
+// The reference design's path table (upstream-inventory §2.6) plus the ways into and out of BOOT
+// that a slave accepts: BOOT is entered from INIT and left to INIT only, so every other way to or
+// from it walks through INIT (the reference has only INIT <-> BOOT and BOOT -> PREOP).
 constexpr std::array kPaths{
     AlPathRow{AlState::init, AlState::preop, kToPreop},
     AlPathRow{AlState::init, AlState::bootstrap, kToBoot},
@@ -34,6 +39,11 @@ constexpr std::array kPaths{
     AlPathRow{AlState::init, AlState::op, kInitToOp},
     AlPathRow{AlState::bootstrap, AlState::init, kToInit},
     AlPathRow{AlState::bootstrap, AlState::preop, kBootToPreop},
+    AlPathRow{AlState::bootstrap, AlState::safeop, kBootToSafeop},
+    AlPathRow{AlState::bootstrap, AlState::op, kBootToOp},
+    AlPathRow{AlState::preop, AlState::bootstrap, kViaInitToBoot},
+    AlPathRow{AlState::safeop, AlState::bootstrap, kViaInitToBoot},
+    AlPathRow{AlState::op, AlState::bootstrap, kOpToBoot},
     AlPathRow{AlState::preop, AlState::safeop, kToSafeop},
     AlPathRow{AlState::preop, AlState::op, kPreopToOp},
     AlPathRow{AlState::preop, AlState::init, kToInit},

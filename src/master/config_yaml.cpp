@@ -58,11 +58,24 @@ class Reader {
     return std::chrono::nanoseconds(*v * unit_ns);
   }
 
+  // raw:IFACE, udp:HOST:PORT or sim:FILE (checked for shape here; opened by the tool).
+  Result<std::string> to_backend(const SpecNode& node, std::string_view path) {
+    if (!node.is_scalar()) return spec_error(ctx_, node, path, "must be a string");
+    const std::string& text = node.text;
+    for (std::string_view prefix : {"raw:", "udp:", "sim:"}) {
+      if (text.size() > prefix.size() && std::string_view(text).starts_with(prefix)) return text;
+    }
+    return spec_error(
+        ctx_, node, path,
+        fmt::format("\"{}\" is not a backend (raw:IFACE, udp:HOST:PORT or sim:FILE)", text));
+  }
+
   Result<void> master(const SpecNode& node, MasterConfig& config) {
     const std::string path = "master";
     if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
     if (auto r = check_keys(ctx_, node, path,
-                            {"base_station", "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
+                            {"backend", "cycle_priority", "cycle_cpu", "base_station",
+                             "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
                              "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms"});
         !r) {
       return r.error();
@@ -70,7 +83,19 @@ class Reader {
     for (const auto& e : node.entries) {
       const auto p = join_path(path, e.key);
       const SpecNode& v = e.value;
-      if (e.key == "base_station") {
+      if (e.key == "backend") {
+        auto text = to_backend(v, p);
+        if (!text) return text.error();
+        config.backend = std::move(*text);
+      } else if (e.key == "cycle_priority") {
+        auto n = to_int(ctx_, v, p, 1, 99);
+        if (!n) return n.error();
+        config.cycle_thread.fifo_priority = static_cast<int>(*n);
+      } else if (e.key == "cycle_cpu") {
+        auto n = to_int(ctx_, v, p, 0, 1023);
+        if (!n) return n.error();
+        config.cycle_thread.cpu = static_cast<int>(*n);
+      } else if (e.key == "base_station") {
         auto n = to_int(ctx_, v, p, 1, 0xFFFF);
         if (!n) return n.error();
         config.base_station = static_cast<std::uint16_t>(*n);
@@ -339,10 +364,47 @@ class Reader {
     return ok();
   }
 
+  // [{name, unit: 0|1, edge: rising|falling}, ...]
+  Result<std::vector<LatchConfig>> latch_list(const SpecNode& node, const std::string& path) {
+    if (!node.is_sequence()) return spec_error(ctx_, node, path, "must be a list");
+    std::vector<LatchConfig> out;
+    for (std::size_t i = 0; i < node.items.size(); ++i) {
+      const SpecNode& item = node.items[i];
+      const auto p = fmt::format("{}[{}]", path, i);
+      if (!item.is_mapping()) return spec_error(ctx_, item, p, "must be a mapping");
+      if (auto r = check_keys(ctx_, item, p, {"name", "unit", "edge"}); !r) return r.error();
+      LatchConfig latch;
+      for (const auto& e : item.entries) {
+        const auto key_path = join_path(p, e.key);
+        if (e.key == "name") {
+          auto x = to_text(ctx_, e.value, key_path);
+          if (!x) return x.error();
+          latch.name = *x;
+        } else if (e.key == "unit") {
+          auto x = to_int(ctx_, e.value, key_path, 0, 1);
+          if (!x) return x.error();
+          latch.unit = static_cast<std::uint8_t>(*x);
+        } else {
+          auto x = to_text(ctx_, e.value, key_path);
+          if (!x) return x.error();
+          if (*x != "rising" && *x != "falling") {
+            return spec_error(ctx_, e.value, key_path,
+                              fmt::format("unknown edge \"{}\" (rising, falling)", *x));
+          }
+          latch.edge = *x == "rising" ? LatchEdge::rising : LatchEdge::falling;
+        }
+      }
+      if (latch.name.empty()) return spec_error(ctx_, item, p, "a latch needs a name");
+      out.push_back(std::move(latch));
+    }
+    return out;
+  }
+
   Result<SyncConfig> sync(const SpecNode& node, const std::string& path) {
     if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
-    if (auto r = check_keys(ctx_, node, path,
-                            {"mode", "pulse_ns", "shift_ns", "sync1_offset_ns", "assign_activate"});
+    if (auto r = check_keys(
+            ctx_, node, path,
+            {"mode", "pulse_ns", "shift_ns", "sync1_offset_ns", "assign_activate", "latches"});
         !r) {
       return r.error();
     }
@@ -366,6 +428,10 @@ class Reader {
         auto x = to_int(ctx_, e.value, p, 0, 0xFFFF);
         if (!x) return x.error();
         sc.assign_activate = static_cast<std::uint16_t>(*x);
+      } else if (e.key == "latches") {
+        auto latches = latch_list(e.value, p);
+        if (!latches) return latches.error();
+        sc.latches = std::move(*latches);
       } else {
         auto x = to_int(ctx_, e.value, p, e.key == "shift_ns" ? -1'000'000'000 : 0, 4'000'000'000);
         if (!x) return x.error();

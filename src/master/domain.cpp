@@ -1089,6 +1089,7 @@ void Domain::classify_valid(Exchange& x, Clock::time_point now) noexcept {
     p.degraded = false;
     if (DomainObserver* o = observer_.load(std::memory_order_acquire)) o->on_cycle_recovered(*this);
   }
+  if (config_.on_cycle) config_.on_cycle(*this, CycleOutcome{x.cycle, true, std::nullopt});
 }
 
 void Domain::classify_invalid(std::uint64_t cycle, CycleInvalid invalid,
@@ -1122,6 +1123,7 @@ void Domain::classify_invalid(std::uint64_t cycle, CycleInvalid invalid,
       if (observer) observer->on_stopped(*this, invalid, p.miss_streak);
     }
   }
+  if (config_.on_cycle) config_.on_cycle(*this, CycleOutcome{cycle, false, invalid});
 }
 
 void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept {

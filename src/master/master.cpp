@@ -12,6 +12,7 @@
 #include <ecat/master/master.hpp>
 #include <ecat/master/startup.hpp>
 
+#include "cycle_thread.hpp"
 #include "session.hpp"
 #include "slave_impl.hpp"
 
@@ -182,6 +183,8 @@ struct Master::Impl : DomainObserver {
       co_return r.error();
     }
     if (s->stopping) co_return Error(Errc::closed, "stopped");
+    if (s->config.dc) co_await init_dc(s);
+    if (s->stopping) co_return Error(Errc::closed, "stopped");
 
     // Domains (open: slaves register their SyncManagers while reaching PREOP).
     std::uint32_t base = 0;
@@ -204,6 +207,13 @@ struct Master::Impl : DomainObserver {
       std::lock_guard lock(mutex);  // Master::slave() reads the list from other threads
       s->slaves.push_back(std::move(slave));
     }
+    bool any_active = false;
+    for (const auto& slave : s->slaves) {
+      if (slave->impl().config.target != TargetState::preop) any_active = true;
+    }
+    // Held in PREOP from the start: no health polls until activation (the reference hands its
+    // slaves no poll period then; scenarios 47 and 51).
+    s->health_held = !any_active;
     transition(MasterState::awaiting_preop);
     const auto deadline = exec::Clock::now() + s->config.awaiting_preop_timeout;
     std::vector<exec::Task<Result<void>>> ups;
@@ -217,10 +227,6 @@ struct Master::Impl : DomainObserver {
     // Quiesce: let late startup traffic drain before the first public exchange.
     co_await exec::sleep_for(loop, 2ms);
 
-    bool any_active = false;
-    for (const auto& slave : s->slaves) {
-      if (slave->impl().config.target != TargetState::preop) any_active = true;
-    }
     if (!any_active) {
       {
         std::lock_guard lock(mutex);
@@ -237,6 +243,96 @@ struct Master::Impl : DomainObserver {
     co_return ok();
   }
 
+  // ---- distributed clocks --------------------------------------------------------------------
+
+  // Delays, offsets and static drift compensation for every DC slave (all slaves in INIT). A ring
+  // without a DC-capable slave, or a failed initialisation, runs without DC: dc_status() says why.
+  exec::Task<void> init_dc(std::shared_ptr<Session> s) {
+    std::vector<std::uint16_t> stations;
+    for (std::uint16_t pos = 0; pos < s->slave_count; ++pos)
+      stations.push_back(static_cast<std::uint16_t>(s->config.base_station + pos));
+    DcInitOptions options;
+    options.threshold = s->config.dc->lock_threshold;
+    auto result = co_await initialize_dc(loop, *s->bus, std::move(stations), options);
+    std::lock_guard lock(mutex);
+    if (result) {
+      s->dc_init = std::move(*result);
+    } else {
+      s->dc_error = result.error();
+    }
+  }
+
+  // The runtime participant: the reference time to every DC slave each DC cycle, differences
+  // sampled, lock tracked. Created once per session, at the first activation.
+  void start_dc(Session& s) {
+    if (!s.dc_init || s.dc || !s.config.dc) return;
+    DcRuntimeOptions options;
+    options.period = s.config.dc->cycle;
+    options.threshold = s.config.dc->lock_threshold;
+    auto dc = std::make_unique<DcMaintainer>(*s.bus, *s.dc_init, options);
+    // Lock changes are rare: the bus thread only posts them to the loop.
+    dc->set_lock_callback([this, weak = s.weak_from_this()](bool locked) {
+      loop.post([this, weak, locked] {
+        if (auto sp = weak.lock()) on_dc_lock(sp, locked);
+      });
+    });
+    if (auto added = s.cycler->add(*dc, Cycler::kPriorityDc); !added) {
+      std::lock_guard lock(mutex);
+      s.dc_error = added.error().context("starting the distributed-clock runtime");
+      return;
+    }
+    std::lock_guard lock(mutex);
+    s.dc = std::move(dc);
+  }
+
+  void on_dc_lock(const std::shared_ptr<Session>& s, bool locked) {
+    if (s->stopping || session != s || !s->dc) return;
+    static const std::string kKey = "dc:lock";
+    if (locked) {
+      bool raised;
+      {
+        std::lock_guard lock(mutex);
+        raised = runtime_faults.count(kKey) != 0;
+      }
+      if (raised) clear_runtime_fault(kKey);
+      return;
+    }
+    const auto status = s->dc->status();
+    const auto why = fmt::format(
+        "distributed clocks lost lock: max system-time difference {} ns (threshold {} ns)",
+        status.max_difference_ns, s->config.dc->lock_threshold.count());
+    switch (s->config.dc->lock_policy) {
+      case LockPolicy::advisory:
+        return;
+      case LockPolicy::recovering:
+        raise_runtime_fault(kKey, why);
+        return;
+      case LockPolicy::fatal:
+        fail("dc_lock_lost", Error(Errc::stale, why));
+        teardown();
+        transition(MasterState::idle);
+        return;
+    }
+  }
+
+  // DcConfig::await_lock: activation drives the slaves up only once the clocks are locked.
+  exec::Task<Result<void>> await_lock(std::shared_ptr<Session> s) {
+    if (!s->config.dc || !s->config.dc->await_lock || !s->dc) co_return ok();
+    const auto deadline = exec::Clock::now() + s->config.dc->lock_timeout;
+    while (!s->dc->locked()) {
+      if (s->stopping) co_return Error(Errc::closed, "session stopped");
+      if (exec::Clock::now() >= deadline) {
+        co_return Error(
+            Errc::timeout,
+            fmt::format("distributed clocks did not lock within {} ms (max difference "
+                        "{} ns)",
+                        ms(s->config.dc->lock_timeout).count(), s->dc->status().max_difference_ns));
+      }
+      co_await exec::sleep_for(loop, 1ms);
+    }
+    co_return ok();
+  }
+
   // ---- activation ----------------------------------------------------------------------------
 
   // Brings every activatable slave to min(desired, its target), starting the domains first.
@@ -249,12 +345,33 @@ struct Master::Impl : DomainObserver {
       activation_failures.clear();
       activation_error.reset();
     }
-    if (want != TargetState::preop) start_cycling(*s);
+    if (want != TargetState::preop) {
+      start_cycling(*s);
+      // Activation restores health polling, also of slaves held in PREOP and of slaves whose
+      // poll was configured while the session was held (scenarios 49-51).
+      s->health_held = false;
+      for (auto& slave : s->slaves)
+        slave->impl().start_health(s);
+      if (auto locked = co_await await_lock(s); !locked) {
+        if (s->stopping || session != s) co_return;
+        {
+          std::lock_guard lock(mutex);
+          activation_error = locked.error();
+        }
+        if (current() != MasterState::recovering) transition(MasterState::activation_blocked);
+        arm_retry(s);
+        co_return;
+      }
+    }
     std::vector<exec::Task<Result<void>>> steps;
     std::vector<Slave*> order;
+    const bool recovering = current() == MasterState::recovering;
     for (auto& slave : s->slaves) {
       const auto target = min_target(want, slave->impl().config.target);
       if (slave->state() == SlaveState::down) continue;
+      // While recovering, a retained PREOP failure of a slave without process data is a
+      // slave-local fault its own retry loop heals: it does not hold the session in recovering.
+      if (recovering && retained_slave_local(*slave)) continue;
       order.push_back(slave.get());
       steps.push_back(slave->impl().go_to(target, s));
     }
@@ -318,6 +435,7 @@ struct Master::Impl : DomainObserver {
 
   void start_cycling(Session& s) {
     if (!s.cycler) s.cycler = std::make_unique<Cycler>(*s.bus);
+    start_dc(s);
     for (auto& d : s.domains) {
       if (d->state() == DomainState::cycling || d->registrations().empty()) continue;
       if (d->cycler() == nullptr) (void)s.cycler->add(*d);
@@ -438,6 +556,11 @@ struct Master::Impl : DomainObserver {
 
   // ---- slave notices (loop) -------------------------------------------------------------------
 
+  static bool retained_slave_local(Slave& slave) {
+    std::lock_guard lock(slave.impl().mutex);
+    return slave.impl().configuration_error.has_value() && slave.impl().attachments.empty();
+  }
+
   static bool carries_process_data(Slave& slave) {
     std::lock_guard lock(slave.impl().mutex);
     return !slave.impl().attachments.empty();
@@ -469,7 +592,10 @@ struct Master::Impl : DomainObserver {
 
   // Brings a slave that came back (or retreated) to its runtime target: min(session target, its
   // configured target). Clears its runtime fault when it gets there.
-  exec::Task<void> restore_slave(std::shared_ptr<Session> s, Slave* slave, std::string key) {
+  // `retry_configuration`: from the retry loop only, so that a failure retained by a rebuild stays
+  // visible for a retry interval (as the reference's 1 s retry) instead of being re-run at once.
+  exec::Task<void> restore_slave(std::shared_ptr<Session> s, Slave* slave, std::string key,
+                                 bool retry_configuration = false) {
     TargetState want;
     {
       std::lock_guard lock(mutex);
@@ -478,6 +604,17 @@ struct Master::Impl : DomainObserver {
     const auto state_now = current();
     if (state_now == MasterState::preop_ready) want = TargetState::preop;
     auto target = min_target(want, slave->impl().config.target);
+    // A PREOP configuration failure retained by a rebuild is retried first (go_to refuses
+    // SAFEOP/OP while it stands); without this the slave would stay in PREOP for good.
+    if (retry_configuration && slave->state() == SlaveState::preop &&
+        target != wire::AlState::preop) {
+      auto retried = co_await slave->impl().retry_configuration(s);
+      if (s->stopping || session != s) co_return;
+      if (!retried) {
+        arm_slave_retry(s);
+        co_return;
+      }
+    }
     auto done = co_await slave->impl().go_to(target, s);
     if (s->stopping || session != s) co_return;
     if (!done) {
@@ -512,7 +649,7 @@ struct Master::Impl : DomainObserver {
         const auto st = slave->state();
         if (st == SlaveState::down) continue;
         if (al_state_of(st) != target) {
-          exec::spawn(loop, restore_slave(s, slave.get(), "slave:" + slave->name()));
+          exec::spawn(loop, restore_slave(s, slave.get(), "slave:" + slave->name(), true));
         }
       }
     });
@@ -626,6 +763,14 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
         s->notify = [&impl](const SlaveNotice& notice) { impl.on_notice(notice); };
         bus::BusOptions options;
         if (impl.config.frame_timeout) options.frame_timeout = *impl.config.frame_timeout;
+        if (impl.config.cycle_thread.fifo_priority || impl.config.cycle_thread.cpu) {
+          // The session outlives its bus, so the report has a home when the thread starts.
+          options.on_thread_start = [session = s.get()] {
+            auto report = apply_cycle_thread(session->config.cycle_thread);
+            std::lock_guard lock(session->report_mutex);
+            session->cycle_thread_report = std::move(report);
+          };
+        }
         s->bus = std::make_unique<bus::Bus>(std::move(l), options);
         if (auto r = s->bus->start(); !r) co_return r.error().context("starting the bus");
         {
@@ -848,6 +993,57 @@ std::vector<DomainSummary> Master::domains() const {
   return out;
 }
 
+Result<DcStatus> Master::dc_status() const {
+  std::lock_guard lock(impl_->mutex);
+  const auto& s = impl_->session;
+  if (!s) return Error(Errc::unsupported, "distributed clocks: no session (the master is idle)");
+  if (!s->config.dc) {
+    return Error(Errc::unsupported, "distributed clocks are disabled in the configuration");
+  }
+  if (s->dc) return s->dc->status();
+  if (s->dc_error) {
+    return s->dc_error->context(Errc::unsupported, "distributed clocks do not run");
+  }
+  if (!s->dc_init) return Error(Errc::not_ready, "distributed clocks are not initialised yet");
+  return Error(Errc::not_ready,
+               "distributed clocks are initialised; their runtime starts with the activation");
+}
+
+Result<ReferenceClock> Master::reference_clock() const {
+  std::lock_guard lock(impl_->mutex);
+  const auto& s = impl_->session;
+  if (!s || !s->config.dc || !s->dc_init) {
+    if (s && s->dc_error) {
+      return s->dc_error->context(Errc::unsupported, "no reference clock");
+    }
+    return Error(Errc::not_ready, "no reference clock (distributed clocks not initialised)");
+  }
+  ReferenceClock out;
+  out.station = s->dc_init->reference_station;
+  out.position = static_cast<std::uint16_t>(s->dc_init->plan.reference_position);
+  for (const auto& slave : s->slaves) {
+    if (slave->station() == out.station) out.slave = slave->name();
+  }
+  return out;
+}
+
+Result<void> Master::await_dc_locked(std::chrono::nanoseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    auto status = dc_status();
+    if (status && status->locked) return ok();
+    if (!status && status.error().code() != Errc::not_ready) return status.error();
+    if (std::chrono::steady_clock::now() >= deadline) {
+      if (!status) return status.error().context(Errc::timeout, "waiting for the DC lock");
+      return Error(Errc::timeout,
+                   fmt::format("distributed clocks not locked within {} ms: max system-time "
+                               "difference {} ns",
+                               ms(timeout).count(), status->max_difference_ns));
+    }
+    std::this_thread::sleep_for(1ms);
+  }
+}
+
 std::optional<Failure> Master::last_failure() const {
   std::lock_guard lock(impl_->mutex);
   return impl_->last;
@@ -861,6 +1057,10 @@ MasterStatus Master::status() const {
     out.desired_target = impl_->desired;
     out.last_failure = impl_->last;
     out.illegal_transitions = impl_->refused_transitions;
+    if (impl_->session) {
+      std::lock_guard report_lock(impl_->session->report_mutex);
+      out.cycle_thread = impl_->session->cycle_thread_report;
+    }
     for (const auto& [name, f] : impl_->activation_failures)
       out.activation_failures.push_back(f);
     for (const auto& [key, why] : impl_->runtime_faults)

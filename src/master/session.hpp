@@ -7,6 +7,8 @@
 #include <atomic>
 #include <functional>
 #include <memory>
+#include <mutex>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -15,6 +17,7 @@
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/cycler.hpp>
+#include <ecat/master/dc.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/master/driver.hpp>
 #include <ecat/master/slave.hpp>
@@ -38,12 +41,23 @@ struct Session : std::enable_shared_from_this<Session> {
   MasterConfig config;
   std::unique_ptr<bus::Bus> bus;
   std::unique_ptr<Cycler> cycler;
+  // Distributed clocks (when configured and a DC-capable slave was found). dc_init and dc_error
+  // are written on the loop at startup; `dc` is created at the first activation, published under
+  // the master's mutex, and removed from the cycler before it goes (it is declared after it).
+  std::optional<DcInitResult> dc_init;
+  std::optional<Error> dc_error;
+  std::unique_ptr<DcMaintainer> dc;
   std::vector<std::unique_ptr<Domain>> domains;
   std::vector<std::unique_ptr<Slave>> slaves;
   DriverRegistry drivers = DriverRegistry::with_builtins();
   std::uint16_t slave_count = 0;
   std::vector<wire::DlStatus> dl_status;
   std::atomic<bool> stopping{false};
+  // What the cycle thread's CycleThreadOptions came to (written once by the bus thread).
+  std::mutex report_mutex;
+  std::string cycle_thread_report;
+  // Health polls pause while the session is held in PREOP since startup (until activation).
+  std::atomic<bool> health_held{false};
   // Set by the master: slaves report here (called on the loop).
   std::function<void(const SlaveNotice&)> notify;
 

@@ -9,6 +9,7 @@
 #include <ecat/exec/task.hpp>
 #include <ecat/exec/transact.hpp>
 #include <ecat/master/al_control.hpp>
+#include <ecat/master/coe_client.hpp>
 #include <ecat/master/sii_reader.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/wire/bytes.hpp>
@@ -46,6 +47,7 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   {
     std::lock_guard lock(mutex);
     configuration_error.reset();
+    configuration_failure.reset();
   }
   auto init = co_await al_request(loop, bus, station, wire::AlState::init, session.config.al);
   if (!init) co_return init.error().context(fmt::format("{}: reaching INIT", who()));
@@ -142,6 +144,7 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
     // requests are refused with this error until retry() or configure() succeeds.
     std::lock_guard lock(mutex);
     configuration_error = configured.error().describe();
+    configuration_failure = configured.error();
   }
   co_return ok();
 }
@@ -379,6 +382,28 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
     tx.fpwr(station, static_cast<std::uint16_t>(reg::kFmmuBase + reg::kFmmuSize * a.fmmu),
             f.encode(), 1);
   }
+  // Process data routed to no domain still needs its SyncManager: slaves check every assigned
+  // PDO's SyncManager on the way to SAFEOP (0x001D / 0x001E otherwise). No FMMU maps it.
+  for (const auto& sm : pdo_layout.sync_managers) {
+    if (sm.byte_length() == 0 || done_sms.count(sm.sync_manager) != 0 ||
+        sm.sync_manager >= image.sync_managers.size()) {
+      continue;
+    }
+    const auto& sii_sm = image.sync_managers[sm.sync_manager];
+    wire::SyncManagerConfig smc;
+    smc.physical_start = sii_sm.start;
+    smc.length = sm.byte_length();
+    auto control = wire::SmControl::decode(sii_sm.control);
+    smc.control =
+        control && control->mode == wire::SmMode::buffered
+            ? *control
+            : (sm.direction == PdoDirection::output ? wire::kOutputsControl : wire::kInputsControl);
+    smc.activate.enable = true;
+    const auto base = static_cast<std::uint16_t>(reg::kSyncManagerBase + 8 * sm.sync_manager);
+    const std::array<std::uint8_t, 1> off{0};
+    tx.fpwr(station, static_cast<std::uint16_t>(base + reg::kSyncManagerActivateOffset), off, 1);
+    tx.fpwr(station, base, smc.encode(), 1);
+  }
   if (!tx.empty()) {
     auto written = co_await exec::transact(loop, bus, std::move(tx));
     if (!written) {
@@ -402,6 +427,7 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
   signals = std::move(*model);
   attachments = std::move(plan);
   configuration_error.reset();
+  configuration_failure.reset();
   co_return ok();
 }
 
@@ -430,6 +456,13 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
   if (target == wire::AlState::safeop || target == wire::AlState::op) {
     std::lock_guard lock(mutex);
     if (configuration_error) {
+      // The failure stays the cause, so callers can still branch on it (sdo_failure, codes).
+      if (configuration_failure) {
+        co_return configuration_failure->context(
+            Errc::wrong_state, fmt::format("{}: PREOP configuration failed, {} refused until it "
+                                           "is retried",
+                                           who(), wire::to_string(target)));
+      }
       co_return Error(Errc::wrong_state,
                       fmt::format("{}: PREOP configuration failed, {} refused until it is "
                                   "retried: {}",
@@ -452,6 +485,9 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
                                 wire::to_string(target)));
   }
   for (auto step : *path) {
+    if (step == wire::AlState::safeop) {
+      if (auto synced = co_await apply_sync(); !synced) co_return synced.error();
+    }
     auto stepped = co_await al_step(loop, bus, station, step, session.config.al);
     if (!stepped) {
       record_al_error(stepped.error());
@@ -488,6 +524,86 @@ exec::Task<Result<void>> Slave::Impl::sdo_download(std::uint16_t index, std::uin
         fmt::format("{}: SDO download of 0x{:04x}:{:02x} with no data", who(), index, subindex));
   }
   co_return co_await master::download_sdo(*mailbox, index, subindex, std::move(data), options);
+}
+
+exec::Task<Result<void>> Slave::Impl::apply_sync() {
+  if (!config.sync || !session.config.dc) co_return ok();
+  std::optional<DcPlannedSlave> planned;
+  {
+    // dc_init is written under the master's lock once, at startup, before any slave steps.
+    if (!session.dc_init) {
+      if (config.sync->mode == SyncMode::free_run && config.sync->latches.empty()) co_return ok();
+      co_return Error(Errc::unsupported,
+                      fmt::format("{}: sync {} configured, but distributed clocks do not run{}",
+                                  who(), to_string(config.sync->mode),
+                                  session.dc_error ? ": " + session.dc_error->message() : ""));
+    }
+    for (const auto& p : session.dc_init->plan.slaves) {
+      if (p.station == self.station()) planned = p;
+    }
+  }
+  if (!planned || !planned->dc) {
+    co_return Error(Errc::unsupported,
+                    fmt::format("{}: sync {} configured, but the slave has no distributed clock",
+                                who(), to_string(config.sync->mode)));
+  }
+  DcSyncRequest request;
+  request.station = self.station();
+  request.cycle = session.config.dc->cycle;
+  request.sync = *config.sync;
+  request.sii = sii ? &sii->decoded.image : nullptr;
+  auto result = co_await configure_sync(session.loop, *session.bus, request);
+  if (!result) co_return result.error().context(fmt::format("{}: configuring SYNC", who()));
+  {
+    std::lock_guard lock(mutex);
+    dc_sync = *result;
+  }
+  if (!config.sync->latches.empty() && !latch_running) {
+    latch_running = true;
+    exec::spawn(session.loop, latch_loop(session.shared_from_this()));
+  }
+  co_return ok();
+}
+
+const LatchConfig* Slave::Impl::find_latch(std::string_view name) const {
+  if (!config.sync) return nullptr;
+  for (const auto& l : config.sync->latches) {
+    if (l.name == name) return &l;
+  }
+  return nullptr;
+}
+
+exec::Task<void> Slave::Impl::latch_loop(std::shared_ptr<Session> keep) {
+  (void)keep;
+  // The reference polls every millisecond in OP; SAFEOP too here (the units run from SAFEOP on).
+  constexpr auto kPeriod = std::chrono::milliseconds(1);
+  while (!session.stopping) {
+    co_await exec::sleep_for(session.loop, kPeriod);
+    if (session.stopping) break;
+    const auto now = state.load();
+    if (now != SlaveState::safeop && now != SlaveState::op) continue;
+    auto events = co_await poll_latches(session.loop, *session.bus, self.station());
+    if (!events || events->empty()) continue;  // a lost slave is the health poll's business
+    std::vector<std::pair<std::function<void(const SignalEvent&)>, SignalEvent>> calls;
+    {
+      std::lock_guard lock(mutex);
+      if (!config.sync) continue;
+      for (const auto& e : *events) {
+        for (const auto& l : config.sync->latches) {
+          if (l.unit != e.unit || l.edge != e.edge) continue;
+          for (const auto& sub : subscriptions) {
+            if (sub.signal != l.name) continue;
+            calls.emplace_back(
+                sub.callback, SignalEvent{self.name(), l.name, Value(std::uint64_t{e.timestamp_ns}),
+                                          0, Clock::now()});
+          }
+        }
+      }
+    }
+    for (auto& [callback, event] : calls)
+      callback(event);
+  }
+  latch_running = false;
 }
 
 Result<void> Slave::Impl::check_mailbox() const {
@@ -599,6 +715,12 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
     }
     co_await exec::sleep_for(loop, period);
     if (session.stopping) break;
+    // A session held in PREOP since startup does not poll until it is activated (the
+    // reference's rule, scenarios 47-51).
+    if (session.health_held) {
+      failed_polls = 0;
+      continue;
+    }
     const auto now = state.load();
     if (now == SlaveState::down) {
       if (co_await probe_and_rebuild(keep)) {
@@ -612,6 +734,13 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
     if (session.stopping) break;
     if (busy > 0) continue;
     if (!status) {
+      // A poll that got no reply at all says nothing about this slave: the frame was lost on
+      // the way (the domains report that as a transport miss). A reply without this slave's
+      // working counter is counted, and one such poll may be a passing fault: the slave is down
+      // when the next poll fails as well.
+      if (status.error().code() == Errc::timeout) continue;
+      if (++failed_polls < kFailedPollsForDown) continue;
+      failed_polls = 0;
       state.store(SlaveState::down);
       {
         std::lock_guard lock(mutex);
@@ -620,6 +749,7 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
       session.notify({SlaveNotice::Kind::down, self.name(), status.error().describe()});
       continue;
     }
+    failed_polls = 0;
     const auto seen = slave_state_of(status->status.state);
     if (status->status.error) {
       std::lock_guard lock(mutex);
@@ -751,6 +881,9 @@ SlaveInfo Slave::info() const {
   out.identity = impl_->known_identity;
   if (impl_->sii) out.device_name = std::string(impl_->sii->decoded.image.device_name());
   out.esc = impl_->esc;
+  // Written once at discovery, before any Slave exists.
+  if (position_ < impl_->session.dl_status.size())
+    out.dl_status = impl_->session.dl_status[position_];
   out.has_mailbox = impl_->mailbox != nullptr;
   out.coe = impl_->sii &&
             (impl_->sii->decoded.image.mailbox_protocols & wire::mailbox_protocol::kCoe) != 0;
@@ -761,6 +894,7 @@ SlaveInfo Slave::info() const {
   out.configuration_error = impl_->configuration_error;
   out.fault = impl_->fault;
   out.device_state = impl_->device_state;
+  out.dc_sync = impl_->dc_sync;
   return out;
 }
 
@@ -808,6 +942,7 @@ exec::Task<Result<void>> Slave::Impl::reconfigure(SlaveConfig next, std::shared_
   std::lock_guard lock(mutex);
   if (!done) {
     configuration_error = done.error().describe();
+    configuration_failure = done.error();
     co_return done.error();
   }
   co_return ok();
@@ -826,6 +961,7 @@ exec::Task<Result<void>> Slave::Impl::retry_configuration(std::shared_ptr<Sessio
   std::lock_guard lock(mutex);
   if (!done) {
     configuration_error = done.error().describe();
+    configuration_failure = done.error();
     co_return done.error();
   }
   co_return ok();
@@ -858,6 +994,63 @@ Result<void> Slave::download_sdo(std::uint16_t index, std::uint8_t subindex,
   return blocking(impl_->session,
                   impl_->sdo_download(index, subindex, std::move(data), options, keep), timeout,
                   fmt::format("SDO download 0x{:04x}:{:02x} of slave {}", index, subindex, name_));
+}
+
+Result<std::vector<std::uint16_t>> Slave::object_list(wire::OdListType type, SdoOptions options) {
+  auto task = [](Impl& impl, wire::OdListType t, SdoOptions o,
+                 std::shared_ptr<Session> keep) -> exec::Task<Result<std::vector<std::uint16_t>>> {
+    (void)keep;
+    if (auto checked = impl.check_mailbox(); !checked) co_return checked.error();
+    co_return co_await master::od_list(*impl.mailbox, t, o);
+  };
+  return blocking(impl_->session, task(*impl_, type, options, impl_->session.shared_from_this()),
+                  options.timeout * 2 + 1s,
+                  fmt::format("SDO information object list of slave {}", name_));
+}
+
+Result<wire::ObjectDescriptionResponse> Slave::describe_object(std::uint16_t index,
+                                                               SdoOptions options) {
+  auto task =
+      [](Impl& impl, std::uint16_t i, SdoOptions o,
+         std::shared_ptr<Session> keep) -> exec::Task<Result<wire::ObjectDescriptionResponse>> {
+    (void)keep;
+    if (auto checked = impl.check_mailbox(); !checked) co_return checked.error();
+    co_return co_await master::object_description(*impl.mailbox, i, o);
+  };
+  return blocking(impl_->session, task(*impl_, index, options, impl_->session.shared_from_this()),
+                  options.timeout * 2 + 1s,
+                  fmt::format("SDO information of object 0x{:04x} of slave {}", index, name_));
+}
+
+Result<wire::EntryDescriptionResponse> Slave::describe_entry(std::uint16_t index,
+                                                             std::uint8_t subindex,
+                                                             std::uint8_t value_info,
+                                                             SdoOptions options) {
+  auto task =
+      [](Impl& impl, std::uint16_t i, std::uint8_t sub, std::uint8_t info, SdoOptions o,
+         std::shared_ptr<Session> keep) -> exec::Task<Result<wire::EntryDescriptionResponse>> {
+    (void)keep;
+    if (auto checked = impl.check_mailbox(); !checked) co_return checked.error();
+    co_return co_await master::entry_description(*impl.mailbox, i, sub, info, o);
+  };
+  return blocking(
+      impl_->session,
+      task(*impl_, index, subindex, value_info, options, impl_->session.shared_from_this()),
+      options.timeout * 2 + 1s,
+      fmt::format("SDO information of entry 0x{:04x}:{:02x} of slave {}", index, subindex, name_));
+}
+
+Result<std::vector<wire::Emergency>> Slave::emergencies(std::chrono::nanoseconds timeout) {
+  auto task =
+      [](Impl& impl,
+         std::shared_ptr<Session> keep) -> exec::Task<Result<std::vector<wire::Emergency>>> {
+    (void)keep;
+    if (!impl.mailbox) co_return std::vector<wire::Emergency>{};
+    if (impl.check_mailbox()) (void)co_await impl.mailbox->poll();
+    co_return impl.mailbox->emergencies();
+  };
+  return blocking(impl_->session, task(*impl_, impl_->session.shared_from_this()), timeout,
+                  fmt::format("emergencies of slave {}", name_));
 }
 
 std::vector<Signal> Slave::signals() const {
@@ -914,7 +1107,10 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
     return Error(Errc::not_found,
                  fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
   }
-  std::vector<std::uint8_t> staged = it->second;
+  // Encoded into a scratch image kept between calls (its capacity stays), so a write does not
+  // allocate; it replaces the retained image only when every domain took it.
+  auto& staged = impl_->write_scratch;
+  staged.assign(it->second.begin(), it->second.end());
   if (auto encoded = encode_scaled(*sig, value, staged); !encoded) {
     return encoded.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
   }
@@ -926,7 +1122,7 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
           fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name, name_, a.domain));
     }
   }
-  it->second = std::move(staged);
+  it->second.swap(staged);
   return ok();
 }
 
@@ -954,9 +1150,10 @@ Result<void> Slave::command(std::string_view name, const CommandArgs& args) {
 Result<SubscriptionId> Slave::subscribe(std::string_view signal,
                                         std::function<void(const SignalEvent&)> callback) {
   std::lock_guard lock(impl_->mutex);
-  if (!impl_->find_signal(signal)) {
-    return Error(Errc::not_found,
-                 fmt::format("slave {} has no signal \"{}\" to subscribe to", name_, signal));
+  if (!impl_->find_signal(signal) && !impl_->find_latch(signal)) {
+    return Error(
+        Errc::not_found,
+        fmt::format("slave {} has no signal or latch \"{}\" to subscribe to", name_, signal));
   }
   const SubscriptionId id = ++impl_->next_subscription;
   impl_->subscriptions.push_back({id, std::string(signal), std::move(callback), std::nullopt});

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <ecat/exec/task.hpp>
+#include <ecat/master/dc.hpp>
 #include <ecat/master/sii_reader.hpp>
 #include <ecat/master/slave.hpp>
 
@@ -43,7 +44,9 @@ struct Slave::Impl {
   // The retained output image of each output SyncManager: what write_output staged; written to
   // every domain the SyncManager is in, and again after a reconnect.
   std::map<std::uint8_t, std::vector<std::uint8_t>> output_images;
+  std::vector<std::uint8_t> write_scratch;  // Slave::write_output's encoding buffer
   std::optional<std::string> configuration_error;
+  std::optional<Error> configuration_failure;  // the same, as the error it was
   std::optional<std::string> fault;
 
   struct Subscription {
@@ -81,8 +84,19 @@ struct Slave::Impl {
   exec::Task<void> health_loop(std::shared_ptr<Session> keep);
   exec::Task<bool> probe_and_rebuild(std::shared_ptr<Session> keep);
   bool health_running = false;
+  // Consecutive polls whose reply lacked this slave (loop thread only).
+  static constexpr int kFailedPollsForDown = 2;
+  int failed_polls = 0;
   int busy = 0;  // go_to() calls in progress (loop thread only)
   exec::Task<Result<void>> configure_preop(std::shared_ptr<Session> keep);
+  // SYNC0/SYNC1 and latch units from config.sync, on the way to SAFEOP (DC sessions only).
+  exec::Task<Result<void>> apply_sync();
+  std::optional<DcSyncResult> dc_sync;  // guarded by `mutex`
+  // Latch edges (config.sync->latches) are polled while the slave is in SAFEOP or OP and handed
+  // to the subscribers of the latch's name.
+  exec::Task<void> latch_loop(std::shared_ptr<Session> keep);
+  bool latch_running = false;  // loop thread only
+  const LatchConfig* find_latch(std::string_view name) const;
   exec::Task<Result<void>> run_sdos(const std::vector<SdoWrite>& writes);
   exec::Task<Result<PdoLayout>> read_coe_layout(const PdoLayout& known);
   exec::Task<Result<void>> go_to(wire::AlState target, std::shared_ptr<Session> keep);

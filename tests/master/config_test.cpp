@@ -15,6 +15,9 @@ TEST(MasterConfigFile, ReadsEverySection) {
 simulator:
   slaves: [{name: a, profile: EK1100}]
 master:
+  backend: udp:127.0.0.1:34980
+  cycle_priority: 80
+  cycle_cpu: 1
   base_station: 0x2000
   frame_timeout_us: 800
   scan_poll_ms: 5
@@ -43,11 +46,15 @@ slaves:
       - {index: 0x6060, subindex: 0, type: i8, value: 8}
       - {index: 0x1C12, type: bytes, value: "01 00 00 16", complete_access: true}
     pdo_source: coe
-    sync: {mode: sync0, pulse_ns: 1000, shift_ns: -2000, assign_activate: 0x0300}
+    sync: {mode: sync0, pulse_ns: 1000, shift_ns: -2000, assign_activate: 0x0300,
+           latches: [{name: probe, unit: 1, edge: falling}]}
 dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns: 50}
 )");
   ASSERT_TRUE(config) << config.error().describe();
   EXPECT_EQ(config->base_station, 0x2000);
+  EXPECT_EQ(config->backend, "udp:127.0.0.1:34980");
+  EXPECT_EQ(config->cycle_thread.fifo_priority, 80);
+  EXPECT_EQ(config->cycle_thread.cpu, 1);
   EXPECT_EQ(config->frame_timeout, std::chrono::nanoseconds(800us));
   EXPECT_EQ(config->scan.poll, std::chrono::nanoseconds(5ms));
   EXPECT_EQ(config->awaiting_preop_timeout, std::chrono::nanoseconds(7s));
@@ -76,6 +83,10 @@ dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns
   EXPECT_EQ(drive.sync->mode, SyncMode::sync0);
   EXPECT_EQ(drive.sync->sync0_shift, std::chrono::nanoseconds(-2000));
   EXPECT_EQ(drive.sync->assign_activate, 0x0300);
+  ASSERT_EQ(drive.sync->latches.size(), 1u);
+  EXPECT_EQ(drive.sync->latches[0].name, "probe");
+  EXPECT_EQ(drive.sync->latches[0].unit, 1);
+  EXPECT_EQ(drive.sync->latches[0].edge, LatchEdge::falling);
   ASSERT_TRUE(config->dc.has_value());
   EXPECT_EQ(config->dc->cycle, std::chrono::nanoseconds(500us));
   EXPECT_EQ(config->dc->lock_policy, LockPolicy::recovering);
@@ -108,6 +119,9 @@ INSTANTIATE_TEST_SUITE_P(
     ::testing::Values(
         BadCase{"master: {base_station: 0}\n", "master.base_station"},
         BadCase{"master: {bogus: 1}\n", "bogus"},
+        BadCase{"master: {backend: eth0}\n", "\"eth0\" is not a backend"},
+        BadCase{"master: {cycle_priority: 100}\n", "master.cycle_priority"},
+        BadCase{"master: {cycle_cpu: -1}\n", "master.cycle_cpu"},
         BadCase{"domains: [{period_us: 1000}]\n", "needs an id"},
         BadCase{"domains: [{id: a, period_us: 10}]\n", "ring.yaml:1"},
         BadCase{"domains: [{id: a}, {id: a}]\n", "used twice"},
@@ -119,6 +133,11 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"slaves: [{name: x, startup_sdos: [{index: 0x1000, type: bytes, value: zz}]}]\n",
                 "not a hex byte"},
         BadCase{"slaves: [{name: x, sync: {mode: sync7}}]\n", "unknown mode"},
+        BadCase{"slaves: [{name: x, sync: {latches: [{name: p, edge: up}]}}]\n",
+                "unknown edge \"up\""},
+        BadCase{"slaves: [{name: x, sync: {latches: [{name: p, unit: 2}]}}]\n",
+                "slaves[0].sync.latches[0].unit"},
+        BadCase{"slaves: [{name: x, sync: {latches: [{unit: 1}]}}]\n", "a latch needs a name"},
         BadCase{"dc: {lock_policy: maybe}\n", "unknown lock_policy"},
         BadCase{"slaves: {name: x}\n", "must be a list"},
         BadCase{"slaves: [ {name: x\n", "YAML syntax error"}));

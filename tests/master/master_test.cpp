@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
@@ -12,10 +14,16 @@
 #include <gtest/gtest.h>
 
 #include <ecat/master/master.hpp>
+#include <ecat/sim/application.hpp>
+#include <ecat/sim/device.hpp>
+#include <ecat/sim/esc.hpp>
 #include <ecat/sim/ring.hpp>
+#include <ecat/sim/segment.hpp>
 #include <ecat/sim/server.hpp>
+#include <ecat/wire/sii.hpp>
 
 #include "master/master_test_support.hpp"
+#include "support/shared_data.hpp"
 
 namespace ecat::master {
 namespace {
@@ -319,22 +327,56 @@ TEST_F(MasterTest, BadConfigurationsAreRefusedByName) {
   EXPECT_EQ(m2.last_failure()->kind, "startup_failed");
 }
 
-TEST_F(MasterTest, ActivationBlockedNamesTheSlaveAndCode) {
-  // The EL3202 routed nowhere keeps its SyncManager unconfigured: it refuses SAFEOP with 0x001E.
-  auto config = full_config();
-  config.slaves[3].process_data = {};
+// Firmware that accepts INIT and PREOP but refuses SAFEOP and OP with "invalid input
+// configuration" (0x001E), as a device does whose process data the master set up wrongly.
+class RefusesSafeop : public sim::Application {
+ public:
+  void on_al_control(sim::Esc& esc, std::uint16_t control) override {
+    const auto requested = static_cast<wire::AlState>(control & 0x0F);
+    if (requested == wire::AlState::safeop || requested == wire::AlState::op) {
+      esc.pdi_set_al_status(esc.al_state(), true, 0x001E);
+    } else {
+      esc.pdi_set_al_status(requested, false, 0);
+    }
+  }
+};
+
+TEST(MasterActivation, BlockedNamesTheSlaveAndCode) {
+  sim::DeviceConfig coupler_device;
+  coupler_device.profile = "EK1100";
+  auto coupler = sim::make_device(coupler_device);
+  ASSERT_TRUE(coupler);
+  sim::DeviceConfig io_device;
+  io_device.profile = "EL1809";
+  auto io = sim::make_device(io_device);
+  ASSERT_TRUE(io);
+  const auto eeprom = (*io)->eeprom();
+  auto segment = std::make_unique<sim::Segment>();
+  ASSERT_TRUE(segment->add_slave("coupler", std::move(*coupler)));
+  ASSERT_TRUE(segment->add_slave(
+      "stubborn", std::make_unique<sim::Esc>(
+                      sim::EscHardware{}, std::vector<std::uint8_t>(eeprom.begin(), eeprom.end()),
+                      std::make_unique<RefusesSafeop>())));
+  sim::SimServer server(std::move(segment));
+  auto link = server.serve_memory();
+  ASSERT_TRUE(link);
+  auto config = fast_config();
+  config.domains.clear();
+  config.slaves = {slave("coupler", {}), slave("stubborn", {})};
   Master master(config);
-  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.start(std::move(*link)));
   auto running = master.await_running(10s);
   ASSERT_FALSE(running);
   EXPECT_EQ(master.state(), MasterState::activation_blocked);
   auto status = master.status();
   ASSERT_EQ(status.activation_failures.size(), 1u);
-  EXPECT_EQ(status.activation_failures[0].slave, "rtd");
+  EXPECT_EQ(status.activation_failures[0].slave, "stubborn");
+  EXPECT_EQ(status.activation_failures[0].wanted, wire::AlState::op);
   ASSERT_TRUE(status.activation_failures[0].al_status_code.has_value());
   EXPECT_EQ(*status.activation_failures[0].al_status_code, 0x001E);
   EXPECT_NE(running.error().describe().find("0x001e"), std::string::npos)
       << running.error().describe();
+  EXPECT_EQ(status.illegal_transitions, 0u);
   ASSERT_TRUE(master.stop());
 }
 
@@ -405,6 +447,214 @@ TEST_F(MasterTest, TwoMastersInOneProcess) {
   ASSERT_TRUE(a.stop());
   EXPECT_EQ(b.state(), MasterState::operational);
   ASSERT_TRUE(b.stop());
+}
+
+TEST_F(MasterTest, PerCycleCallbackRunsOnTheCycleThreadWithThisCyclesInputs) {
+  auto config = full_config();
+  struct Seen {
+    std::atomic<std::uint64_t> valid{0};
+    std::atomic<std::uint64_t> invalid{0};
+    std::atomic<std::uint64_t> last_cycle{0};
+    std::atomic<bool> out_of_order{false};
+  };
+  auto seen = std::make_shared<Seen>();
+  config.domains[0].on_cycle = [seen](Domain&, const CycleOutcome& outcome) {
+    if (outcome.cycle <= seen->last_cycle.load()) seen->out_of_order = true;
+    seen->last_cycle = outcome.cycle;
+    (outcome.valid ? seen->valid : seen->invalid).fetch_add(1);
+  };
+  config.cycle_thread.cpu = 0;
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_operational(10s));
+  for (int i = 0; i < 2000 && seen->valid.load() < 50; ++i)
+    std::this_thread::sleep_for(1ms);
+  EXPECT_GE(seen->valid.load(), 50u);
+  EXPECT_FALSE(seen->out_of_order.load());
+  // Never more reports than cycles the domain ran.
+  const auto reported = seen->valid.load() + seen->invalid.load();
+  EXPECT_GE(master.domains().at(0).cycles, reported);
+  ASSERT_TRUE(master.stop());
+  EXPECT_EQ(master.status().cycle_thread, "");  // stopped: no session to report on
+}
+
+TEST_F(MasterTest, CycleThreadOptionsAreReported) {
+  auto config = full_config();
+  config.cycle_thread.cpu = 0;
+  config.cycle_thread.fifo_priority = 10;
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_operational(10s));
+  const auto report = master.status().cycle_thread;
+  // Root in a container may or may not be allowed SCHED_FIFO; either way the report says which.
+  EXPECT_TRUE(report.starts_with("SCHED_FIFO 10: applied; ") ||
+              report.starts_with("SCHED_FIFO 10: refused ("))
+      << report;
+  EXPECT_TRUE(report.ends_with("CPU 0: pinned")) << report;
+  ASSERT_TRUE(master.stop());
+
+  config.cycle_thread = {.fifo_priority = std::nullopt, .cpu = 100000};
+  Master refused(config);
+  ASSERT_TRUE(refused.start(link()));
+  ASSERT_TRUE(refused.await_operational(10s));
+  EXPECT_EQ(refused.status().cycle_thread, "CPU 100000: refused (Invalid argument)");
+  ASSERT_TRUE(refused.stop());
+}
+
+TEST_F(MasterTest, SdoInformationAndEmergenciesThroughTheSlave) {
+  Master master(full_config());
+  ASSERT_TRUE(master.start(link()));
+  ASSERT_TRUE(master.await_operational(10s));
+  auto drive = master.slave("drive");
+  ASSERT_TRUE(drive);
+  auto objects = (*drive)->object_list();
+  ASSERT_TRUE(objects) << objects.error().describe();
+  EXPECT_NE(std::find(objects->begin(), objects->end(), 0x6040), objects->end());
+  EXPECT_NE(std::find(objects->begin(), objects->end(), 0x1000), objects->end());
+  auto controlword = (*drive)->describe_object(0x6040);
+  ASSERT_TRUE(controlword) << controlword.error().describe();
+  EXPECT_EQ(controlword->index, 0x6040);
+  EXPECT_EQ(controlword->name, "Controlword");
+  auto entry = (*drive)->describe_entry(0x6040, 0);
+  ASSERT_TRUE(entry) << entry.error().describe();
+  EXPECT_EQ(entry->bit_length, 16);
+  auto coupler = master.slave("coupler");
+  ASSERT_TRUE(coupler);
+  auto none = (*coupler)->object_list();
+  ASSERT_FALSE(none);
+  EXPECT_EQ(none.error().code(), Errc::unsupported) << none.error().describe();
+  auto no_emergencies = (*coupler)->emergencies();
+  ASSERT_TRUE(no_emergencies);
+  EXPECT_TRUE(no_emergencies->empty());
+
+  // A following error in cyclic synchronous position mode: the drive faults and sends an
+  // emergency (0x8611) that the slave hands over.
+  ASSERT_TRUE((*drive)->download_sdo(0x6065, 0, {10, 0, 0, 0}));  // following error window
+  ASSERT_TRUE((*drive)->download_sdo(0x6066, 0, {0, 0}));         // ... and time-out
+  ASSERT_TRUE((*drive)->command("set_mode", {{"mode", Value(std::string("csp"))}}));
+  for (const char* step : {"shutdown", "switch_on", "enable_operation"}) {
+    ASSERT_TRUE((*drive)->command(step)) << step;
+    std::this_thread::sleep_for(20ms);
+  }
+  ASSERT_TRUE((*drive)->write_output("target_position", Value(std::int64_t{1'000'000})));
+  std::vector<wire::Emergency> got;
+  for (int i = 0; i < 200 && got.empty(); ++i) {
+    auto e = (*drive)->emergencies();
+    ASSERT_TRUE(e) << e.error().describe();
+    got.insert(got.end(), e->begin(), e->end());
+    if (got.empty()) std::this_thread::sleep_for(10ms);
+  }
+  ASSERT_FALSE(got.empty()) << "no emergency from the faulted drive";
+  EXPECT_EQ(got.back().error_code, 0x8611);
+  ASSERT_TRUE(master.stop());
+}
+
+// A mailbox device given a bootstrap mailbox in its SII: request(BOOTSTRAP) walks PREOP -> INIT ->
+// BOOT, and back up again; the same device without one refuses with AL status 0x0013.
+TEST(MasterBootstrap, RequestWalksThroughInitToBootstrapAndBack) {
+  sim::DeviceConfig device;
+  device.profile = "mailbox";
+  auto template_esc = sim::make_device(device);
+  ASSERT_TRUE(template_esc);
+  const auto eeprom = (*template_esc)->eeprom();
+  auto decoded = wire::decode_sii(wire::Bytes(eeprom.data(), eeprom.size()));
+  ASSERT_TRUE(decoded) << decoded.error().describe();
+  auto image = decoded->image;
+  image.bootstrap_mailbox = image.standard_mailbox;
+  auto encoded = wire::encode_sii(image);
+  ASSERT_TRUE(encoded) << encoded.error().describe();
+  const auto file =
+      std::filesystem::temp_directory_path() / fmt::format("ecat-bootstrap-{}.bin", ::getpid());
+  std::ofstream(file, std::ios::binary)
+      .write(reinterpret_cast<const char*>(encoded->data()),
+             static_cast<std::streamsize>(encoded->size()));
+  auto server = test::make_sim_server(fmt::format(R"(version: 1
+simulator:
+  slaves:
+    - {{name: coupler, profile: EK1100}}
+    - {{name: loader, profile: eeprom, file: "{}"}}
+    - {{name: plain, profile: mailbox}}
+)",
+                                                  file.string()));
+  std::filesystem::remove(file);
+  ASSERT_TRUE(server);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  auto config = fast_config();
+  config.domains.clear();
+  Master master(config);
+  ASSERT_TRUE(master.start(std::move(*link)));
+  ASSERT_TRUE(master.await_running(10s));
+  auto loader = master.slave("slave_1");
+  ASSERT_TRUE(loader);
+  auto boot = (*loader)->request(wire::AlState::bootstrap);
+  ASSERT_TRUE(boot) << boot.error().describe();
+  EXPECT_EQ((*loader)->state(), SlaveState::bootstrap);
+  server->with_segment([](sim::Segment& segment, auto&) {
+    EXPECT_EQ(segment.esc(1).al_state(), wire::AlState::bootstrap);
+  });
+  // SDOs need the standard mailbox: refused by name in BOOTSTRAP.
+  auto sdo = (*loader)->upload_sdo(0x1000, 0);
+  ASSERT_FALSE(sdo);
+  EXPECT_EQ(sdo.error().code(), Errc::wrong_state);
+  auto back = (*loader)->request(wire::AlState::preop);
+  ASSERT_TRUE(back) << back.error().describe();
+  EXPECT_EQ((*loader)->state(), SlaveState::preop);
+  EXPECT_TRUE((*loader)->upload_sdo(0x1000, 0));
+
+  auto plain = master.slave("slave_2");  // the same device without a bootstrap mailbox
+  ASSERT_TRUE(plain);
+  auto refused = (*plain)->request(wire::AlState::bootstrap);
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code(), Errc::al_error) << refused.error().describe();
+  EXPECT_EQ(al_status_code(refused.error()), 0x0013) << refused.error().describe();
+  EXPECT_EQ(master.status().illegal_transitions, 0u);
+  ASSERT_TRUE(master.stop());
+}
+
+// A ring made of the real Beckhoff EEPROM images (shared data): the master reads their SII, builds
+// their process data from it and runs them in OP.
+TEST(MasterRealEeproms, RingFromBeckhoffImagesReachesOperational) {
+  ECAT_SHARED_DATA_OR_SKIP(ek1100, "eeprom/ek1100.bin");
+  ECAT_SHARED_DATA_OR_SKIP(el2004, "eeprom/el2004.bin");
+  ECAT_SHARED_DATA_OR_SKIP(el2828, "eeprom/el2828.bin");
+  auto server =
+      test::make_sim_server(fmt::format(R"(version: 1
+simulator:
+  slaves:
+    - {{name: coupler, profile: eeprom, file: "{}"}}
+    - {{name: out4, profile: eeprom, file: "{}"}}
+    - {{name: out8, profile: eeprom, file: "{}"}}
+)",
+                                        ek1100.string(), el2004.string(), el2828.string()));
+  ASSERT_TRUE(server);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  auto config = fast_config();
+  config.slaves = {slave("coupler", {}), slave("out4"), slave("out8")};
+  Master master(config);
+  ASSERT_TRUE(master.start(std::move(*link)));
+  auto op = master.await_operational(10s);
+  ASSERT_TRUE(op) << op.error().describe() << "\n" << explain(master);
+  auto out4 = master.slave("out4");
+  ASSERT_TRUE(out4);
+  const auto info = (*out4)->info();
+  ASSERT_TRUE(info.identity);
+  EXPECT_EQ(info.identity->vendor_id, 2u);
+  EXPECT_EQ(info.identity->product_code, 0x07d43052u);  // EL2004
+  EXPECT_EQ(info.device_name.substr(0, 6), "EL2004");
+  ASSERT_GE(info.signals.size(), 4u);
+  ASSERT_TRUE((*out4)->write_output(info.signals[0].name, Value(true)));
+  // Two output terminals, written by the LRW: 2 each.
+  EXPECT_EQ(master.domains().at(0).expected_wkc, 4);
+  bool healthy = false;
+  for (int i = 0; i < 500 && !healthy; ++i) {
+    const auto d = master.domains().at(0);
+    healthy = d.healthy && d.cycles > 10;
+    if (!healthy) std::this_thread::sleep_for(2ms);
+  }
+  EXPECT_TRUE(healthy);
+  ASSERT_TRUE(master.stop());
 }
 
 }  // namespace

@@ -142,9 +142,27 @@ TEST(AlPath, MatchesTheReferenceTable) {
   EXPECT_EQ(al_path(AlState::op, AlState::preop),
             (std::vector<AlState>{AlState::safeop, AlState::preop}));
   EXPECT_EQ(al_path(AlState::safeop, AlState::safeop), std::vector<AlState>{});
-  EXPECT_FALSE(al_path(AlState::preop, AlState::bootstrap).has_value());
-  EXPECT_FALSE(al_path(AlState::op, AlState::bootstrap).has_value());
-  EXPECT_EQ(al_path_table().size(), 15u);
+  // BOOT is entered from INIT and left to INIT only: other ways walk through INIT.
+  EXPECT_EQ(al_path(AlState::preop, AlState::bootstrap),
+            (std::vector<AlState>{AlState::init, AlState::bootstrap}));
+  EXPECT_EQ(
+      al_path(AlState::op, AlState::bootstrap),
+      (std::vector<AlState>{AlState::safeop, AlState::preop, AlState::init, AlState::bootstrap}));
+  EXPECT_EQ(al_path(AlState::bootstrap, AlState::op),
+            (std::vector<AlState>{AlState::init, AlState::preop, AlState::safeop, AlState::op}));
+  // Every pair of the five states has a path, and no path jumps BOOT <-> anything but INIT.
+  EXPECT_EQ(al_path_table().size(), 20u);
+  for (const auto& row : al_path_table()) {
+    AlState at = row.from;
+    for (AlState step : row.steps) {
+      if (at == AlState::bootstrap || step == AlState::bootstrap) {
+        EXPECT_TRUE(at == AlState::init || step == AlState::init)
+            << wire::to_string(at) << " -> " << wire::to_string(step);
+      }
+      at = step;
+    }
+    EXPECT_EQ(at, row.to);
+  }
 }
 
 TEST(StateTables, MasterTableIsTheSeedDiagram) {

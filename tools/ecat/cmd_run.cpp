@@ -1,9 +1,12 @@
 // ecat run: runs a master session. With a ring file that has a `simulator:` section and no
-// --link, the master runs against that simulated ring in this process (no hardware, no root).
+// --backend, the master runs against that simulated ring in this process (no hardware, no root).
 //
-//   ecat run --ring examples/default.yaml --duration 3
-//   ecat run --ring my-line.yaml --link raw:eth0
-//   ecat slaves --link udp:127.0.0.1:34980       (dynamic session: every slave held in PREOP)
+//   ecat run examples/default.yaml --duration 3
+//   ecat run my-line.yaml --backend raw:eth0
+//   ecat slaves --backend udp:127.0.0.1:34980     (dynamic session: every slave held in PREOP)
+//
+// Backends are written raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Ctrl-C (or the end of
+// --duration) takes every slave back to INIT before the command exits.
 //
 // Exit codes: 0 the session reached its target and ran; 1 it did not (the error is printed);
 // 2 bad arguments or files.
@@ -24,6 +27,8 @@
 #include <ecat/sim/ring.hpp>
 
 #include "command.hpp"
+#include "interrupt.hpp"
+#include "session_view.hpp"
 
 namespace {
 
@@ -31,6 +36,10 @@ using namespace std::chrono_literals;
 using ecat::master::Master;
 using ecat::master::MasterConfig;
 using ecat::master::MasterState;
+using ecat::tool::print_domains;
+using ecat::tool::print_slaves;
+using ecat::tool::report_failure;
+using ecat::tool::status_json;
 using nlohmann::json;
 
 struct Options {
@@ -53,14 +62,13 @@ std::optional<Setup> prepare(const Options& options, bool dynamic) {
   Setup setup;
   std::string spec = options.link;
   if (!options.ring.empty()) {
-    if (!dynamic) {
-      auto config = ecat::master::load_master_config(options.ring);
-      if (!config) {
-        fmt::print(stderr, "ecat: {}\n", config.error().describe());
-        return std::nullopt;
-      }
-      setup.config = std::move(*config);
+    auto config = ecat::master::load_master_config(options.ring);
+    if (!config) {
+      fmt::print(stderr, "ecat: {}\n", config.error().describe());
+      return std::nullopt;
     }
+    setup.config = std::move(*config);
+    if (spec.empty()) spec = setup.config.backend;
     if (spec.empty()) {
       auto ring = ecat::sim::load_ring(options.ring);
       if (!ring) {
@@ -69,7 +77,7 @@ std::optional<Setup> prepare(const Options& options, bool dynamic) {
       }
       if (ring->slaves.empty()) {
         fmt::print(stderr,
-                   "ecat: {} has no simulator section: give the master's link with --link\n",
+                   "ecat: {} has no simulator section: give the master's link with --backend\n",
                    options.ring);
         return std::nullopt;
       }
@@ -77,7 +85,7 @@ std::optional<Setup> prepare(const Options& options, bool dynamic) {
     }
   }
   if (spec.empty()) {
-    fmt::print(stderr, "ecat: give --ring FILE (a simulated ring) or --link SPEC\n");
+    fmt::print(stderr, "ecat: give a ring file (a simulated ring) or --backend SPEC\n");
     return std::nullopt;
   }
   if (dynamic) {
@@ -92,94 +100,6 @@ std::optional<Setup> prepare(const Options& options, bool dynamic) {
   setup.link = std::move(backend->link);
   setup.link_name = spec;
   return setup;
-}
-
-std::string identity_text(const ecat::master::SlaveInfo& info) {
-  if (!info.identity) return "-";
-  return fmt::format("{:08x}:{:08x} rev {:08x}", info.identity->vendor_id,
-                     info.identity->product_code, info.identity->revision);
-}
-
-void print_slaves(Master& master, bool with_signals) {
-  fmt::print("{:>3}  {:<6}  {:<12} {:<7} {:<10} {:<34} {}\n", "pos", "station", "name", "state",
-             "driver", "identity", "device");
-  for (const auto& s : master.slaves()) {
-    auto slave = master.slave(s.name);
-    if (!slave) continue;
-    auto info = (*slave)->info();
-    fmt::print("{:>3}  0x{:04x}  {:<12} {:<7} {:<10} {:<34} {}\n", info.position, info.station,
-               info.name, to_string(info.state), info.driver.empty() ? "-" : info.driver,
-               identity_text(info), info.device_name);
-    if (info.configuration_error) fmt::print("       ! {}\n", *info.configuration_error);
-    if (with_signals && !info.signals.empty()) {
-      std::string names;
-      for (const auto& sig : info.signals) {
-        if (!names.empty()) names += ' ';
-        names += sig.name;
-      }
-      fmt::print("       signals: {}\n", names);
-    }
-  }
-}
-
-void print_domains(Master& master) {
-  for (const auto& d : master.domains()) {
-    fmt::print(
-        "domain {}: {} every {} us, {} bytes at 0x{:08x}, expected wkc {}, {} cycles, {} "
-        "missed, {}\n",
-        d.id, d.state, d.period.count() / 1000, d.image_size, d.logical_base, d.expected_wkc,
-        d.cycles, d.total_misses, d.healthy ? "healthy" : "unhealthy");
-  }
-}
-
-json status_json(Master& master) {
-  json out;
-  out["state"] = std::string(to_string(master.state()));
-  out["slaves"] = json::array();
-  for (const auto& s : master.slaves()) {
-    auto slave = master.slave(s.name);
-    if (!slave) continue;
-    auto info = (*slave)->info();
-    json j{{"name", info.name},       {"position", info.position},
-           {"station", info.station}, {"state", std::string(to_string(info.state))},
-           {"driver", info.driver},   {"device", info.device_name}};
-    if (info.identity) {
-      j["vendor_id"] = info.identity->vendor_id;
-      j["product_code"] = info.identity->product_code;
-      j["revision"] = info.identity->revision;
-      j["serial"] = info.identity->serial;
-    }
-    if (info.configuration_error) j["configuration_error"] = *info.configuration_error;
-    j["signals"] = json::array();
-    for (const auto& sig : info.signals)
-      j["signals"].push_back(sig.name);
-    out["slaves"].push_back(std::move(j));
-  }
-  out["domains"] = json::array();
-  for (const auto& d : master.domains()) {
-    out["domains"].push_back({{"id", d.id},
-                              {"state", d.state},
-                              {"period_ns", d.period.count()},
-                              {"image_size", d.image_size},
-                              {"expected_wkc", d.expected_wkc},
-                              {"cycles", d.cycles},
-                              {"misses", d.total_misses},
-                              {"healthy", d.healthy}});
-  }
-  return out;
-}
-
-int report_failure(Master& master, const ecat::Error& error) {
-  fmt::print(stderr, "ecat: the session did not get running: {}\n", error.describe());
-  auto status = master.status();
-  for (const auto& f : status.activation_failures) {
-    fmt::print(stderr, "  slave {}: {}\n", f.slave, f.error.describe());
-  }
-  if (status.last_failure) {
-    fmt::print(stderr, "  last failure ({}): {}\n", status.last_failure->kind,
-               status.last_failure->error.describe());
-  }
-  return 1;
 }
 
 // Walks a lit bit over every boolean output the session has, so the run shows process data
@@ -211,6 +131,7 @@ struct Chase {
 };
 
 int run_session(const Options& options) {
+  ecat::tool::catch_interrupts();
   auto setup = prepare(options, false);
   if (!setup) return 2;
   Master master(setup->config);
@@ -233,21 +154,23 @@ int run_session(const Options& options) {
     fmt::print("\nsession on {}: {}\n", setup->link_name, to_string(master.state()));
     print_slaves(master, true);
     print_domains(master);
+    ecat::tool::print_dc(master);
   }
   Chase chase;
   if (options.chase) chase.collect(master);
   const auto end =
       std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::nanoseconds>(
                                              std::chrono::duration<double>(options.duration_s));
-  while (std::chrono::steady_clock::now() < end) {
+  while (std::chrono::steady_clock::now() < end && !ecat::tool::interrupted()) {
     chase.advance();
-    std::this_thread::sleep_for(100ms);
+    ecat::tool::sleep_unless_interrupted(100ms);
   }
   if (options.json) {
     fmt::print("{}\n", status_json(master).dump(2));
   } else {
     fmt::print("\nafter {:.1f} s:\n", options.duration_s);
     print_domains(master);
+    ecat::tool::print_dc(master);
     for (const auto& s : master.slaves()) {
       auto slave = master.slave(s.name);
       if (!slave) continue;
@@ -277,7 +200,7 @@ int run_session(const Options& options) {
   const bool operational =
       master.state() == MasterState::operational || master.state() == MasterState::preop_ready;
   (void)master.stop();
-  if (!options.json) fmt::print("stopped\n");
+  if (!options.json) fmt::print("stopped: every slave back in INIT\n");
   return operational ? 0 : 1;
 }
 
@@ -295,7 +218,12 @@ int list_slaves(const Options& options) {
     return report_failure(master, running.error());
   }
   if (options.json) {
-    fmt::print("{}\n", status_json(master).dump(2));
+    json list = json::array();
+    for (const auto& s : master.slaves()) {
+      auto slave = master.slave(s.name);
+      if (slave) list.push_back(ecat::tool::slave_json((*slave)->info()));
+    }
+    fmt::print("{}\n", list.dump(2));
   } else {
     print_slaves(master, true);
   }
@@ -304,10 +232,10 @@ int list_slaves(const Options& options) {
 }
 
 void add_common(CLI::App* app, Options& o) {
-  app->add_option("--ring", o.ring,
+  app->add_option("RING,--ring", o.ring,
                   "Ring file: the master's sections, and with a simulator section the simulated "
                   "ring to run against");
-  app->add_option("--link", o.link,
+  app->add_option("--backend,--link", o.link,
                   "What the master talks to: raw:IFACE, udp:HOST:PORT or sim:RING.yaml");
   app->add_option("--timeout", o.timeout_s, "Seconds to wait for the session to get running")
       ->check(CLI::PositiveNumber);

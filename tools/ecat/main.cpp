@@ -26,7 +26,8 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
 
   std::vector<ecat::tool::Command> commands;
-  for (auto setup : ecat::tool::registry()) commands.push_back(setup(app));
+  for (auto setup : ecat::tool::registry())
+    commands.push_back(setup(app));
 
   CLI11_PARSE(app, argc, argv);
 

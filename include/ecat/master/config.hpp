@@ -97,10 +97,22 @@ struct DcConfig {
   std::uint32_t warmup_cycles = 0;
 };
 
+// How the master's cycle (bus) thread runs. Both are requests: when the system refuses them
+// (no CAP_SYS_NICE, a CPU that does not exist) the session runs on and MasterStatus::cycle_thread
+// says what was refused and why.
+struct CycleThreadOptions {
+  std::optional<int> fifo_priority;  // SCHED_FIFO with this priority (1..99)
+  std::optional<int> cpu;            // pinned to this CPU
+};
+
 struct MasterConfig {
+  // What the master talks to when the caller does not say (ring files: `master: backend:`):
+  // raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Master::start takes a link; tools open this one.
+  std::string backend;
+  CycleThreadOptions cycle_thread;
   std::uint16_t base_station = 0x1000;
-  // Empty: every slave found is managed, named "slave_<position>" (position 0 "coupler" when it
-  // is a coupler), held in PREOP with no process data: the dynamic, PREOP-first session.
+  // Empty: every slave found is managed, named "slave_<position>", held in PREOP with no process
+  // data: the dynamic, PREOP-first session.
   std::vector<SlaveConfig> slaves;
   // Domain configurations (domain.hpp); logical_base is assigned by the master (index x 0x800)
   // unless set.

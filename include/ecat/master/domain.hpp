@@ -69,6 +69,7 @@
 #include <compare>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -104,6 +105,12 @@ struct PdoHandle {
   auto operator<=>(const PdoHandle&) const = default;
 };
 
+class Domain;
+struct CycleOutcome;
+
+// The per-cycle callback (DomainConfig::on_cycle).
+using CycleCallback = std::function<void(Domain& domain, const CycleOutcome& outcome)>;
+
 struct DomainConfig {
   std::string id;  // names the domain in every message
   // Any value >= kMinPeriod (not limited to whole milliseconds).
@@ -133,6 +140,11 @@ struct DomainConfig {
   std::size_t exchanges_in_flight = 4;
   // Input change records buffered for drain_changes() (rounded up to a power of two).
   std::size_t change_queue_capacity = 1024;
+  // Called on the bus (cycle) thread once per cycle, right after the cycle's reply was classified
+  // and, when valid, its inputs published: read() sees this cycle's inputs and write() is staged
+  // for the next cycle. For control loops that compute outputs from the latest inputs. It must
+  // not block, allocate, log or throw (it delays the cycle); an exception ends the process.
+  CycleCallback on_cycle;
 };
 
 // Why a cycle was not valid.
@@ -150,6 +162,13 @@ struct CycleInvalid {
   std::uint32_t actual_wkc = 0;
   std::uint16_t datagram = 0;  // first datagram that differed (wkc_mismatch)
   bool operator==(const CycleInvalid&) const = default;
+};
+
+// What the per-cycle callback is told.
+struct CycleOutcome {
+  std::uint64_t cycle = 0;              // the cycle's number (as in the domain's stats)
+  bool valid = false;                   // inputs published this cycle
+  std::optional<CycleInvalid> invalid;  // why not, when not valid
 };
 
 struct CycleHealth {

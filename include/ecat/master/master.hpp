@@ -24,6 +24,7 @@
 #include <ecat/bus/bus.hpp>
 #include <ecat/link/link.hpp>
 #include <ecat/master/config.hpp>
+#include <ecat/master/dc.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
@@ -68,6 +69,13 @@ struct ActivationFailure {
   std::optional<std::uint16_t> al_status_code;
 };
 
+// The slave whose clock the others follow (the first DC-capable slave in ring order).
+struct ReferenceClock {
+  std::string slave;
+  std::uint16_t station = 0;
+  std::uint16_t position = 0;
+};
+
 struct MasterStatus {
   MasterState state = MasterState::idle;
   TargetState desired_target = TargetState::op;
@@ -81,6 +89,9 @@ struct MasterStatus {
   // State changes the seed's diagram does not draw that were asked for and refused: always 0
   // unless the master has a bug.
   std::uint64_t illegal_transitions = 0;
+  // What MasterConfig::cycle_thread came to ("SCHED_FIFO 80: applied; CPU 1: pinned"); empty when
+  // nothing was asked.
+  std::string cycle_thread;
 };
 
 class Master {
@@ -116,6 +127,14 @@ class Master {
   Result<void> configure_slave(std::string_view name, SlaveConfig config);
   // Changes a running domain's period (the stored configuration is unchanged).
   Result<void> update_domain_cycle_time(std::string_view domain, std::chrono::nanoseconds period);
+
+  // Distributed clocks. Errc::not_ready (with the reason: DC disabled in the configuration, no
+  // DC-capable slave, initialisation failed, not activated yet) when DC does not run.
+  Result<DcStatus> dc_status() const;
+  Result<ReferenceClock> reference_clock() const;
+  // Waits until every DC slave's system-time difference stayed below the lock threshold for the
+  // configured number of samples. Errc::timeout names the largest difference seen.
+  Result<void> await_dc_locked(std::chrono::nanoseconds timeout = std::chrono::seconds(10));
 
   // The bus, while a session runs (null otherwise).
   bus::Bus* bus() noexcept;

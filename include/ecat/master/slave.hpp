@@ -18,6 +18,7 @@
 
 #include <ecat/master/coe_client.hpp>
 #include <ecat/master/config.hpp>
+#include <ecat/master/dc.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/master/driver.hpp>
 #include <ecat/master/mailbox.hpp>
@@ -25,7 +26,9 @@
 #include <ecat/master/signal.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
+#include <ecat/wire/emergency.hpp>
 #include <ecat/wire/registers.hpp>
+#include <ecat/wire/sdo_info.hpp>
 #include <ecat/wire/sii.hpp>
 
 namespace ecat::master {
@@ -53,6 +56,7 @@ struct SlaveInfo {
   std::optional<wire::SiiIdentity> identity;
   std::string device_name;  // from the SII
   wire::EscInformation esc{};
+  std::optional<wire::DlStatus> dl_status;  // ports as read at discovery
   bool has_mailbox = false;
   bool coe = false;
   std::string driver;
@@ -62,6 +66,8 @@ struct SlaveInfo {
   std::optional<std::string> configuration_error;  // retained PREOP configuration failure
   std::optional<std::string> fault;                // tracked slave-local fault
   DeviceState device_state;
+  // The SYNC/latch configuration written on the way to SAFEOP (DC sessions with `sync` set).
+  std::optional<DcSyncResult> dc_sync;
 };
 
 struct SignalEvent {
@@ -109,6 +115,21 @@ class Slave {
   Result<void> download_sdo(std::uint16_t index, std::uint8_t subindex,
                             std::vector<std::uint8_t> data, SdoOptions options = {});
 
+  // CoE SDO information service (same states as the SDO transfers; Errc::unsupported through
+  // an SDO information error reply when the device has no SDO information).
+  Result<std::vector<std::uint16_t>> object_list(wire::OdListType type = wire::OdListType::all,
+                                                 SdoOptions options = {});
+  Result<wire::ObjectDescriptionResponse> describe_object(std::uint16_t index,
+                                                          SdoOptions options = {});
+  // `value_info`: wire::kValueInfo* flags (unit, default, minimum, maximum value).
+  Result<wire::EntryDescriptionResponse> describe_entry(std::uint16_t index, std::uint8_t subindex,
+                                                        std::uint8_t value_info = 0,
+                                                        SdoOptions options = {});
+  // CoE emergencies the slave sent since the last call, oldest first (the mailbox is read first,
+  // so an emergency waiting in it is included). Empty for a slave without a mailbox.
+  Result<std::vector<wire::Emergency>> emergencies(
+      std::chrono::nanoseconds timeout = std::chrono::seconds(2));
+
   // The signals the driver made of the PDO layout (empty before PREOP configuration).
   std::vector<Signal> signals() const;
   // The latest value of an input (or the staged value of an output) signal. Errc::not_ready
@@ -121,7 +142,9 @@ class Slave {
   Result<void> write_output(std::string_view signal, const Value& value);
   // Runs a driver command (set_output, enable_operation, ...).
   Result<void> command(std::string_view name, const CommandArgs& args = {});
-  // Calls `callback` on the control thread whenever the signal's value changes.
+  // Calls `callback` on the control thread whenever the signal's value changes, or, for the name
+  // of a latch in the slave's sync configuration, on every latched edge (value: the edge's
+  // system time in ns, std::uint64_t).
   Result<SubscriptionId> subscribe(std::string_view signal,
                                    std::function<void(const SignalEvent&)> callback);
   void unsubscribe(SubscriptionId id);

@@ -1,0 +1,109 @@
+// A running Master in steady OP allocates nothing on its cycle (bus) thread, and the
+// application's hot path (Slave::read_input / write_output) allocates nothing once warmed up.
+//
+// The bus thread is recognised from the domain's per-cycle callback, which runs on it. Health
+// polls are off here: a poll is acyclic traffic whose completion hands its reply to the control
+// loop (that hand-over allocates and is not part of the cycle); degradation events are rare
+// posts, kept out by generous thresholds so a loaded machine cannot produce them.
+#include <atomic>
+#include <chrono>
+#include <memory>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include <ecat/master/master.hpp>
+
+#include "master/master_test_support.hpp"
+#include "support/counting_allocator.hpp"
+
+namespace allocs = ecat::test::allocations;
+
+namespace ecat::master {
+namespace {
+
+using namespace std::chrono_literals;
+
+constexpr const char* kRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: drive, profile: servo}
+  wiring:
+    - {from: outputs.channel_2, to: inputs.channel_2}
+)";
+
+TEST(MasterAllocations, SteadyOpCycleAndHotPathAllocateNothing) {
+  auto server = test::make_sim_server(kRing);
+  ASSERT_TRUE(server);
+  MasterConfig config;
+  config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};
+  config.dc.reset();
+  config.frame_timeout = 1s;  // no spurious loss on a loaded machine
+  DomainConfig main;
+  main.id = "main";
+  main.period = 1ms;
+  main.recovery_threshold = 1'000'000;
+  main.miss_threshold = 1'000'000;
+  main.realtime_budget = 50ms;
+  main.exchanges_in_flight = 16;
+  main.stale_after = 10s;  // a stale read is an error value, and errors carry text
+  std::atomic<std::uint64_t> cycles{0};
+  main.on_cycle = [&cycles](Domain&, const CycleOutcome&) {
+    allocs::is_bus_thread = true;
+    cycles.fetch_add(1, std::memory_order_relaxed);
+  };
+  config.domains.push_back(main);
+  for (const char* name : {"coupler", "inputs", "outputs", "drive"}) {
+    SlaveConfig s;
+    s.name = name;
+    if (std::string(name) != "coupler") s.process_data = ProcessDataRequest::all("main");
+    s.health_poll.reset();
+    config.slaves.push_back(s);
+  }
+  Master master(config);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  ASSERT_TRUE(master.start(std::move(*link)));
+  ASSERT_TRUE(master.await_operational(20s));
+  auto outputs = master.slave("outputs");
+  auto inputs = master.slave("inputs");
+  ASSERT_TRUE(outputs && inputs);
+
+  // Warm up: the first writes size the scratch buffers.
+  for (int i = 0; i < 10; ++i) {
+    ASSERT_TRUE((*outputs)->write_output("channel_2", Value(i % 2 == 0)));
+    (void)(*inputs)->read_input("channel_2");
+  }
+  while (cycles.load() < 20)
+    std::this_thread::sleep_for(1ms);
+
+  const auto start_cycles = cycles.load();
+  allocs::bus_thread = 0;
+  allocs::count_bus_thread = true;
+  allocs::counted = 0;
+  allocs::count_this_thread = true;
+  for (int i = 0; i < 2000; ++i) {
+    const bool on = (i / 100) % 2 == 0;
+    auto w = (*outputs)->write_output("channel_2", Value(on));
+    auto r = (*inputs)->read_input("channel_2");
+    if (!w || !r) {
+      allocs::count_this_thread = false;
+      FAIL() << (!w ? w.error().describe() : r.error().describe());
+    }
+    if (i % 20 == 0) std::this_thread::sleep_for(1ms);
+  }
+  allocs::count_this_thread = false;
+  while (cycles.load() < start_cycles + 200)
+    std::this_thread::sleep_for(1ms);
+  allocs::count_bus_thread = false;
+  EXPECT_EQ(allocs::counted.load(), 0u) << "read_input/write_output allocated";
+  EXPECT_EQ(allocs::bus_thread.load(), 0u)
+      << "the cycle thread allocated over " << cycles.load() - start_cycles << " cycles";
+  ASSERT_TRUE(master.stop());
+}
+
+}  // namespace
+}  // namespace ecat::master
