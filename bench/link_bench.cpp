@@ -1,54 +1,22 @@
 // Round-trip latency of each link: the benchmark thread sends a frame and waits for the echo that
 // a second thread sends back. Reports ns per round trip; never asserts a timing.
 #include <array>
-#include <atomic>
 #include <chrono>
-#include <cstdlib>
 #include <string>
-#include <thread>
 
 #include <benchmark/benchmark.h>
-#include <fcntl.h>
-#include <sched.h>
-#include <unistd.h>
 
 #include <ecat/link/memory_link.hpp>
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
 
+#include "veth_namespace.hpp"
+
 namespace {
 
 using namespace std::chrono_literals;
+using ecat::bench::Echo;
 using ecat::link::Link;
-
-// Echoes every frame received on `link` until stopped.
-class Echo {
- public:
-  explicit Echo(Link& link) : link_(link), thread_([this] { run(); }) {}
-  ~Echo() {
-    stop_ = true;
-    link_.interrupt();
-    thread_.join();
-  }
-  Echo(const Echo&) = delete;
-  Echo& operator=(const Echo&) = delete;
-
- private:
-  void run() {
-    std::array<std::uint8_t, ecat::wire::kMaxFrameSize> copy{};
-    while (!stop_) {
-      auto r = link_.receive(100ms);
-      if (!r.ok()) return;
-      if (!r->has_value()) continue;
-      const auto frame = (*r)->frame;
-      std::copy(frame.begin(), frame.end(), copy.begin());
-      (void)link_.send(ecat::wire::Bytes(copy.data(), frame.size()));
-    }
-  }
-  Link& link_;
-  std::atomic<bool> stop_{false};
-  std::thread thread_;
-};
 
 void round_trips(benchmark::State& state, Link& master, Link& segment) {
   const auto size = static_cast<std::size_t>(state.range(0));
@@ -105,49 +73,20 @@ void BM_UdpLoopbackRoundTrip(benchmark::State& state) {
 }
 BENCHMARK(BM_UdpLoopbackRoundTrip)->Arg(60)->Arg(1500)->UseRealTime();
 
-// A veth pair in an anonymous network namespace that vanishes when the links close and this
-// thread returns to its original namespace.
+// A veth pair in an anonymous network namespace (bench/veth_namespace.hpp).
 void BM_RawVethRoundTrip(benchmark::State& state) {
-  if (geteuid() != 0) {
-    state.SkipWithError("needs root to create a veth pair in a private network namespace");
+  ecat::bench::VethPair pair;
+  if (!pair.problem().empty()) {
+    state.SkipWithError(pair.problem().c_str());
     return;
   }
-  const int original = ::open("/proc/thread-self/ns/net", O_RDONLY | O_CLOEXEC);
-  if (original < 0 || ::unshare(CLONE_NEWNET) != 0) {
-    if (original >= 0) ::close(original);
-    state.SkipWithError("network namespaces are not available");
-    return;
-  }
-  std::unique_ptr<ecat::link::RawLink> master;
-  std::unique_ptr<ecat::link::RawLink> segment;
-  std::string problem = "cannot create a veth pair (is `ip` installed?)";
-  const bool created =
-      std::system(
-          "ip link add name a type veth peer name b >/dev/null 2>&1 && ip link set dev a up && "
-          "ip link set dev b up") == 0;
-  if (created) {
-    ecat::link::RawLinkOptions options;
-    options.interface = "a";
-    options.kernel_filter = true;
-    auto a = ecat::link::RawLink::open(options);
-    options.interface = "b";
-    auto b = ecat::link::RawLink::open(options);
-    if (a.ok() && b.ok()) {
-      master = std::move(*a);
-      segment = std::move(*b);
-    } else {
-      problem = (a.ok() ? b.error() : a.error()).describe();
-    }
-  }
+  auto master = pair.open("m", false);
+  auto segment = pair.open("s", false);
   if (master && segment) {
     round_trips(state, *master, *segment);
   } else {
-    state.SkipWithError(problem.c_str());
+    state.SkipWithError(pair.problem().c_str());
   }
-  master.reset();
-  segment.reset();
-  (void)::setns(original, CLONE_NEWNET);
-  ::close(original);
 }
 BENCHMARK(BM_RawVethRoundTrip)->Arg(60)->Arg(1500)->UseRealTime();
 

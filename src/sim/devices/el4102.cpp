@@ -28,7 +28,7 @@ class El4102 : public StandardApplication {
       info.name = fmt::format("output_{}", ch + 1);
       info.direction = SignalDirection::output;
       info.type = "f64";
-      info.unit = "V";
+      info.unit = std::string("V");  // not the literal: GCC 12 -O3 sees a false -Wrestrict
       add_model_signal(std::move(info), [this, ch] { return volts(ch); });
     }
   }

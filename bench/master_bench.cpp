@@ -1,0 +1,690 @@
+// The master session's figures (issue 4, "Benchmarks"): one table per section, printed; nothing
+// here asserts a timing.
+//
+//   1. cyclic round trip over raw veth: the master's domain cycling against sim::SimServer serving
+//      a raw link on the other end of a veth pair (private network namespace), 1 / 16 / 64
+//      slaves, against a bare echo on the same pair paced at the same period (the floor).
+//   2. cycle-start jitter at 1 kHz and 4 kHz: a CyclicParticipant added to the master's own
+//      Cycler records, every tick, how late the bus thread started the tick after its absolute
+//      deadline (the moment the domain's LRW is staged and submitted in the same tick).
+//   3. Master::start to operational for 1 / 16 / 128 / 512 simulated terminals behind an EK1100
+//      (in-process memory link).
+//   4. hot-path cost: Slave::read_input / write_output and Domain read / write / sample.
+//      (bench/domain_bench.cpp covers the domain's cycle cost by image size; not repeated here.)
+//   5. heap allocations per cycle on the cycle (bus) thread in steady OP (must be 0), with global
+//      operator new replaced by the tests' counting allocator.
+//
+// Run: ./build/DIR/bench/master_bench [--quick | --full] [--fifo PRIORITY]
+//   --quick (default) keeps the whole run under about a minute; --full takes longer samples.
+//   --fifo runs the jitter section's cycle thread with SCHED_FIFO at PRIORITY.
+// The veth section needs root (a veth pair in a private network namespace); without it, it
+// prints "skipped: <reason>". docs/BENCHMARKS.md explains every figure.
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/master/config.hpp>
+#include <ecat/master/cycler.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/master.hpp>
+#include <ecat/master/signal.hpp>
+#include <ecat/master/slave.hpp>
+#include <ecat/sim/ring.hpp>
+#include <ecat/sim/server.hpp>
+#include <ecat/wire/frame.hpp>
+
+#include "support/counting_allocator.hpp"
+#include "veth_namespace.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace allocs = ecat::test::allocations;
+using ecat::master::CycleOutcome;
+using ecat::master::Domain;
+using ecat::master::Master;
+using ecat::master::MasterConfig;
+using ecat::master::MasterState;
+using Clock = std::chrono::steady_clock;
+
+struct Mode {
+  bool full = false;
+  std::optional<int> fifo;
+};
+
+double ms_since(Clock::time_point from, Clock::time_point to) {
+  return std::chrono::duration<double, std::milli>(to - from).count();
+}
+double ms_between(std::int64_t from_ns, std::int64_t to_ns) {
+  return static_cast<double>(to_ns - from_ns) / 1e6;
+}
+
+// Nearest-rank percentiles of nanosecond samples, in microseconds.
+struct Distribution {
+  std::size_t n = 0;
+  double min = 0, p50 = 0, p99 = 0, p999 = 0, max = 0;
+};
+
+Distribution distribution(std::vector<std::int64_t> ns) {
+  Distribution d;
+  d.n = ns.size();
+  if (ns.empty()) return d;
+  std::sort(ns.begin(), ns.end());
+  const auto at = [&](double q) {
+    const auto rank = static_cast<std::size_t>(std::ceil(q * static_cast<double>(ns.size())));
+    return static_cast<double>(ns[std::clamp<std::size_t>(rank, 1, ns.size()) - 1]) / 1e3;
+  };
+  d.min = static_cast<double>(ns.front()) / 1e3;
+  d.p50 = at(0.50);
+  d.p99 = at(0.99);
+  d.p999 = at(0.999);
+  d.max = static_cast<double>(ns.back()) / 1e3;
+  return d;
+}
+
+std::string us_columns(const Distribution& d) {
+  return fmt::format("{:>9.1f} {:>9.1f} {:>9.1f} {:>9.1f} {:>9.1f}", d.min, d.p50, d.p99, d.p999,
+                     d.max);
+}
+
+// An EK1100 followed by `terminals` terminals, EL1809 and EL2809 alternating; the first EL2809's
+// channel 1 is wired back to the first EL1809's.
+std::string ring_yaml(std::size_t terminals) {
+  std::string yaml = "version: 1\nsimulator:\n  slaves:\n    - {name: coupler, profile: EK1100}\n";
+  for (std::size_t i = 0; i < terminals; ++i) {
+    yaml += fmt::format("    - {{name: t{}, profile: {}}}\n", i, i % 2 == 0 ? "EL1809" : "EL2809");
+  }
+  if (terminals >= 2) yaml += "  wiring:\n    - {from: t1.channel_1, to: t0.channel_1}\n";
+  return yaml;
+}
+
+// One domain "main" at `period`, every terminal's process data in it, no DC, a short discovery
+// stability window (the default 1 s window would dominate the start-up figures).
+MasterConfig master_config(std::size_t terminals, std::chrono::nanoseconds period) {
+  MasterConfig config;
+  config.scan = {.poll = 10ms, .stable = 50ms, .timeout = 10s};
+  config.dc.reset();
+  config.awaiting_preop_timeout = 120s;
+  ecat::master::DomainConfig domain;
+  domain.id = "main";
+  domain.period = period;
+  config.domains.push_back(std::move(domain));
+  ecat::master::SlaveConfig coupler;
+  coupler.name = "coupler";
+  config.slaves.push_back(std::move(coupler));
+  for (std::size_t i = 0; i < terminals; ++i) {
+    ecat::master::SlaveConfig terminal;
+    terminal.name = fmt::format("t{}", i);
+    terminal.process_data = ecat::master::ProcessDataRequest::all("main");
+    config.slaves.push_back(std::move(terminal));
+  }
+  return config;
+}
+
+ecat::Result<std::unique_ptr<ecat::sim::SimServer>> make_server(std::size_t terminals) {
+  auto ring = ecat::sim::parse_ring(ring_yaml(terminals));
+  if (!ring) return ring.error();
+  return ecat::sim::make_server(*ring);
+}
+
+template <class Predicate>
+bool wait_for(Predicate done, std::chrono::nanoseconds limit) {
+  const auto until = Clock::now() + limit;
+  while (!done()) {
+    if (Clock::now() >= until) return false;
+    std::this_thread::sleep_for(1ms);
+  }
+  return true;
+}
+
+std::int64_t now_ns() {
+  return Clock::now().time_since_epoch().count();
+}
+
+// A simulated ring (memory link or a link the caller serves) with a master in OP on it.
+struct Session {
+  std::unique_ptr<ecat::sim::SimServer> server;
+  std::string error;
+  // Steady-clock ns: start() called, awaiting_preop entered, operational entered.
+  std::atomic<std::int64_t> started{0}, awaiting_preop{0}, operational{0};
+  // Last: destroyed (stopped) first, before the server and what its callback writes.
+  std::unique_ptr<Master> master;
+
+  // Brings the master up on `link` (the server must already serve the other end).
+  bool run(std::unique_ptr<ecat::link::Link> link, MasterConfig config) {
+    master = std::make_unique<Master>(std::move(config));
+    master->on_state_change([this](MasterState, MasterState to) {
+      if (to == MasterState::awaiting_preop) awaiting_preop = now_ns();
+      if (to == MasterState::operational) operational = now_ns();
+    });
+    started = now_ns();
+    if (auto r = master->start(std::move(link)); !r) return error = r.error().describe(), false;
+    if (auto r = master->await_operational(180s); !r) {
+      return error = r.error().describe(), false;
+    }
+    // The callback runs on the control thread, maybe just after await_operational returned.
+    (void)wait_for([&] { return operational.load() != 0; }, 5s);
+    return true;
+  }
+  // The ring served over an in-process memory link.
+  bool run_memory(std::size_t terminals, MasterConfig config) {
+    auto made = make_server(terminals);
+    if (!made) return error = made.error().describe(), false;
+    server = std::move(*made);
+    auto link = server->serve_memory();
+    if (!link) return error = link.error().describe(), false;
+    return run(std::move(*link), std::move(config));
+  }
+  Domain* domain() {
+    auto d = master->domain("main");
+    return d ? *d : nullptr;
+  }
+};
+
+// Added to the master's own Cycler: records how late each tick started, into preallocated
+// storage, and marks the bus thread for the counting allocator.
+class TickProbe final : public ecat::master::CyclicParticipant {
+ public:
+  TickProbe(std::chrono::nanoseconds period, std::size_t capacity)
+      : period_(period), late_ns_(capacity) {}
+  ~TickProbe() override { detach_from_cycler(); }
+
+  void on_tick(const ecat::bus::CycleTick& tick) override {
+    allocs::is_bus_thread = true;
+    ticks_.fetch_add(1, std::memory_order_relaxed);
+    if (!recording_.load(std::memory_order_acquire)) return;
+    const std::size_t i = count_.load(std::memory_order_relaxed);
+    if (i >= late_ns_.size()) return;
+    missed_.fetch_add(tick.missed, std::memory_order_relaxed);
+    late_ns_[i] = (tick.woke_at - tick.deadline).count();
+    count_.store(i + 1, std::memory_order_release);
+  }
+  std::chrono::nanoseconds cycle_period() const noexcept override { return period_; }
+
+  void record() { recording_.store(true, std::memory_order_release); }
+  bool full() const { return count_.load(std::memory_order_acquire) >= late_ns_.size(); }
+  std::uint64_t ticks() const { return ticks_.load(std::memory_order_relaxed); }
+  std::uint64_t missed() const { return missed_.load(std::memory_order_relaxed); }
+  std::vector<std::int64_t> samples() const {
+    const auto n = static_cast<std::ptrdiff_t>(count_.load(std::memory_order_acquire));
+    return {late_ns_.begin(), late_ns_.begin() + n};
+  }
+
+ private:
+  std::chrono::nanoseconds period_;
+  std::vector<std::int64_t> late_ns_;
+  std::atomic<std::size_t> count_{0};
+  std::atomic<std::uint64_t> ticks_{0};
+  std::atomic<std::uint64_t> missed_{0};
+  std::atomic<bool> recording_{false};
+};
+
+// The domain's per-cycle callback: the round trip (submission to completion) of each valid cycle.
+class RoundTripRecorder {
+ public:
+  explicit RoundTripRecorder(std::size_t capacity) : ns_(capacity) {}
+
+  void on_cycle(Domain& domain, const CycleOutcome& outcome) noexcept {
+    if (!recording_.load(std::memory_order_acquire)) return;
+    if (!outcome.valid) {
+      invalid_.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
+    const std::size_t i = count_.load(std::memory_order_relaxed);
+    if (i >= ns_.size()) return;
+    ns_[i] = domain.stats().last_latency.count();
+    count_.store(i + 1, std::memory_order_release);
+  }
+  ecat::master::CycleCallback callback() {
+    return [this](Domain& d, const CycleOutcome& o) { on_cycle(d, o); };
+  }
+  void record() { recording_.store(true, std::memory_order_release); }
+  bool full() const { return count_.load(std::memory_order_acquire) >= ns_.size(); }
+  std::uint64_t invalid() const { return invalid_.load(std::memory_order_relaxed); }
+  std::vector<std::int64_t> samples() const {
+    const auto n = static_cast<std::ptrdiff_t>(count_.load(std::memory_order_acquire));
+    return {ns_.begin(), ns_.begin() + n};
+  }
+
+ private:
+  std::vector<std::int64_t> ns_;
+  std::atomic<std::size_t> count_{0};
+  std::atomic<std::uint64_t> invalid_{0};
+  std::atomic<bool> recording_{false};
+};
+
+void heading(const char* title) {
+  fmt::print("\n== {}\n", title);
+}
+
+// ---- 1. round trip over raw veth ---------------------------------------------------------------
+
+// The same frame the domain sends: one LRW over an image of `image_size` bytes.
+std::vector<std::uint8_t> lrw_frame(std::size_t image_size) {
+  std::array<std::uint8_t, ecat::wire::kMaxFrameSize> buffer{};
+  ecat::wire::FrameBuilder builder(buffer);
+  ecat::wire::DatagramHeader lrw;
+  lrw.command = ecat::wire::Command::lrw;
+  lrw.length = static_cast<std::uint16_t>(image_size);
+  const std::vector<std::uint8_t> data(image_size, 0);
+  (void)builder.add(lrw, ecat::wire::Bytes(data));
+  const auto frame = builder.finish();
+  return {frame.begin(), frame.end()};
+}
+
+// Send, wait for the echo, at every period (as the domain does), `count` times.
+std::vector<std::int64_t> echo_round_trips(ecat::link::Link& master,
+                                           const std::vector<std::uint8_t>& frame,
+                                           std::chrono::nanoseconds period, std::size_t count,
+                                           std::size_t& lost) {
+  std::vector<std::int64_t> ns;
+  ns.reserve(count);
+  auto deadline = Clock::now();
+  for (std::size_t i = 0; i < count; ++i) {
+    deadline += period;
+    std::this_thread::sleep_until(deadline);
+    const auto t0 = Clock::now();
+    if (!master.send(frame).ok()) {
+      ++lost;
+      continue;
+    }
+    auto r = master.receive(100ms);
+    const auto t1 = Clock::now();
+    if (!r.ok() || !r->has_value()) {
+      ++lost;
+      continue;
+    }
+    ns.push_back((t1 - t0).count());
+  }
+  return ns;
+}
+
+void section_veth(const Mode& mode) {
+  heading("1. cyclic round trip over raw veth (us), master domain at 1 kHz vs bare echo");
+  ecat::bench::VethPair pair;
+  if (!pair.problem().empty()) {
+    fmt::print("skipped: {}\n", pair.problem());
+    return;
+  }
+  const auto period = 1ms;
+  const std::size_t samples = mode.full ? 30000 : 1500;
+  fmt::print("{:>9} {:<20} {:>6} {:>6} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}\n", "terminals", "path",
+             "image", "n", "min", "p50", "p99", "p99.9", "max", "p50/echo");
+  for (const std::size_t terminals : {std::size_t{1}, std::size_t{16}, std::size_t{64}}) {
+    // The master against the simulator.
+    Distribution master_rtt;
+    std::size_t image_size = 0;
+    std::uint64_t invalid = 0;
+    std::string error;
+    {
+      Session session;
+      auto server = make_server(terminals);
+      auto segment_end = pair.open("s", true);
+      auto master_end = pair.open("m", false);
+      if (!server) {
+        error = server.error().describe();
+      } else if (!segment_end || !master_end) {
+        error = pair.problem();
+      } else {
+        session.server = std::move(*server);
+        if (auto r = session.server->serve(std::move(segment_end)); !r) {
+          error = r.error().describe();
+        } else {
+          RoundTripRecorder recorder(samples);
+          auto config = master_config(terminals, period);
+          config.domains[0].on_cycle = recorder.callback();
+          if (!session.run(std::move(master_end), std::move(config))) {
+            error = session.error;
+          } else {
+            image_size = session.master->domains().at(0).image_size;
+            std::this_thread::sleep_for(100ms);  // settle after activation
+            recorder.record();
+            const auto limit = period * static_cast<std::int64_t>(samples) * 4 + 10s;
+            if (!wait_for([&] { return recorder.full(); }, limit)) {
+              error = "the domain did not complete its samples in time";
+            }
+            master_rtt = distribution(recorder.samples());
+            invalid = recorder.invalid();
+          }
+          (void)session.master->stop();
+        }
+      }
+    }
+    if (!error.empty()) {
+      fmt::print("{:>9} error: {}\n", terminals, error);
+      continue;
+    }
+    // The floor: a bare echo on the same pair, same frame, same pacing.
+    auto master_end = pair.open("m", false);
+    auto segment_end = pair.open("s", true);
+    if (!master_end || !segment_end) {
+      fmt::print("{:>9} echo error: {}\n", terminals, pair.problem());
+      continue;
+    }
+    std::size_t lost = 0;
+    Distribution echo;
+    {
+      ecat::bench::Echo responder(*segment_end);
+      echo =
+          distribution(echo_round_trips(*master_end, lrw_frame(image_size), period, samples, lost));
+    }
+    fmt::print("{:>9} {:<20} {:>6} {:>6} {} {:>8.2f}\n", terminals, "master + simulator",
+               image_size, master_rtt.n, us_columns(master_rtt),
+               echo.p50 > 0 ? master_rtt.p50 / echo.p50 : 0.0);
+    fmt::print("{:>9} {:<20} {:>6} {:>6} {} {:>8}\n", terminals, "bare echo (floor)", image_size,
+               echo.n, us_columns(echo), "1.00");
+    if (invalid > 0 || lost > 0) {
+      fmt::print("{:>9} ({} invalid cycles, {} echoes lost while sampling)\n", "", invalid, lost);
+    }
+  }
+  fmt::print(
+      "Ring: EK1100 + N terminals (EL1809/EL2809 alternating). image: LRW data bytes. master + "
+      "simulator: the domain's submission to completion of each valid cycle "
+      "(DomainStats::last_latency, read in DomainConfig::on_cycle on the bus thread). bare echo: "
+      "send() to receive() of the same frame on the same raw link, paced at the same period.\n");
+}
+
+// ---- 2. cycle-start jitter
+// ------------------------------------------------------------------------
+
+void section_jitter(const Mode& mode) {
+  heading("2. cycle-start jitter (us late after the absolute deadline), in-process simulator");
+  fmt::print("{:>7} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {}\n", "rate", "n", "min", "p50",
+             "p99", "p99.9", "max", "skipped", "cycle thread");
+  for (const auto period : {std::chrono::nanoseconds(1ms), std::chrono::nanoseconds(250us)}) {
+    const auto seconds = mode.full ? 60s : 3s;
+    const auto samples = static_cast<std::size_t>(seconds / period);
+    auto config = master_config(2, period);
+    if (mode.fifo) config.cycle_thread.fifo_priority = *mode.fifo;
+    Session session;
+    (void)session.run_memory(2, std::move(config));
+    const auto rate = fmt::format("{} Hz", 1s / period);
+    if (!session.error.empty()) {
+      fmt::print("{:>7} error: {}\n", rate, session.error);
+      continue;
+    }
+    Domain* domain = session.domain();
+    ecat::master::Cycler* cycler = domain ? domain->cycler() : nullptr;
+    if (!cycler) {
+      fmt::print("{:>7} error: the master's domain is not in a Cycler\n", rate);
+      continue;
+    }
+    TickProbe probe(period, samples);
+    if (auto r = cycler->add(probe, ecat::master::Cycler::kPriorityDc); !r) {
+      fmt::print("{:>7} error: {}\n", rate, r.error().describe());
+      continue;
+    }
+    std::this_thread::sleep_for(100ms);
+    probe.record();
+    (void)wait_for([&] { return probe.full(); }, seconds * 3 + 5s);
+    (void)cycler->remove(probe);
+    const auto d = distribution(probe.samples());
+    const auto thread = session.master->status().cycle_thread;
+    fmt::print("{:>7} {:>7} {} {:>8} {}\n", rate, d.n, us_columns(d), probe.missed(),
+               thread.empty() ? "default scheduling" : thread);
+  }
+  fmt::print(
+      "Measured by a CyclicParticipant added to the master's own Cycler (the domain's): "
+      "CycleTick::woke_at - CycleTick::deadline, the start of the tick in which the domain stages "
+      "its outputs and submits its LRW. skipped: deadlines the bus thread passed while late.\n");
+}
+
+// ---- 3. start to operational
+// ----------------------------------------------------------------------
+
+void section_startup(const Mode& mode) {
+  heading("3. Master::start to operational (ms), in-process simulator, 1 ms domain");
+  fmt::print("{:>9} {:>5} {:>12} {:>12} {:>10} {:>10} {:>10}\n", "terminals", "runs", "discovery",
+             "preop->op", "total min", "total p50", "total max");
+  const std::size_t runs = mode.full ? 5 : 1;
+  for (const std::size_t terminals :
+       {std::size_t{1}, std::size_t{16}, std::size_t{128}, std::size_t{512}}) {
+    std::vector<double> total, discovery, rest;
+    std::string error;
+    for (std::size_t run = 0; run < runs && error.empty(); ++run) {
+      Session session;
+      if (!session.run_memory(terminals, master_config(terminals, 1ms))) {
+        error = session.error;
+        break;
+      }
+      total.push_back(ms_between(session.started, session.operational));
+      discovery.push_back(ms_between(session.started, session.awaiting_preop));
+      rest.push_back(ms_between(session.awaiting_preop, session.operational));
+    }
+    if (!error.empty()) {
+      fmt::print("{:>9} error: {}\n", terminals, error);
+      continue;
+    }
+    const auto median = [](std::vector<double> v) {
+      std::sort(v.begin(), v.end());
+      return v[v.size() / 2];
+    };
+    fmt::print("{:>9} {:>5} {:>12.1f} {:>12.1f} {:>10.1f} {:>10.1f} {:>10.1f}\n", terminals, runs,
+               median(discovery), median(rest), *std::min_element(total.begin(), total.end()),
+               median(total), *std::max_element(total.begin(), total.end()));
+  }
+  fmt::print(
+      "Ring: EK1100 + N terminals (EL1809/EL2809 alternating), every terminal's process data in "
+      "one domain, no DC. discovery: start -> awaiting_preop (slave count stable for 50 ms: "
+      "MasterConfig::scan.stable, default 1 s); preop->op: SII, mailbox/PDO setup, PREOP, "
+      "SAFEOP, OP. Medians over the runs.\n");
+}
+
+// ---- 4. hot path
+// ----------------------------------------------------------------------------------
+
+struct HotPathRow {
+  const char* name = "";
+  double median_ns = 0;
+  double min_ns = 0;
+  std::size_t failures = 0;
+  double allocations_per_call = 0;
+};
+
+// Runs `call` `calls` times in 20 batches; ns per call of the median and the fastest batch, and
+// the heap allocations it made on this thread.
+template <class Call>
+HotPathRow time_calls(const char* name, std::size_t calls, Call call) {
+  constexpr std::size_t kBatches = 20;
+  const std::size_t per_batch = std::max<std::size_t>(calls / kBatches, 1);
+  std::vector<double> batch_ns;
+  HotPathRow row;
+  row.name = name;
+  for (std::size_t i = 0; i < per_batch / 10; ++i)
+    (void)call(i);  // warm up
+  const auto counted_before = allocs::counted.load();
+  allocs::count_this_thread = true;
+  for (std::size_t b = 0; b < kBatches; ++b) {
+    const auto t0 = Clock::now();
+    for (std::size_t i = 0; i < per_batch; ++i) {
+      if (!call(i)) ++row.failures;
+    }
+    const auto t1 = Clock::now();
+    batch_ns.push_back(static_cast<double>((t1 - t0).count()) / static_cast<double>(per_batch));
+  }
+  allocs::count_this_thread = false;
+  row.allocations_per_call = static_cast<double>(allocs::counted.load() - counted_before) /
+                             static_cast<double>(per_batch * kBatches);
+  std::sort(batch_ns.begin(), batch_ns.end());
+  row.median_ns = batch_ns[kBatches / 2];
+  row.min_ns = batch_ns.front();
+  return row;
+}
+
+void section_hot_path(const Mode& mode, Session& session) {
+  heading("4. hot-path cost (ns per call), application thread, domain cycling at 1 kHz");
+  const std::size_t calls = mode.full ? 2'000'000 : 200'000;
+  auto in = session.master->slave("t0");   // EL1809
+  auto out = session.master->slave("t1");  // EL2809
+  Domain* domain = session.domain();
+  if (!in || !out || !domain) {
+    fmt::print("error: the session has no t0 / t1 / main\n");
+    return;
+  }
+  ecat::master::Slave& inputs = **in;
+  ecat::master::Slave& outputs = **out;
+  if (!wait_for([&] { return inputs.read_input("channel_1").ok(); }, 5s)) {
+    fmt::print("error: inputs never became readable\n");
+    return;
+  }
+  std::optional<ecat::master::PdoRegistration> in_reg, out_reg;
+  for (const auto& r : domain->registrations()) {
+    if (r.key.slave == inputs.info().station && !in_reg) in_reg = r;
+    if (r.key.slave == outputs.info().station && !out_reg) out_reg = r;
+  }
+  if (!in_reg || !out_reg) {
+    fmt::print("error: no registrations for t0 / t1\n");
+    return;
+  }
+  const ecat::master::Value on(true), off(false);
+  std::array<std::uint8_t, 64> buffer{};
+  std::array<std::uint8_t, 64> staged{};
+  const ecat::wire::Bytes out_bytes(staged.data(), out_reg->size);
+  const ecat::wire::MutableBytes into(buffer.data(), buffer.size());
+  std::vector<HotPathRow> rows;
+  rows.push_back(time_calls("Slave::read_input", calls,
+                            [&](std::size_t) { return inputs.read_input("channel_1").ok(); }));
+  rows.push_back(time_calls("Slave::write_output", calls, [&](std::size_t i) {
+    return outputs.write_output("channel_1", (i & 1) != 0 ? on : off).ok();
+  }));
+  rows.push_back(time_calls("Domain::read(handle)", calls,
+                            [&](std::size_t) { return domain->read(in_reg->handle, into).ok(); }));
+  rows.push_back(time_calls("Domain::read(key)", calls,
+                            [&](std::size_t) { return domain->read(in_reg->key, into).ok(); }));
+  rows.push_back(time_calls("Domain::write(handle)", calls, [&](std::size_t i) {
+    staged[0] = static_cast<std::uint8_t>(i);
+    return domain->write(out_reg->handle, out_bytes).ok();
+  }));
+  rows.push_back(time_calls("Domain::write(key)", calls, [&](std::size_t i) {
+    staged[0] = static_cast<std::uint8_t>(i);
+    return domain->write(out_reg->key, out_bytes).ok();
+  }));
+  rows.push_back(time_calls("Domain::sample(handle)", calls, [&](std::size_t) {
+    return domain->sample(in_reg->handle, into).ok();
+  }));
+  fmt::print("{:<24} {:>10} {:>10} {:>9} {:>12}\n", "call", "ns median", "ns best", "failures",
+             "allocs/call");
+  for (const auto& r : rows) {
+    fmt::print("{:<24} {:>10.1f} {:>10.1f} {:>9} {:>12.3f}\n", r.name, r.median_ns, r.min_ns,
+               r.failures, r.allocations_per_call);
+  }
+  fmt::print(
+      "{} calls each in 20 batches; 'median' / 'best' are the batches' mean ns per call. Signals: "
+      "channel_1 of an EL1809 (input, 1 bit) and an EL2809 (output, 1 bit); Domain calls on their "
+      "SyncManager images ({} and {} bytes).\n",
+      calls, in_reg->size, out_reg->size);
+}
+
+// ---- 5. allocations per cycle
+// ---------------------------------------------------------------------
+
+void section_allocations(const Mode& mode, Session& session, const char* what) {
+  fmt::print("-- {}\n", what);
+  Domain* domain = session.domain();
+  ecat::master::Cycler* cycler = domain ? domain->cycler() : nullptr;
+  if (!cycler) {
+    fmt::print("error: the master's domain is not in a Cycler\n");
+    return;
+  }
+  // The probe marks the bus thread for the counting allocator on its first tick.
+  TickProbe probe(1ms, 0);
+  if (auto r = cycler->add(probe); !r) {
+    fmt::print("error: {}\n", r.error().describe());
+    return;
+  }
+  (void)wait_for([&] { return probe.ticks() > 10; }, 5s);
+  const auto window = mode.full ? 30s : 3s;
+  const auto before = domain->stats();
+  const auto bus_before = allocs::bus_thread.load();
+  const auto total_before = allocs::total.load();
+  allocs::count_bus_thread = true;
+  std::this_thread::sleep_for(window);
+  allocs::count_bus_thread = false;
+  const auto after = domain->stats();
+  const auto bus_allocations = allocs::bus_thread.load() - bus_before;
+  const auto total_allocations = allocs::total.load() - total_before;
+  (void)cycler->remove(probe);
+  const auto cycles = after.cycle_count - before.cycle_count;
+  const auto valid = after.valid_count - before.valid_count;
+  fmt::print("{:>8} {:>8} {:>14} {:>16} {:>20}\n", "cycles", "valid", "cycle-thread", "per cycle",
+             "(whole process)");
+  fmt::print("{:>8} {:>8} {:>14} {:>16} {:>20}\n", cycles, valid, bus_allocations,
+             cycles > 0 ? fmt::format("{:.3f}", static_cast<double>(bus_allocations) /
+                                                    static_cast<double>(cycles))
+                        : std::string("n/a"),
+             total_allocations);
+  fmt::print(
+      "{} s of OP with {} slaves at 1 kHz. cycle-thread: operator new calls on the bus thread "
+      "(tick, LRW, reply, classification, publication, on_cycle, and the bus's share of any "
+      "other traffic). whole process (for reference): the control loop, the simulator, this "
+      "thread.\n",
+      std::chrono::duration_cast<std::chrono::seconds>(window).count(),
+      session.master->status().slave_count);
+}
+
+int usage(const char* self) {
+  std::fprintf(stderr, "usage: %s [--quick | --full] [--fifo PRIORITY]\n", self);
+  return 2;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Mode mode;
+  for (int i = 1; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--quick") == 0) {
+      mode.full = false;
+    } else if (std::strcmp(argv[i], "--full") == 0) {
+      mode.full = true;
+    } else if (std::strcmp(argv[i], "--fifo") == 0 && i + 1 < argc) {
+      mode.fifo = std::atoi(argv[++i]);
+    } else {
+      return usage(argv[0]);
+    }
+  }
+  const auto t0 = Clock::now();
+  fmt::print("master_bench ({}): figures only, nothing asserted\n", mode.full ? "full" : "quick");
+  section_veth(mode);
+  section_jitter(mode);
+  section_startup(mode);
+  {
+    Session session;
+    if (!session.run_memory(16, master_config(16, 1ms))) {
+      fmt::print("\nerror: cannot bring up the 16-terminal session: {}\n", session.error);
+    } else {
+      section_hot_path(mode, session);
+      heading("5. heap allocations per cycle in steady OP (cycle thread; must be 0)");
+      section_allocations(mode, session, "default slave health polls (AL status every 250 ms)");
+    }
+  }
+  {
+    // The cyclic path alone: no acyclic traffic shares the bus thread.
+    auto config = master_config(16, 1ms);
+    for (auto& slave : config.slaves)
+      slave.health_poll.reset();
+    Session session;
+    if (session.run_memory(16, std::move(config))) {
+      section_allocations(mode, session, "health polls off (the cyclic path alone)");
+    } else {
+      fmt::print("error: {}\n", session.error);
+    }
+  }
+  fmt::print("\n(total {:.1f} s)\n", ms_since(t0, Clock::now()) / 1e3);
+  return 0;
+}
