@@ -249,7 +249,7 @@ class Reader {
       if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
       if (auto r = check_keys(
               ctx_, item, path,
-              {"name", "position", "vendor_id", "product_code", "driver", "driver_options",
+              {"name", "position", "alias", "vendor_id", "product_code", "driver", "driver_options",
                "process_data", "target", "health_poll_ms", "startup_sdos", "pdo_source", "sync"});
           !r) {
         return r.error();
@@ -267,6 +267,10 @@ class Reader {
           auto x = to_int(ctx_, v, p, 0, 0xFFFF);
           if (!x) return x.error();
           s.position = static_cast<std::uint16_t>(*x);
+        } else if (e.key == "alias") {
+          auto x = to_int(ctx_, v, p, 1, 0xFFFF);
+          if (!x) return x.error();
+          s.alias = static_cast<std::uint16_t>(*x);
         } else if (e.key == "vendor_id" || e.key == "product_code") {
           auto x = to_int(ctx_, v, p, 0, 0xFFFFFFFFll);
           if (!x) return x.error();

@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 
 #include <ecat/exec/task.hpp>
+#include <ecat/exec/transact.hpp>
 #include <ecat/master/al_control.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/startup.hpp>
@@ -95,7 +96,12 @@ struct Master::Impl : DomainObserver {
 
   // ---- startup -----------------------------------------------------------------------------
 
-  std::vector<SlaveConfig> effective_slaves(std::uint16_t count) const {
+  // The configured slaves with their ring positions: an entry with an alias is the slave whose
+  // configured station alias (0x0012, from its SII) it is, wherever it sits; an entry without a
+  // position is the slave after the previous entry's. `aliases` is by position (empty when no
+  // entry uses an alias).
+  Result<std::vector<SlaveConfig>> effective_slaves(
+      std::uint16_t count, const std::vector<std::uint16_t>& aliases) const {
     std::vector<SlaveConfig> out;
     if (config.slaves.empty()) {
       for (std::uint16_t pos = 0; pos < count; ++pos) {
@@ -107,15 +113,59 @@ struct Master::Impl : DomainObserver {
       }
       return out;
     }
-    // An entry without a position is the slave after the previous entry's.
     int next = 0;
     for (const auto& configured : config.slaves) {
       SlaveConfig c = configured;
+      if (c.alias) {
+        std::optional<std::uint16_t> found;
+        for (std::size_t pos = 0; pos < aliases.size(); ++pos) {
+          if (aliases[pos] != *c.alias) continue;
+          if (found) {
+            return Error(Errc::invalid_argument,
+                         fmt::format("slave {}: station alias 0x{:04x} is held by the slaves at "
+                                     "positions {} and {}",
+                                     c.name, *c.alias, *found, pos));
+          }
+          found = static_cast<std::uint16_t>(pos);
+        }
+        if (!found) {
+          return Error(Errc::not_found,
+                       fmt::format("slave {}: no slave in the ring has station alias 0x{:04x}",
+                                   c.name, *c.alias));
+        }
+        if (c.position && *c.position != *found) {
+          return Error(Errc::invalid_argument,
+                       fmt::format("slave {}: configured at position {}, but station alias "
+                                   "0x{:04x} is at position {}",
+                                   c.name, *c.position, *c.alias, *found));
+        }
+        c.position = *found;
+      }
       if (!c.position) c.position = static_cast<std::uint16_t>(next);
       next = *c.position + 1;
+      if (*c.position >= count) {
+        return Error(Errc::invalid_argument,
+                     fmt::format("slave {} is configured at position {}, the ring has {} slaves",
+                                 c.name, *c.position, count));
+      }
       out.push_back(std::move(c));
     }
     return out;
+  }
+
+  // Configured station aliases (0x0012) by position.
+  exec::Task<Result<std::vector<std::uint16_t>>> read_aliases(Session& s, std::uint16_t count) {
+    bus::Transaction tx;
+    for (std::uint16_t pos = 0; pos < count; ++pos) {
+      tx.fprd(static_cast<std::uint16_t>(s.config.base_station + pos), wire::reg::kStationAlias, 2,
+              1);
+    }
+    auto reply = co_await exec::transact(loop, *s.bus, std::move(tx));
+    if (!reply) co_return reply.error().context("reading the station aliases (0x0012)");
+    std::vector<std::uint16_t> out;
+    for (std::uint16_t pos = 0; pos < count; ++pos)
+      out.push_back(wire::load_le16(reply->data(pos).data()));
+    co_return out;
   }
 
   exec::Task<Result<void>> bring_up_with_retry(std::shared_ptr<Session> s, Slave& slave,
@@ -161,20 +211,21 @@ struct Master::Impl : DomainObserver {
       co_return Error(Errc::invalid_argument, fmt::format("{} slaves configured, the ring has {}",
                                                           s->config.slaves.size(), *count));
     }
-    auto configs = effective_slaves(*count);
-    for (const auto& c : configs) {
-      if (*c.position >= *count) {
-        co_return Error(Errc::invalid_argument,
-                        fmt::format("slave {} is configured at position {}, the ring has {} "
-                                    "slaves",
-                                    c.name, *c.position, *count));
-      }
-    }
     s->slave_count = *count;
     if (!s->config.frame_timeout) (void)bus.set_frame_timeout(auto_frame_timeout(*count));
     if (auto r = co_await assign_stations(loop, bus, *count, s->config.base_station); !r) {
       co_return r.error();
     }
+    std::vector<std::uint16_t> aliases;
+    for (const auto& c : s->config.slaves) {
+      if (!c.alias || !aliases.empty()) continue;
+      auto read = co_await read_aliases(*s, *count);
+      if (!read) co_return read.error();
+      aliases = std::move(*read);
+    }
+    auto effective = effective_slaves(*count, aliases);
+    if (!effective) co_return effective.error();
+    auto configs = std::move(*effective);
     auto dl = co_await read_dl_status(loop, bus, *count, s->config.base_station);
     if (!dl) co_return dl.error();
     s->dl_status = std::move(*dl);

@@ -119,6 +119,7 @@ INSTANTIATE_TEST_SUITE_P(
     ::testing::Values(
         BadCase{"master: {base_station: 0}\n", "master.base_station"},
         BadCase{"master: {bogus: 1}\n", "bogus"},
+        BadCase{"slaves: [{name: x, alias: 0}]\n", "slaves[0].alias"},
         BadCase{"master: {backend: eth0}\n", "\"eth0\" is not a backend"},
         BadCase{"master: {cycle_priority: 100}\n", "master.cycle_priority"},
         BadCase{"master: {cycle_cpu: -1}\n", "master.cycle_cpu"},

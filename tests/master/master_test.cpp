@@ -657,5 +657,76 @@ simulator:
   ASSERT_TRUE(master.stop());
 }
 
+// A slave configured by its station alias is found wherever it sits; a missing or duplicated
+// alias is named.
+TEST(MasterAliases, SlaveFoundByStationAliasWhereverItSits) {
+  sim::DeviceConfig device;
+  device.profile = "EL2809";
+  auto template_esc = sim::make_device(device);
+  ASSERT_TRUE(template_esc);
+  const auto eeprom = (*template_esc)->eeprom();
+  auto decoded = wire::decode_sii(wire::Bytes(eeprom.data(), eeprom.size()));
+  ASSERT_TRUE(decoded) << decoded.error().describe();
+  auto image = decoded->image;
+  image.station_alias = 0x0042;
+  auto encoded = wire::encode_sii(image);
+  ASSERT_TRUE(encoded);
+  const auto file =
+      std::filesystem::temp_directory_path() / fmt::format("ecat-alias-{}.bin", ::getpid());
+  std::ofstream(file, std::ios::binary)
+      .write(reinterpret_cast<const char*>(encoded->data()),
+             static_cast<std::streamsize>(encoded->size()));
+  // The aliased EL2809 sits at position 2 in one ring and at position 1 in the other.
+  for (const bool first_ring : {true, false}) {
+    auto server = test::make_sim_server(
+        fmt::format(R"(version: 1
+simulator:
+  slaves:
+    - {{name: coupler, profile: EK1100}}
+{}    - {{name: aliased, profile: eeprom, file: "{}"}}
+)",
+                    first_ring ? "    - {name: other, profile: EL1809}\n" : "", file.string()));
+    ASSERT_TRUE(server);
+    auto link = server->serve_memory();
+    ASSERT_TRUE(link);
+    auto config = fast_config();
+    SlaveConfig out = slave("out");
+    out.alias = 0x0042;
+    config.slaves = {slave("coupler", {}), out};
+    Master master(config);
+    ASSERT_TRUE(master.start(std::move(*link)));
+    auto op = master.await_operational(10s);
+    ASSERT_TRUE(op) << op.error().describe();
+    auto found = master.slave("out");
+    ASSERT_TRUE(found);
+    EXPECT_EQ((*found)->position(), first_ring ? 2 : 1);
+    EXPECT_EQ((*found)->info().identity->product_code, 0x0af93052u);
+    ASSERT_TRUE(master.stop());
+  }
+  // No slave holds alias 0x0043: startup names it.
+  auto server = test::make_sim_server(fmt::format(R"(version: 1
+simulator:
+  slaves:
+    - {{name: coupler, profile: EK1100}}
+    - {{name: aliased, profile: eeprom, file: "{}"}}
+)",
+                                                  file.string()));
+  std::filesystem::remove(file);
+  ASSERT_TRUE(server);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  auto config = fast_config();
+  SlaveConfig missing = slave("missing");
+  missing.alias = 0x0043;
+  config.slaves = {slave("coupler", {}), missing};
+  Master master(config);
+  ASSERT_TRUE(master.start(std::move(*link)));
+  auto running = master.await_running(10s);
+  ASSERT_FALSE(running);
+  EXPECT_NE(running.error().describe().find("no slave in the ring has station alias 0x0043"),
+            std::string::npos)
+      << running.error().describe();
+}
+
 }  // namespace
 }  // namespace ecat::master

@@ -65,6 +65,9 @@ struct SlaveConfig {
   std::string name;
   // Ring position this entry describes; empty = the one after the previous entry's (0 first).
   std::optional<std::uint16_t> position;
+  // Configured station alias (SII word 4, register 0x0012) of the slave this entry describes:
+  // found wherever it sits in the ring; a position given too must agree.
+  std::optional<std::uint16_t> alias;
   // When set, the slave's identity must match (checked after the SII is read).
   std::optional<std::uint32_t> vendor_id;
   std::optional<std::uint32_t> product_code;
