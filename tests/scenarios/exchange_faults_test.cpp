@@ -196,6 +196,7 @@ TEST(Scenario07, ScriptedExchangeFaultsRecover) {
   auto ring = ScenarioRing::operational(eager_spec());
   ASSERT_TRUE(ring);
   Monitor monitor(*ring->master);
+  const auto before = ring->domain_stats();
   auto steps = drops_and_skews();
   steps.push_back(fault::next(fault::disconnect("outputs"), 30));
   ASSERT_TRUE(ring->server->inject(fault::script(steps)));
@@ -206,7 +207,11 @@ TEST(Scenario07, ScriptedExchangeFaultsRecover) {
   ASSERT_TRUE(eventually([&] { return monitor.saw("state:outputs:down"); })) << monitor.seen();
   expect_healed(*ring);
   monitor.stop();
-  EXPECT_TRUE(monitor.saw("invalid:main:timeout")) << monitor.seen();
+  // The dropped replies were transport misses. Counted, not sampled: the skews that follow
+  // replace the last invalid reason within a cycle or two, faster than a loaded sampler looks.
+  const auto after = ring->domain_stats();
+  EXPECT_GT(after.timeout_count + after.expired_count, before.timeout_count + before.expired_count)
+      << monitor.seen();
   EXPECT_TRUE(monitor.saw("fault:outputs")) << monitor.seen();
   EXPECT_EQ(ring->slave("outputs").station(), 0x1002);
 }
