@@ -167,8 +167,23 @@ TEST(Soak, RandomFaultsOnARunningRingHealAndKeepTheInvariants) {
   std::printf("soak: %llu faults injected, %llu seen in the API, resident %zu -> %zu KiB\n",
               static_cast<unsigned long long>(injected), static_cast<unsigned long long>(visible),
               warm_kib, end_kib);
-  // Bounded growth: allocator caches and the sanitizers' quarantine, not a leak per fault.
-  EXPECT_LT(end_kib, warm_kib + 64 * 1024) << "resident memory grew (seed " << seed << ")";
+  // Bounded growth: allocator caches, not a leak per fault. Under AddressSanitizer the resident
+  // set holds its quarantine of freed memory (256 MiB by default), so the bound is checked in the
+  // plain build; there LeakSanitizer checks for leaks at exit instead.
+#if defined(__SANITIZE_ADDRESS__)
+  constexpr bool kAddressSanitizer = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+  constexpr bool kAddressSanitizer = true;
+#else
+  constexpr bool kAddressSanitizer = false;
+#endif
+#else
+  constexpr bool kAddressSanitizer = false;
+#endif
+  if (!kAddressSanitizer) {
+    EXPECT_LT(end_kib, warm_kib + 64 * 1024) << "resident memory grew (seed " << seed << ")";
+  }
 }
 
 }  // namespace
