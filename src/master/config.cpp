@@ -14,6 +14,8 @@ std::string_view to_string(SyncMode mode) noexcept {
       return "sync0";
     case SyncMode::sync1:
       return "sync1";
+    case SyncMode::sm_synchronous:
+      return "sm_synchronous";
   }
   return "unknown";
 }
@@ -83,7 +85,8 @@ Result<void> validate(const MasterConfig& config) {
     if (s.pdo_source == SlaveConfig::PdoSource::configured && !s.pdo_mapping) {
       return bad(fmt::format("slave {}: pdo_source configured needs a pdo_mapping", s.name));
     }
-    if (s.sync && s.sync->mode != SyncMode::free_run && !config.dc) {
+    if (s.sync && (s.sync->mode == SyncMode::sync0 || s.sync->mode == SyncMode::sync1) &&
+        !config.dc) {
       return bad(fmt::format("slave {}: sync mode {} needs distributed clocks (dc is disabled)",
                              s.name, to_string(s.sync->mode)));
     }

@@ -424,9 +424,12 @@ class Reader {
           sc.mode = SyncMode::sync0;
         } else if (*x == "sync1") {
           sc.mode = SyncMode::sync1;
+        } else if (*x == "sm_synchronous") {
+          sc.mode = SyncMode::sm_synchronous;
         } else {
-          return spec_error(ctx_, e.value, p,
-                            fmt::format("unknown mode \"{}\" (free_run, sync0, sync1)", *x));
+          return spec_error(
+              ctx_, e.value, p,
+              fmt::format("unknown mode \"{}\" (free_run, sm_synchronous, sync0, sync1)", *x));
         }
       } else if (e.key == "assign_activate") {
         auto x = to_int(ctx_, e.value, p, 0, 0xFFFF);

@@ -576,7 +576,9 @@ constexpr std::uint16_t kSync1Bit = 0x0400;
 
 std::pair<std::uint16_t, AssignActivateSource> resolve_assign_activate(
     const SyncConfig& sync, const wire::SiiImage* sii) noexcept {
-  if (sync.mode == SyncMode::free_run) return {0, AssignActivateSource::none};
+  if (sync.mode == SyncMode::free_run || sync.mode == SyncMode::sm_synchronous) {
+    return {0, AssignActivateSource::none};
+  }
   if (sync.assign_activate) return {*sync.assign_activate, AssignActivateSource::config};
   if (sii != nullptr) {
     const bool want_sync1 = sync.mode == SyncMode::sync1;
@@ -609,7 +611,7 @@ exec::Task<Result<DcSyncResult>> configure_sync(exec::EventLoop& loop, bus::Bus&
   result.source = source;
   result.latch_control[0] = latch_control(request.sync.latches, 0);
   result.latch_control[1] = latch_control(request.sync.latches, 1);
-  const bool cyclic = request.sync.mode != SyncMode::free_run;
+  const bool cyclic = request.sync.mode == SyncMode::sync0 || request.sync.mode == SyncMode::sync1;
 
   if (cyclic) {
     if (request.cycle.count() <= 0 || request.cycle.count() > 0xFFFF'FFFF) {

@@ -527,7 +527,49 @@ exec::Task<Result<void>> Slave::Impl::sdo_download(std::uint16_t index, std::uin
 }
 
 exec::Task<Result<void>> Slave::Impl::apply_sync() {
-  if (!config.sync || !session.config.dc) co_return ok();
+  if (!config.sync) co_return ok();
+  // The application's synchronisation (ETG.1020 0x1C32/0x1C33 subindex 1), when it has the
+  // objects: 0 free run, 1 SyncManager event (inputs: 0x22, on the output SM's event), 2 SYNC0,
+  // 3 SYNC1.
+  if (mailbox && (sii && (sii->decoded.image.mailbox_protocols & wire::mailbox_protocol::kCoe))) {
+    std::uint16_t out_type = 0;
+    std::uint16_t in_type = 0;
+    switch (config.sync->mode) {
+      case SyncMode::free_run:
+        break;
+      case SyncMode::sm_synchronous:
+        out_type = 1;
+        in_type = 0x22;
+        break;
+      case SyncMode::sync0:
+        out_type = in_type = 2;
+        break;
+      case SyncMode::sync1:
+        out_type = in_type = 3;
+        break;
+    }
+    for (const auto& [index, type] :
+         {std::pair{std::uint16_t{0x1C32}, out_type}, std::pair{std::uint16_t{0x1C33}, in_type}}) {
+      std::vector<std::uint8_t> value{static_cast<std::uint8_t>(type & 0xFF),
+                                      static_cast<std::uint8_t>(type >> 8)};
+      auto written = co_await master::download_sdo(*mailbox, index, 0x01, std::move(value), {});
+      if (written) continue;
+      const auto code = sdo_abort_code(written.error());
+      // A device without the object (or without that subindex) has a fixed synchronisation.
+      if (code && (*code == 0x06020000 || *code == 0x06090011)) continue;
+      co_return written.error().context(fmt::format("{}: setting sync mode {} in 0x{:04x}:01",
+                                                    who(), to_string(config.sync->mode), index));
+    }
+  }
+  if (config.sync->mode == SyncMode::sm_synchronous && config.sync->latches.empty()) co_return ok();
+  if (!session.config.dc) {
+    if (config.sync->mode == SyncMode::free_run || config.sync->mode == SyncMode::sm_synchronous) {
+      co_return ok();
+    }
+    co_return Error(Errc::unsupported,
+                    fmt::format("{}: sync {} configured, but distributed clocks are disabled",
+                                who(), to_string(config.sync->mode)));
+  }
   std::optional<DcPlannedSlave> planned;
   {
     // dc_init is written under the master's lock once, at startup, before any slave steps.

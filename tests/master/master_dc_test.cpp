@@ -118,6 +118,10 @@ TEST_F(MasterDcTest, LocksReportsAndSynchronisesTheDrives) {
   EXPECT_NE(info.dc_sync->assign_activate, 0);
   EXPECT_GT(info.dc_sync->start_time, 0u);
   EXPECT_FALSE((*master_->slave("inputs"))->info().dc_sync.has_value());
+  // The drive's application was told to run on SYNC0 (0x1C32:01 = 2).
+  auto mode = (*axis)->upload_sdo(0x1C32, 1);
+  ASSERT_TRUE(mode) << mode.error().describe();
+  EXPECT_EQ(*mode, (std::vector<std::uint8_t>{0x02, 0x00}));
   EXPECT_TRUE(eventually([&] {
     return server_->with_segment([](sim::Segment& segment, sim::FaultInjector&) {
       return segment.esc(3).dc()->sync_state() == sim::SyncUnitState::running &&

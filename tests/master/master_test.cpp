@@ -380,6 +380,29 @@ TEST(MasterActivation, BlockedNamesTheSlaveAndCode) {
   ASSERT_TRUE(master.stop());
 }
 
+// The application's synchronisation goes to 0x1C32/0x1C33:01 on the way to SAFEOP (ETG.1020):
+// SyncManager-synchronous without distributed clocks.
+TEST_F(MasterTest, SmSynchronousModeIsWrittenToTheSyncManagerParameters) {
+  auto config = full_config();
+  SyncConfig sync;
+  sync.mode = SyncMode::sm_synchronous;
+  config.slaves[4].sync = sync;  // the drive
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  auto op = master.await_operational(10s);
+  ASSERT_TRUE(op) << op.error().describe();
+  auto drive = master.slave("drive");
+  ASSERT_TRUE(drive);
+  auto out = (*drive)->upload_sdo(0x1C32, 1);
+  ASSERT_TRUE(out) << out.error().describe();
+  EXPECT_EQ(*out, (std::vector<std::uint8_t>{0x01, 0x00}));
+  auto in = (*drive)->upload_sdo(0x1C33, 1);
+  ASSERT_TRUE(in) << in.error().describe();
+  EXPECT_EQ(*in, (std::vector<std::uint8_t>{0x22, 0x00}));
+  EXPECT_FALSE((*drive)->info().dc_sync.has_value());  // no DC unit touched
+  ASSERT_TRUE(master.stop());
+}
+
 TEST_F(MasterTest, PdoLayoutReadFromCoe) {
   auto config = full_config();
   config.slaves[4].pdo_source = SlaveConfig::PdoSource::coe;

@@ -39,7 +39,9 @@ struct ProcessDataRequest {
   }
 };
 
-enum class SyncMode : std::uint8_t { free_run, sync0, sync1 };
+// free_run: the application runs on its own; sm_synchronous: on the SyncManager event (no DC);
+// sync0 / sync1: on the DC SYNC signals. Written to 0x1C32:01 / 0x1C33:01 when the slave has them.
+enum class SyncMode : std::uint8_t { free_run, sync0, sync1, sm_synchronous };
 std::string_view to_string(SyncMode mode) noexcept;
 
 enum class LatchEdge : std::uint8_t { rising, falling };
