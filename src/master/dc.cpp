@@ -552,15 +552,28 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
 }
 
 DcStatus DcMaintainer::status() const {
-  std::lock_guard lock(mutex_);
-  DcStatus out = status_;
+  // The bus thread takes mutex_ on every completion: allocate before taking it, so the section
+  // it may wait for only copies (vector assignment reuses the reserved capacity; the sizes are
+  // fixed at construction).
+  DcStatus out;
+  out.slaves.reserve(stations_.size());
+  out.history.reserve(options_.history);
+  std::vector<std::int64_t> ordered;
+  ordered.reserve(options_.history);
+  std::size_t head = 0;
+  std::size_t size = 0;
+  {
+    std::lock_guard lock(mutex_);
+    out = status_;
+    head = history_head_;
+    size = history_size_;
+  }
   // Unroll the ring buffer: oldest first, only the samples taken.
-  out.history.clear();
-  out.history.reserve(history_size_);
-  const std::size_t cap = status_.history.size();
-  const std::size_t first = (history_head_ + cap - history_size_) % cap;
-  for (std::size_t k = 0; k < history_size_; ++k)
-    out.history.push_back(status_.history[(first + k) % cap]);
+  const std::size_t cap = out.history.size();
+  const std::size_t first = (head + cap - size) % cap;
+  for (std::size_t k = 0; k < size; ++k)
+    ordered.push_back(out.history[(first + k) % cap]);
+  out.history = std::move(ordered);
   return out;
 }
 

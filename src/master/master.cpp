@@ -1081,6 +1081,19 @@ Result<ReferenceClock> Master::reference_clock() const {
 Result<void> Master::await_dc_locked(std::chrono::nanoseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {
+    // The lock flag is an atomic: polling it costs the cycle thread nothing; the full status
+    // (copied under the maintainer's lock) is only taken to explain a refusal or a timeout.
+    bool running = false;
+    {
+      std::lock_guard lock(impl_->mutex);
+      const auto& s = impl_->session;
+      running = s && s->dc;
+      if (running && s->dc->locked()) return ok();
+    }
+    if (running && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(1ms);
+      continue;
+    }
     auto status = dc_status();
     if (status && status->locked) return ok();
     if (!status && status.error().code() != Errc::not_ready) return status.error();

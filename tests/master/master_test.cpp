@@ -6,6 +6,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <memory>
 #include <string>
 #include <thread>
@@ -572,25 +573,45 @@ TEST_F(MasterTest, SdoInformationAndEmergenciesThroughTheSlave) {
   ASSERT_TRUE(master.stop());
 }
 
-// A mailbox device given a bootstrap mailbox in its SII: request(BOOTSTRAP) walks PREOP -> INIT ->
-// BOOT, and back up again; the same device without one refuses with AL status 0x0013.
-TEST(MasterBootstrap, RequestWalksThroughInitToBootstrapAndBack) {
+// A built-in profile's SII image changed by `edit`, written to a temporary file for the `eeprom`
+// profile (removed by the caller); empty (and a test failure) when something does not work.
+std::filesystem::path edited_eeprom(const std::string& profile, const std::string& tag,
+                                    const std::function<void(wire::SiiImage&)>& edit) {
   sim::DeviceConfig device;
-  device.profile = "mailbox";
+  device.profile = profile;
   auto template_esc = sim::make_device(device);
-  ASSERT_TRUE(template_esc);
+  if (!template_esc) {
+    ADD_FAILURE() << template_esc.error().describe();
+    return {};
+  }
   const auto eeprom = (*template_esc)->eeprom();
   auto decoded = wire::decode_sii(wire::Bytes(eeprom.data(), eeprom.size()));
-  ASSERT_TRUE(decoded) << decoded.error().describe();
+  if (!decoded) {
+    ADD_FAILURE() << decoded.error().describe();
+    return {};
+  }
   auto image = decoded->image;
-  image.bootstrap_mailbox = image.standard_mailbox;
+  edit(image);
   auto encoded = wire::encode_sii(image);
-  ASSERT_TRUE(encoded) << encoded.error().describe();
+  if (!encoded) {
+    ADD_FAILURE() << encoded.error().describe();
+    return {};
+  }
   const auto file =
-      std::filesystem::temp_directory_path() / fmt::format("ecat-bootstrap-{}.bin", ::getpid());
+      std::filesystem::temp_directory_path() / fmt::format("ecat-{}-{}.bin", tag, ::getpid());
   std::ofstream(file, std::ios::binary)
       .write(reinterpret_cast<const char*>(encoded->data()),
              static_cast<std::streamsize>(encoded->size()));
+  return file;
+}
+
+// A mailbox device given a bootstrap mailbox in its SII: request(BOOTSTRAP) walks PREOP -> INIT ->
+// BOOT, and back up again; the same device without one refuses with AL status 0x0013.
+TEST(MasterBootstrap, RequestWalksThroughInitToBootstrapAndBack) {
+  const auto file = edited_eeprom("mailbox", "bootstrap", [](wire::SiiImage& image) {
+    image.bootstrap_mailbox = image.standard_mailbox;
+  });
+  ASSERT_FALSE(file.empty());
   auto server = test::make_sim_server(fmt::format(R"(version: 1
 simulator:
   slaves:
@@ -683,22 +704,9 @@ simulator:
 // A slave configured by its station alias is found wherever it sits; a missing or duplicated
 // alias is named.
 TEST(MasterAliases, SlaveFoundByStationAliasWhereverItSits) {
-  sim::DeviceConfig device;
-  device.profile = "EL2809";
-  auto template_esc = sim::make_device(device);
-  ASSERT_TRUE(template_esc);
-  const auto eeprom = (*template_esc)->eeprom();
-  auto decoded = wire::decode_sii(wire::Bytes(eeprom.data(), eeprom.size()));
-  ASSERT_TRUE(decoded) << decoded.error().describe();
-  auto image = decoded->image;
-  image.station_alias = 0x0042;
-  auto encoded = wire::encode_sii(image);
-  ASSERT_TRUE(encoded);
   const auto file =
-      std::filesystem::temp_directory_path() / fmt::format("ecat-alias-{}.bin", ::getpid());
-  std::ofstream(file, std::ios::binary)
-      .write(reinterpret_cast<const char*>(encoded->data()),
-             static_cast<std::streamsize>(encoded->size()));
+      edited_eeprom("EL2809", "alias", [](wire::SiiImage& image) { image.station_alias = 0x0042; });
+  ASSERT_FALSE(file.empty());
   // The aliased EL2809 sits at position 2 in one ring and at position 1 in the other.
   for (const bool first_ring : {true, false}) {
     auto server = test::make_sim_server(

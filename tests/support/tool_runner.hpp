@@ -50,18 +50,7 @@ class ToolRunner {
   ToolRunner& operator=(const ToolRunner&) = delete;
 
   // `arguments` is pasted into a shell command line after the tool's path: quote what needs it.
-  ToolRun run(const std::string& arguments) const {
-    const auto out = dir_ / "stdout";
-    const auto err = dir_ / "stderr";
-    const auto command =
-        fmt::format("'{}' {} >'{}' 2>'{}'", tool_path(), arguments, out.string(), err.string());
-    const int raw = std::system(command.c_str());
-    ToolRun result;
-    result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-    result.out = read_text_file(out);
-    result.err = read_text_file(err);
-    return result;
-  }
+  ToolRun run(const std::string& arguments) const { return run_script("\"$ECAT\" " + arguments); }
 
   // Runs a shell script in which "$ECAT" is the tool; everything it prints is captured.
   ToolRun run_script(const std::string& script) const {
