@@ -112,9 +112,11 @@ class El4102 final : public master::Driver {
     if (command == "set_voltage") {
       const Value* channel = master::find_arg(args, "channel");
       const Value* volts = master::find_arg(args, "volts");
-      const auto ch = channel != nullptr ? master::as_int64(*channel) : std::nullopt;
+      // Plain values, not optionals: GCC's -O1 flow analysis misreads an optional's engaged check.
+      std::int64_t ch = 0;  // 0: missing or not an integer
+      if (channel != nullptr) ch = master::as_int64(*channel).value_or(0);
       const auto v = volts != nullptr ? master::as_double(*volts) : std::nullopt;
-      if (!ch || *ch < 1 || *ch > kChannels || !v) {
+      if (ch < 1 || ch > kChannels || !v) {
         return Error(Errc::invalid_argument,
                      "EL4102 set_voltage needs channel (1 or 2) and volts (a number)");
       }
@@ -123,7 +125,7 @@ class El4102 final : public master::Driver {
         return Error(Errc::out_of_range,
                      fmt::format("EL4102 set_voltage: {} V out of range 0..10 V", value));
       }
-      return std::vector<OutputWrite>{{fmt::format("channel_{}.output", *ch), Value(value)}};
+      return std::vector<OutputWrite>{{fmt::format("channel_{}.output", ch), Value(value)}};
     }
     return Driver::command(command, args, current, state, driver_state);
   }
