@@ -269,7 +269,8 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     bool active = false;
     nanoseconds period{};
     CycleFunction function;
-    Clock::time_point next{};
+    Clock::time_point nominal{};  // next grid point, unsteered
+    Clock::time_point next{};     // nominal + steering offset: when the bus thread runs it
     std::uint64_t count = 0;
   };
   std::mutex cycle_mutex;  // held by the bus thread while the cycle function runs
@@ -278,6 +279,14 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   std::atomic<bool> cycle_changed{false};
   bool in_cycle_call = false;           // bus thread
   std::optional<Cycle> deferred_cycle;  // bus thread: set/clear from inside the cycle function
+
+  // ---- cycle steering (see Bus::set_cycle_rate)
+  std::atomic<std::int64_t> steer_rate_ppb{0};
+  std::atomic<std::int64_t> steer_pending_ns{0};  // requested phase steps, not applied yet
+  std::atomic<std::int64_t> steer_offset_ns{0};   // published offset (rounded)
+  std::atomic<std::uint64_t> steer_steps{0};
+  std::atomic<bool> steer_reset{false};
+  double steer_offset_exact = 0.0;  // bus thread (and install_cycle under cycle_mutex)
 
   // ---- link failure
   std::atomic<bool> link_failed{false};
@@ -1212,6 +1221,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     CycleTick tick;
     tick.cycle = cycle.count;
     tick.deadline = cycle.next + behind * cycle.period;
+    tick.nominal = cycle.nominal + behind * cycle.period;
     tick.woke_at = now;
     tick.missed = static_cast<std::uint64_t>(behind);
     in_cycle_call = true;
@@ -1224,13 +1234,46 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     stats.cycles.add();
     stats.cycle_deadlines_missed.add(tick.missed);
     ++cycle.count;
-    cycle.next = tick.deadline + cycle.period;
+    cycle.nominal = tick.nominal + cycle.period;
+    cycle.next = cycle.nominal + steer(cycle.period);
     if (deferred_cycle) {
       cycle = std::move(*deferred_cycle);
       deferred_cycle.reset();
+      cycle.next = cycle.nominal + current_offset();
     }
     cycle_next_ns.store(cycle.active ? to_ns(cycle.next) : std::numeric_limits<std::int64_t>::max(),
                         std::memory_order_release);
+  }
+
+  // Advances the steering by one tick of `period`; returns the offset for the next deadline.
+  // Bus thread, under cycle_mutex.
+  nanoseconds steer(nanoseconds period) {
+    if (steer_reset.exchange(false, std::memory_order_acq_rel)) steer_offset_exact = 0.0;
+    const std::int64_t ppb = steer_rate_ppb.load(std::memory_order_relaxed);
+    if (ppb != 0) {
+      steer_offset_exact += static_cast<double>(period.count()) * static_cast<double>(ppb) * 1e-9;
+    }
+    if (steer_pending_ns.load(std::memory_order_relaxed) != 0) {
+      const std::int64_t requested = steer_pending_ns.exchange(0, std::memory_order_acq_rel);
+      const std::int64_t limit = std::max<std::int64_t>(1, period.count() / 4);
+      const std::int64_t applied = std::clamp(requested, -limit, limit);
+      if (applied != requested) {
+        steer_pending_ns.fetch_add(requested - applied, std::memory_order_acq_rel);
+      }
+      steer_offset_exact += static_cast<double>(applied);
+      steer_steps.fetch_add(1, std::memory_order_relaxed);
+    }
+    const auto offset = static_cast<std::int64_t>(std::llround(steer_offset_exact));
+    steer_offset_ns.store(offset, std::memory_order_relaxed);
+    return nanoseconds(offset);
+  }
+
+  nanoseconds current_offset() {
+    if (steer_reset.exchange(false, std::memory_order_acq_rel)) {
+      steer_offset_exact = 0.0;
+      steer_offset_ns.store(0, std::memory_order_relaxed);
+    }
+    return nanoseconds(static_cast<std::int64_t>(std::llround(steer_offset_exact)));
   }
 
   void install_cycle(Cycle next) {
@@ -1243,6 +1286,19 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       std::lock_guard lock(cycle_mutex);
       old = std::move(cycle);
       cycle = std::move(next);
+      if (cycle.active) {
+        // A steered cycle keeps its offset: the first deadline is the first steered grid point
+        // still ahead (never a pause of the accumulated offset's length).
+        const nanoseconds offset = current_offset();
+        if (cycle.next == Clock::time_point{}) {
+          const auto period = cycle.period;
+          const auto now = Clock::now().time_since_epoch() - offset;
+          cycle.nominal = Clock::time_point((now / period + 1) * period);
+          cycle.next = cycle.nominal + offset;
+        } else {
+          cycle.nominal = cycle.next - offset;
+        }
+      }
       cycle_next_ns.store(
           cycle.active ? to_ns(cycle.next) : std::numeric_limits<std::int64_t>::max(),
           std::memory_order_release);
@@ -1515,18 +1571,46 @@ Result<void> Bus::set_cycle(nanoseconds period, CycleFunction function,
   next.active = true;
   next.period = period;
   next.function = std::move(function);
-  if (first_deadline) {
-    next.next = *first_deadline;
-  } else {
-    const auto now = Clock::now().time_since_epoch();
-    next.next = Clock::time_point((now / period + 1) * period);
-  }
+  // No first deadline: install_cycle() takes the next multiple of the period (steered).
+  if (first_deadline) next.next = *first_deadline;
   impl_->install_cycle(std::move(next));
   return ok();
 }
 
 void Bus::clear_cycle() {
   if (impl_) impl_->install_cycle(Impl::Cycle{});
+}
+
+void Bus::set_cycle_rate(double rate_ppm) noexcept {
+  if (!impl_ || !std::isfinite(rate_ppm)) return;
+  // A clock that runs off by more than 1000 ppm is broken, not something to follow.
+  const double ppm = std::clamp(rate_ppm, -1000.0, 1000.0);
+  impl_->steer_rate_ppb.store(static_cast<std::int64_t>(std::llround(ppm * 1000.0)),
+                              std::memory_order_relaxed);
+}
+
+void Bus::shift_cycle(nanoseconds step) noexcept {
+  if (!impl_ || step.count() == 0) return;
+  impl_->steer_pending_ns.fetch_add(step.count(), std::memory_order_acq_rel);
+}
+
+void Bus::reset_cycle_steering() noexcept {
+  if (!impl_) return;
+  impl_->steer_rate_ppb.store(0, std::memory_order_relaxed);
+  impl_->steer_pending_ns.store(0, std::memory_order_relaxed);
+  impl_->steer_offset_ns.store(0, std::memory_order_relaxed);
+  impl_->steer_reset.store(true, std::memory_order_release);
+}
+
+CycleSteering Bus::cycle_steering() const noexcept {
+  CycleSteering out;
+  if (!impl_) return out;
+  out.rate_ppm =
+      static_cast<double>(impl_->steer_rate_ppb.load(std::memory_order_relaxed)) / 1000.0;
+  out.offset = nanoseconds(impl_->steer_offset_ns.load(std::memory_order_relaxed));
+  out.pending = nanoseconds(impl_->steer_pending_ns.load(std::memory_order_relaxed));
+  out.steps = impl_->steer_steps.load(std::memory_order_relaxed);
+  return out;
 }
 
 BusStats Bus::stats() const noexcept {

@@ -246,7 +246,9 @@ Result<void> Cycler::stop() {
 
 void Cycler::run(Schedule& schedule, const bus::CycleTick& tick) noexcept {
   const auto started = bus::Clock::now();
-  const std::int64_t deadline = to_ns(tick.deadline);
+  // The nominal grid point: a steered cycle (distributed clocks) moves the deadlines, not the
+  // participants' schedule.
+  const std::int64_t deadline = to_ns(tick.nominal);
   std::uint64_t ran = 0;
   for (const auto& slot : schedule.slots) {
     Entry& e = *slot.entry;

@@ -298,6 +298,69 @@ TEST(Realtime, CycleFunctionRunsOnAbsoluteDeadlinesOnTheBusThread) {
   EXPECT_FALSE(bus->set_cycle(1ms, CycleFunction{}));
 }
 
+TEST(Realtime, SteeredCycleMovesItsDeadlinesNotItsGrid) {
+  auto segment = segment_with_process_image();
+  auto bus = start_bus(segment);
+  std::mutex mutex;
+  std::vector<CycleTick> ticks;
+  constexpr auto kPeriod = 2ms;
+  // Rate: every period 1000 ppm longer (2 us); a phase step of 1.1 ms, spread over ticks of at
+  // most a quarter period (500 us).
+  bus->set_cycle_rate(1000.0);
+  ASSERT_TRUE(bus->set_cycle(kPeriod, [&](const CycleTick& tick) {
+    std::lock_guard lock(mutex);
+    ticks.push_back(tick);
+    if (ticks.size() == 5) bus->shift_cycle(1100us);  // from the bus thread: allowed
+  }));
+  ASSERT_TRUE(eventually([&] {
+    std::lock_guard lock(mutex);
+    return ticks.size() >= 20;
+  }));
+  bus->clear_cycle();
+  std::vector<CycleTick> seen;
+  {
+    std::lock_guard lock(mutex);
+    seen = ticks;
+  }
+  const auto steering = bus->cycle_steering();
+  EXPECT_DOUBLE_EQ(steering.rate_ppm, 1000.0);
+  EXPECT_EQ(steering.steps, 3u);  // 500 + 500 + 100 us
+  EXPECT_EQ(steering.pending, 0ns);
+  for (std::size_t i = 1; i < seen.size(); ++i) {
+    if (seen[i].missed != 0) continue;  // a late bus thread: the grid skipped ahead
+    // The grid the Cycler schedules by never moves.
+    EXPECT_EQ(seen[i].nominal - seen[i - 1].nominal, kPeriod) << i;
+    EXPECT_EQ(seen[i].nominal.time_since_epoch() % kPeriod, 0ns) << i;
+    // The deadlines: the period stretched by 2 us, plus the phase step's share.
+    const auto step = seen[i].deadline - seen[i - 1].deadline;
+    std::chrono::nanoseconds expected = kPeriod + 2us;
+    if (i == 5 || i == 6) expected += 500us;
+    if (i == 7) expected += 100us;
+    EXPECT_NEAR(static_cast<double>(step.count()), static_cast<double>(expected.count()), 2.0)
+        << "tick " << i;
+    EXPECT_GE(seen[i].woke_at, seen[i].deadline);
+  }
+  // Steering persists across set_cycle(): the new cycle's first deadline is a steered grid
+  // point still ahead, not a pause of the accumulated offset's length.
+  const auto offset = bus->cycle_steering().offset;
+  EXPECT_GT(offset, 1100us);
+  std::atomic<int> after{0};
+  std::atomic<std::int64_t> first_offset{-1};
+  ASSERT_TRUE(bus->set_cycle(kPeriod, [&](const CycleTick& tick) {
+    if (after.fetch_add(1) == 0) first_offset.store((tick.deadline - tick.nominal).count());
+  }));
+  ASSERT_TRUE(eventually([&] { return after.load() >= 2; }));
+  EXPECT_NEAR(static_cast<double>(first_offset.load()), static_cast<double>(offset.count()), 4.0);
+  bus->reset_cycle_steering();
+  ASSERT_TRUE(eventually([&] { return bus->cycle_steering().offset == 0ns; }));
+  bus->clear_cycle();
+  // Nonsense rates are not followed.
+  bus->set_cycle_rate(std::numeric_limits<double>::quiet_NaN());
+  EXPECT_EQ(bus->cycle_steering().rate_ppm, 0.0);
+  bus->set_cycle_rate(1e9);
+  EXPECT_EQ(bus->cycle_steering().rate_ppm, 1000.0);
+}
+
 TEST(Realtime, CompletionCallbackRunsOnTheBusThread) {
   auto segment = segment_with_process_image();
   auto bus = start_bus(segment);

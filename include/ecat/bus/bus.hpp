@@ -130,9 +130,20 @@ struct BusInfo {
 
 struct CycleTick {
   std::uint64_t cycle = 0;     // 0, 1, 2, ... (missed deadlines are skipped, not numbered)
-  Clock::time_point deadline;  // the absolute deadline this call belongs to
-  Clock::time_point woke_at;   // when the bus thread got to it
-  std::uint64_t missed = 0;    // deadlines skipped just before this one (the thread ran late)
+  Clock::time_point deadline;  // the absolute deadline this call belongs to (steered)
+  // The unsteered grid point of this deadline: first deadline + k * period. Equal to `deadline`
+  // unless the cycle is steered (Bus::set_cycle_rate / shift_cycle); schedule by this one.
+  Clock::time_point nominal;
+  Clock::time_point woke_at;  // when the bus thread got to it
+  std::uint64_t missed = 0;   // deadlines skipped just before this one (the thread ran late)
+};
+
+// Where cycle steering stands (Bus::cycle_steering).
+struct CycleSteering {
+  double rate_ppm = 0.0;                // the period is stretched by this (negative: shortened)
+  std::chrono::nanoseconds offset{0};   // the next deadline minus its nominal grid point
+  std::chrono::nanoseconds pending{0};  // phase steps requested, not applied yet
+  std::uint64_t steps = 0;              // ticks at which a phase step was applied
 };
 using CycleFunction = std::function<void(const CycleTick&)>;
 
@@ -181,6 +192,17 @@ class Bus {
                          std::optional<Clock::time_point> first_deadline = std::nullopt);
   // Stops calling the cycle function (same guarantee as set_cycle()).
   void clear_cycle();
+
+  // Cycle steering, for a cycle that follows another clock (distributed clocks: the reference
+  // clock's SYNC0 grid). Each deadline is its nominal grid point plus an offset; after every
+  // tick the offset moves by period * rate_ppm / 1e6 and by the phase steps requested since
+  // (at most a quarter period per tick; the rest carries over to the next ticks). Both may be
+  // called from any thread, the bus thread included: lock-free and allocation-free. Steering
+  // survives set_cycle(); reset_cycle_steering() returns to the unsteered grid.
+  void set_cycle_rate(double rate_ppm) noexcept;
+  void shift_cycle(std::chrono::nanoseconds step) noexcept;
+  void reset_cycle_steering() noexcept;
+  CycleSteering cycle_steering() const noexcept;
 
   BusStats stats() const noexcept;
   BusInfo info() const;
