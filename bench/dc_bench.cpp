@@ -7,17 +7,21 @@
 //   drift_frames   FRMWs the static drift compensation sent
 //   lock_ms        from starting the DcMaintainer to lock (all |0x092C| < 100 ns, 5 samples)
 //   resid_ns       max |0x092C| over the samples after lock (mean / max)
-//   phase_us       master-to-SYNC0 phase error at the reference clock over the run
-//                  (first / last / min / max; the cycle runs on the host clock, so without cycle
-//                  steering it walks at the reference's drift against the host)
-//   walk_ns_s      the phase error's slope (ns per second of run)
-//   ref_ppm        the maintainer's estimate of the reference clock's rate against the host
+//   settle_ms      cycle steering: from lock to a settled phase (the cycle follows the reference)
+//   ph_p50/p99/max master-to-SYNC0 phase error at the reference clock over the run, |us| against
+//                  the target (the frame passes the reference 250 us before each SYNC0 grid point)
+//   walk_ns_s      the phase error's slope (ns per second of run): ~0 when the cycle follows the
+//                  reference; with --free-run, the reference's drift against the host (1 ppm =
+//                  1000 ns/s)
+//   rate_ppm       the rate steering applied to the cycle; ref_ppm the maintainer's estimate of the
+//                  reference clock's rate against the host (steering cancels it: rate = -ref)
 //
-// Run: ./build/NAME/bench/dc_bench [--seconds S]   (default 2 s per ring; the figure is
-// --seconds 60)
+// Run: ./build/NAME/bench/dc_bench [--seconds S] [--free-run]   (default 2 s per ring; the
+// issue's figure is --seconds 60)
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -82,14 +86,15 @@ struct Row {
   double lock_ms = -1;
   double resid_mean = 0;
   std::int64_t resid_max = 0;
-  // Unwrapped (the walk is continuous), so min/max may exceed +-cycle/2.
-  double phase_first_us = 0, phase_last_us = 0, phase_min_us = 0, phase_max_us = 0;
+  double settle_ms = -1;
+  double phase_p50_us = 0, phase_p99_us = 0, phase_max_us = 0;  // |error|, unwrapped
   double walk_ns_s = 0;
+  double rate_ppm = 0;
   double ref_ppm = 0;
   std::string error;
 };
 
-Row run(std::size_t n, double seconds) {
+Row run(std::size_t n, double seconds, bool follow) {
   Row row;
   row.slaves = n;
   auto failed = [&row](std::string message) {
@@ -138,6 +143,8 @@ Row run(std::size_t n, double seconds) {
     options.period = 1ms;
     options.read_every = 5;
     options.history = 1 << 16;
+    options.follow_reference = follow;
+    options.phase_target = -250us;
     DcMaintainer maintainer(bus, **init, options);
     (void)cycler.add(maintainer, Cycler::kPriorityDc);
     (void)cycler.start();
@@ -150,17 +157,23 @@ Row run(std::size_t n, double seconds) {
               .count();
     }
     const auto samples_at_lock = maintainer.status().samples;
-    std::vector<std::pair<double, std::int64_t>> phase;  // (s, ns)
-    const auto run_start = std::chrono::steady_clock::now();
-    while (std::chrono::steady_clock::now() - run_start < std::chrono::duration<double>(seconds)) {
-      std::this_thread::sleep_for(10ms);
-      const auto s = maintainer.status();
-      phase.emplace_back(
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - run_start).count(),
-          s.phase_error_ns);
+    if (follow) {
+      const auto settle_start = std::chrono::steady_clock::now();
+      while (!maintainer.status().phase_settled &&
+             std::chrono::steady_clock::now() - settle_start < 10s) {
+        std::this_thread::sleep_for(5ms);
+      }
+      if (maintainer.status().phase_settled) {
+        row.settle_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                                  settle_start)
+                            .count();
+      }
     }
+    const auto samples_at_run = maintainer.status().samples;
+    std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
     const auto status = maintainer.status();
     row.ref_ppm = status.reference_drift_ppm;
+    row.rate_ppm = status.cycle_rate_ppm;
     const std::size_t after_lock =
         std::min<std::size_t>(status.history.size(), status.samples - samples_at_lock);
     if (after_lock > 0) {
@@ -171,28 +184,40 @@ Row run(std::size_t n, double seconds) {
       }
       row.resid_mean = sum / static_cast<double>(after_lock);
     }
+    // The phase samples of the run (one per 0x092C read, every 5 ms), unwrapped: a drifting
+    // reference walks across the (-cycle/2, cycle/2] window.
+    const std::size_t taken =
+        std::min<std::size_t>(status.phase_history.size(), status.samples - samples_at_run);
+    std::vector<std::int64_t> phase(status.phase_history.end() - static_cast<std::ptrdiff_t>(taken),
+                                    status.phase_history.end());
     if (!phase.empty()) {
-      // Unwrap: the phase lives in (-cycle/2, cycle/2] and a drifting reference walks across.
       constexpr std::int64_t kCycle = 1'000'000;
       for (std::size_t k = 1; k < phase.size(); ++k) {
-        std::int64_t step = phase[k].second - phase[k - 1].second;
+        std::int64_t step = phase[k] - phase[k - 1];
         if (step > kCycle / 2) step -= kCycle;
         if (step < -kCycle / 2) step += kCycle;
-        phase[k].second = phase[k - 1].second + step;
+        phase[k] = phase[k - 1] + step;
       }
-      row.phase_first_us = static_cast<double>(phase.front().second) / 1e3;
-      row.phase_last_us = static_cast<double>(phase.back().second) / 1e3;
-      row.phase_min_us = row.phase_max_us = row.phase_first_us;
+      std::vector<double> magnitude;
       double sx = 0, sy = 0, sxx = 0, sxy = 0;
-      for (auto [x, y] : phase) {
-        const double us = static_cast<double>(y) / 1e3;
-        row.phase_min_us = std::min(row.phase_min_us, us);
-        row.phase_max_us = std::max(row.phase_max_us, us);
+      for (std::size_t k = 0; k < phase.size(); ++k) {
+        const double x = static_cast<double>(k) * 0.005;  // s
+        const auto y = static_cast<double>(phase[k]);
+        magnitude.push_back(std::abs(y) / 1e3);
         sx += x;
-        sy += static_cast<double>(y);
+        sy += y;
         sxx += x * x;
-        sxy += x * static_cast<double>(y);
+        sxy += x * y;
       }
+      std::sort(magnitude.begin(), magnitude.end());
+      auto at = [&](double q) {
+        return magnitude[std::min(
+            magnitude.size() - 1,
+            static_cast<std::size_t>(q * static_cast<double>(magnitude.size())))];
+      };
+      row.phase_p50_us = at(0.5);
+      row.phase_p99_us = at(0.99);
+      row.phase_max_us = magnitude.back();
       const double m = static_cast<double>(phase.size());
       const double den = m * sxx - sx * sx;
       if (den > 0) row.walk_ns_s = (m * sxy - sx * sy) / den;
@@ -206,32 +231,37 @@ Row run(std::size_t n, double seconds) {
 
 int main(int argc, char** argv) {
   double seconds = 2.0;
+  bool follow = true;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--seconds") == 0 && i + 1 < argc) {
       seconds = std::atof(argv[++i]);
+    } else if (std::strcmp(argv[i], "--free-run") == 0) {
+      follow = false;
     } else {
-      std::fprintf(stderr, "usage: %s [--seconds S]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--seconds S] [--free-run]\n", argv[0]);
       return 2;
     }
   }
   fmt::print(
-      "{:>6} {:>9} {:>7} {:>5} {:>9} {:>10} {:>9} {:>10} {:>10} {:>10} {:>10} {:>10} {:>8}\n",
-      "slaves", "init_ms", "frames", "conv", "lock_ms", "resid_mean", "resid_max", "ph_first",
-      "ph_last", "ph_min", "ph_max", "walk_ns_s", "ref_ppm");
+      "{:>6} {:>9} {:>7} {:>5} {:>9} {:>10} {:>9} {:>9} {:>8} {:>8} {:>8} {:>10} {:>9} {:>8}\n",
+      "slaves", "init_ms", "frames", "conv", "lock_ms", "resid_mean", "resid_max", "settle_ms",
+      "ph_p50", "ph_p99", "ph_max", "walk_ns_s", "rate_ppm", "ref_ppm");
   for (std::size_t n : {std::size_t{1}, std::size_t{8}, std::size_t{64}}) {
-    const Row r = run(n, seconds);
+    const Row r = run(n, seconds, follow);
     if (!r.error.empty()) {
       fmt::print("{:>6} error: {}\n", n, r.error);
       continue;
     }
     fmt::print(
-        "{:>6} {:>9.1f} {:>7} {:>5} {:>9.1f} {:>10.1f} {:>9} {:>10.2f} {:>10.2f} {:>10.2f} "
-        "{:>10.2f} {:>10.1f} {:>8.2f}\n",
+        "{:>6} {:>9.1f} {:>7} {:>5} {:>9.1f} {:>10.1f} {:>9} {:>9.1f} {:>8.2f} {:>8.2f} {:>8.2f} "
+        "{:>10.1f} {:>9.2f} {:>8.2f}\n",
         r.slaves, r.init_ms, r.drift_frames, r.converged ? "yes" : "no", r.lock_ms, r.resid_mean,
-        r.resid_max, r.phase_first_us, r.phase_last_us, r.phase_min_us, r.phase_max_us, r.walk_ns_s,
-        r.ref_ppm);
+        r.resid_max, r.settle_ms, r.phase_p50_us, r.phase_p99_us, r.phase_max_us, r.walk_ns_s,
+        r.rate_ppm, r.ref_ppm);
   }
-  fmt::print("(phase in us at the reference clock against its 1 ms SYNC0 grid; {} s per ring)\n",
-             seconds);
+  fmt::print(
+      "(phase error in us at the reference clock against the target 250 us before each point of "
+      "its 1 ms SYNC0 grid; {} s per ring; the cycle {})\n",
+      seconds, follow ? "follows the reference" : "free-runs on the host clock (--free-run)");
   return 0;
 }
