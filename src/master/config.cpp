@@ -92,6 +92,11 @@ Result<void> validate(const MasterConfig& config) {
     }
   }
   if (config.dc && config.dc->cycle.count() <= 0) return bad("dc.cycle must be positive");
+  if (config.dc && config.dc->frame_lead &&
+      (config.dc->frame_lead->count() < 0 || *config.dc->frame_lead * 2 >= config.dc->cycle)) {
+    return bad(fmt::format("dc.frame_lead {} ns must lie in 0 .. half the DC cycle ({} ns)",
+                           config.dc->frame_lead->count(), config.dc->cycle.count()));
+  }
   if (config.scan.poll.count() <= 0) return bad("scan poll period must be positive");
   if (config.awaiting_preop_timeout.count() <= 0)
     return bad("awaiting_preop_timeout must be positive");

@@ -1,6 +1,7 @@
 // The master's sections of a ring file (docs/MASTER-CONFIG.md). Strict: unknown keys are errors
 // naming file:line and the key path.
 #include <cstdint>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -247,10 +248,10 @@ class Reader {
       const auto& item = node.items[i];
       const auto path = index_path("slaves", i);
       if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
-      if (auto r = check_keys(
-              ctx_, item, path,
-              {"name", "position", "alias", "vendor_id", "product_code", "driver", "driver_options",
-               "process_data", "target", "health_poll_ms", "startup_sdos", "pdo_source", "sync"});
+      if (auto r = check_keys(ctx_, item, path,
+                              {"name", "position", "alias", "vendor_id", "product_code", "driver",
+                               "driver_options", "process_data", "target", "health_poll_ms",
+                               "startup_sdos", "pdo_source", "sync", "esi"});
           !r) {
         return r.error();
       }
@@ -267,6 +268,15 @@ class Reader {
           auto x = to_int(ctx_, v, p, 0, 0xFFFF);
           if (!x) return x.error();
           s.position = static_cast<std::uint16_t>(*x);
+        } else if (e.key == "esi") {
+          auto x = to_text(ctx_, v, p);
+          if (!x) return x.error();
+          if (x->empty()) return spec_error(ctx_, v, p, "must name an ESI file");
+          // Relative to the ring file's directory.
+          std::filesystem::path file(*x);
+          const auto base = std::filesystem::path(ctx_.source).parent_path();
+          if (file.is_relative() && !base.empty()) file = base / file;
+          s.esi_file = file.string();
         } else if (e.key == "alias") {
           auto x = to_int(ctx_, v, p, 1, 0xFFFF);
           if (!x) return x.error();
@@ -467,9 +477,10 @@ class Reader {
       return ok();
     }
     if (!node.is_mapping()) return spec_error(ctx_, node, "dc", "must be a mapping or false");
-    if (auto r = check_keys(ctx_, node, "dc",
-                            {"cycle_us", "await_lock", "lock_policy", "lock_threshold_ns",
-                             "lock_timeout_ms", "warmup_cycles"});
+    if (auto r =
+            check_keys(ctx_, node, "dc",
+                       {"cycle_us", "await_lock", "lock_policy", "lock_threshold_ns",
+                        "lock_timeout_ms", "warmup_cycles", "follow_reference", "frame_lead_us"});
         !r) {
       return r.error();
     }
@@ -510,6 +521,14 @@ class Reader {
         auto x = to_int(ctx_, e.value, p, 0, 1'000'000);
         if (!x) return x.error();
         dc.warmup_cycles = static_cast<std::uint32_t>(*x);
+      } else if (e.key == "follow_reference") {
+        auto x = to_bool(ctx_, e.value, p);
+        if (!x) return x.error();
+        dc.follow_reference = *x;
+      } else if (e.key == "frame_lead_us") {
+        auto x = duration(e.value, p, 1000, 0, 500'000);
+        if (!x) return x.error();
+        dc.frame_lead = *x;
       }
     }
     config.dc = dc;

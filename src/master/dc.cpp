@@ -364,6 +364,98 @@ exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& 
   co_return result;
 }
 
+// One slave again (see reinitialize_dc_slave in dc.hpp).
+
+exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, bus::Bus& bus,
+                                                         const DcPlan& plan, std::uint16_t station,
+                                                         DcInitOptions options) {
+  const DcPlannedSlave* target = nullptr;
+  const DcPlannedSlave* anchor = nullptr;
+  for (const auto& s : plan.slaves) {
+    if (!s.dc) continue;
+    if (s.station == station) {
+      target = &s;
+    } else if (anchor == nullptr || s.station == plan.reference_station) {
+      // The reference clock when it is not the slave itself, else the first other DC slave.
+      if (anchor == nullptr || anchor->station != plan.reference_station) anchor = &s;
+    }
+  }
+  if (target == nullptr) {
+    co_return Error(
+        Errc::not_found,
+        fmt::format("DC re-init: station 0x{:04X} is not a DC slave of the plan", station));
+  }
+  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
+  const bus::TransactOptions reliable{options.transaction_timeout, 2};
+  const bus::TransactOptions once{options.transaction_timeout, 0};
+  const auto who = fmt::format("DC re-init of station 0x{:04X}", station);
+
+  // 1. Latch: a BWR of 0x0900 only latches receive times, on every slave; nothing else changes.
+  const std::int64_t before = master_clock();
+  {
+    bus::Transaction tx;
+    const std::uint8_t zero[4]{};
+    tx.bwr(reg::kDcReceiveTimePort0, zero);
+    auto reply = co_await exec::transact(loop, bus, std::move(tx), once);
+    if (!reply) co_return reply.error().context(who + ": receive time latch (BWR 0x0900)");
+  }
+  const std::int64_t after = master_clock();
+
+  // 2. The slave's latched local time and speed counter start; the anchor's latched local time
+  //    and offset (its system time at the latch).
+  bus::Transaction tx;
+  tx.fprd(station, reg::kDcReceiveTimeEpu, 8);
+  tx.fprd(station, reg::kDcSpeedCounterStart, 2);
+  if (anchor != nullptr) {
+    tx.fprd(anchor->station, reg::kDcReceiveTimeEpu, 8);
+    tx.fprd(anchor->station, reg::kDcSystemTimeOffset, 8);
+  }
+  auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
+  if (!reply) co_return reply.error().context(who + ": reading the latched times");
+  static constexpr const char* kReads[] = {"read of 0x0918", "read of 0x0930",
+                                           "anchor's read of 0x0918", "anchor's read of 0x0920"};
+  for (std::size_t i = 0; i < reply->size(); ++i) {
+    if (reply->wkc(i) != 1) {
+      const std::uint16_t st = i < 2 ? station : anchor->station;
+      co_return wkc_error(kReads[i], st, reply->wkc(i)).context(who);
+    }
+  }
+  const std::uint64_t epu = wire::load_le64(reply->data(0).data());
+  std::uint16_t speed_start = wire::load_le16(reply->data(1).data());
+  if (speed_start == 0) speed_start = 0x1000;  // the ESC's power-up value
+
+  // System time T of the frame at the reference clock: every DC slave's system time at its own
+  // latch is T + its delay. From the anchor: T = its local time + its offset - its delay.
+  std::int64_t reference_time = 0;
+  if (anchor != nullptr) {
+    const std::uint64_t anchor_epu = wire::load_le64(reply->data(2).data());
+    const std::uint64_t anchor_offset = wire::load_le64(reply->data(3).data());
+    reference_time = static_cast<std::int64_t>(anchor_epu + anchor_offset -
+                                               static_cast<std::uint64_t>(anchor->delay_ns));
+  } else {
+    reference_time = before + (after - before) / 2;  // alone: the master's time, as at startup
+  }
+  DcReinitResult result;
+  result.station = station;
+  result.anchor_station = anchor != nullptr ? anchor->station : 0;
+  result.delay_ns = target->delay_ns;
+  result.offset_ns = static_cast<std::int64_t>(static_cast<std::uint64_t>(reference_time) +
+                                               target->delay_ns - epu);
+
+  // 3. Offset, delay, filter depths and filter reset: to this slave alone.
+  bus::Transaction writes;
+  writes.fpwr(station, reg::kDcSystemTimeOffset, le64(static_cast<std::uint64_t>(result.offset_ns)),
+              1);
+  writes.fpwr(station, reg::kDcSystemTimeDelay, le32(result.delay_ns), 1);
+  const std::uint8_t depths[2] = {options.system_time_filter_depth,
+                                  options.speed_counter_filter_depth};
+  writes.fpwr(station, reg::kDcSystemTimeFilterDepth, depths, 1);
+  writes.fpwr(station, reg::kDcSpeedCounterStart, le16(speed_start), 1);
+  auto written = co_await exec::transact(loop, bus, std::move(writes), reliable);
+  if (!written) co_return written.error().context(who + ": writing offset, delay and filters");
+  co_return result;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -409,6 +501,9 @@ DcMaintainer::DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
   for (std::size_t i = 0; i < stations_.size(); ++i)
     status_.slaves[i].station = stations_[i];
   status_.history.assign(options_.history, 0);
+  status_.phase_history.assign(options_.history, 0);
+  status_.follows_reference = options_.follow_reference;
+  status_.phase_target_ns = options_.phase_target.count();
   frmw_only_.set_completion([this](bus::RealtimeTransaction& rt) { on_complete(rt, false); });
   frmw_and_reads_.set_completion([this](bus::RealtimeTransaction& rt) { on_complete(rt, true); });
 }
@@ -418,14 +513,87 @@ DcMaintainer::~DcMaintainer() {
   // The bus completes every pending exchange (reply, timeout, expiry or stop).
   frmw_only_.wait();
   frmw_and_reads_.wait();
+  // The cycle no longer follows a reference that nobody watches.
+  if (options_.follow_reference) bus_.reset_cycle_steering();
 }
 
 void DcMaintainer::reset_lock() {
   reset_requested_.store(true, std::memory_order_release);
 }
 
+void DcMaintainer::note_reinitialised(std::uint16_t station) {
+  std::lock_guard lock(mutex_);
+  for (auto& s : status_.slaves) {
+    if (s.station == station) ++s.reinitialised;
+  }
+}
+
+namespace {
+
+// `value` wrapped into (-cycle/2, cycle/2].
+std::int64_t wrap_phase(std::int64_t value, std::int64_t cycle) {
+  std::int64_t phase = ((value % cycle) + cycle) % cycle;
+  if (phase > cycle / 2) phase -= cycle;
+  return phase;
+}
+
+// Steering gains per FRMW sample. The rate comes from the measured drift of the reference
+// (feed-forward); a proportional phase step (time constant ~20 samples) holds the phase and a
+// slow integral (~2500 samples) trims what the drift estimate gets wrong. Both stay small: a
+// sample carries tens of microseconds of host jitter, which must not become cycle jitter.
+constexpr double kSteerKp = 0.05;
+constexpr double kSteerKi = 2e-5;
+constexpr double kSteerMaxIntegralPpm = 200.0;
+constexpr std::uint32_t kSettleSamples = 20;
+constexpr std::uint32_t kFarSamplesForReacquire = 3;
+
+}  // namespace
+
+void DcMaintainer::steer(std::int64_t frame_error_ns) {
+  const std::int64_t cycle = options_.sync0_cycle.count();
+  // The frame's phase without the wake-up jitter: how late the bus thread woke to send this frame,
+  // against how late it usually wakes, is noise the controller cannot correct (following it would
+  // add it to the cycle). The usual lateness stays in: the mean frame is what must be on target.
+  const auto lateness = static_cast<double>(submitted_lateness_ns_);
+  lateness_mean_ns_ =
+      lateness_seen_ ? lateness_mean_ns_ + 0.02 * (lateness - lateness_mean_ns_) : lateness;
+  lateness_seen_ = true;
+  const std::int64_t e =
+      wrap_phase(frame_error_ns - std::llround(lateness - lateness_mean_ns_), cycle);
+  if (hold_ > 0) {
+    --hold_;
+    return;
+  }
+  const std::int64_t fine = cycle / 20;
+  const std::int64_t far = cycle / 8;
+  far_samples_ = std::abs(e) > far ? far_samples_ + 1 : 0;
+  if (!acquired_ || far_samples_ >= kFarSamplesForReacquire) {
+    far_samples_ = 0;
+    acquired_ = true;
+    settled_samples_ = 0;
+    status_.phase_settled = false;
+    if (std::abs(e) > fine) {
+      // Acquire (or re-acquire) in one step; the bus spreads it over ticks of at most a
+      // quarter period, and the next samples still show the old phase: skip them.
+      bus_.shift_cycle(std::chrono::nanoseconds(-e));
+      hold_ = 2 + static_cast<std::uint32_t>(std::abs(e) / std::max<std::int64_t>(1, cycle / 4));
+      ++status_.phase_steps;
+      return;
+    }
+  }
+  // Fine: clamp what one sample may do (a late frame is an outlier, not a phase change).
+  const double clamped = static_cast<double>(std::clamp(e, -fine, fine));
+  integral_ppm_ = std::clamp(integral_ppm_ - kSteerKi * clamped / static_cast<double>(cycle) * 1e6,
+                             -kSteerMaxIntegralPpm, kSteerMaxIntegralPpm);
+  bus_.shift_cycle(std::chrono::nanoseconds(std::llround(-kSteerKp * clamped)));
+  bus_.set_cycle_rate(feedforward_ppm_ + integral_ppm_);
+  if (std::abs(e) <= fine && !status_.phase_settled && ++settled_samples_ >= kSettleSamples) {
+    status_.phase_settled = true;
+    status_.max_abs_phase_error_ns = 0;  // from now on: how well it holds
+  }
+}
+
 void DcMaintainer::on_tick(const bus::CycleTick& tick) {
-  (void)tick;
   if (pending_ != nullptr && pending_->pending()) {
     std::lock_guard lock(mutex_);
     ++status_.overruns;
@@ -435,6 +603,18 @@ void DcMaintainer::on_tick(const bus::CycleTick& tick) {
   ++ticks_;
   bus::RealtimeTransaction& rt = reads ? frmw_and_reads_ : frmw_only_;
   pending_ = &rt;
+  submitted_lateness_ns_ = (tick.woke_at - tick.deadline).count();
+  if (last_ref_host_ns_ != 0) {
+    // Without the reference (a power cycle, a lost slave) nobody reads the FRMW and every other
+    // DC slave writes what it carries into its clock loop: a prediction, not zeros.
+    const auto now_ns =
+        std::chrono::duration_cast<std::chrono::nanoseconds>(tick.woke_at.time_since_epoch())
+            .count();
+    const auto elapsed = static_cast<double>(now_ns - last_ref_host_ns_);
+    const auto predicted = static_cast<std::uint64_t>(
+        static_cast<double>(last_ref_time_) + elapsed * (1.0 + drift_for_prediction_ppm_ * 1e-6));
+    wire::store_le64(rt.output(0).data(), predicted);
+  }
   if (!bus_.submit_realtime(rt, options_.stale_after)) {
     pending_ = nullptr;
     std::lock_guard lock(mutex_);
@@ -458,16 +638,19 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       const auto cycle = static_cast<std::uint64_t>(options_.sync0_cycle.count());
       const auto icycle = static_cast<std::int64_t>(cycle);
       const auto since = static_cast<std::int64_t>(ref_time - options_.sync0_start);
-      std::int64_t phase = ((since % icycle) + icycle) % icycle;
-      if (phase > icycle / 2) phase -= icycle;
-      status_.phase_error_ns = phase;
-      status_.max_abs_phase_error_ns = std::max(status_.max_abs_phase_error_ns, std::abs(phase));
+      status_.phase_ns = wrap_phase(since, icycle);
+      const std::int64_t error = wrap_phase(status_.phase_ns - status_.phase_target_ns, icycle);
+      status_.phase_error_ns = error;
+      status_.max_abs_phase_error_ns = std::max(status_.max_abs_phase_error_ns, std::abs(error));
+      if (options_.follow_reference) steer(error);
       std::int64_t host = rt.reply_timestamp_ns();
       if (host == 0) {
         host = std::chrono::duration_cast<std::chrono::nanoseconds>(
                    std::chrono::steady_clock::now().time_since_epoch())
                    .count();
       }
+      last_ref_time_ = ref_time;
+      last_ref_host_ns_ = host;
       // Host reception time = when the frame passed the reference + a latency that is never
       // negative; the window's least-latency sample is the cleanest view of the reference.
       const std::int64_t offset = static_cast<std::int64_t>(ref_time) - host;
@@ -488,6 +671,8 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
           status_.reference_drift_ppm =
               have_rate_ ? 0.7 * status_.reference_drift_ppm + 0.3 * ppm : ppm;
           have_rate_ = true;
+          feedforward_ppm_ = -status_.reference_drift_ppm;
+          drift_for_prediction_ppm_ = status_.reference_drift_ppm;
         }
         last_best_offset_ = window_best_offset_;
         last_best_host_ = window_best_host_;
@@ -521,6 +706,7 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       ++status_.samples;
       status_.max_difference_ns = worst;
       status_.history[history_head_] = worst;
+      status_.phase_history[history_head_] = status_.phase_error_ns;
       history_head_ = (history_head_ + 1) % status_.history.size();
       history_size_ = std::min(history_size_ + 1, status_.history.size());
       const bool good = all_answered && worst < options_.threshold.count();
@@ -544,6 +730,11 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       }
     }
     status_.locked = locked_.load(std::memory_order_relaxed);
+    if (options_.follow_reference) {
+      const auto steering = bus_.cycle_steering();
+      status_.cycle_rate_ppm = steering.rate_ppm;
+      status_.cycle_offset_ns = steering.offset.count();
+    }
   }
   if (lock_change) {
     if (!*lock_change) lock_lost_.store(true, std::memory_order_release);
@@ -558,8 +749,11 @@ DcStatus DcMaintainer::status() const {
   DcStatus out;
   out.slaves.reserve(stations_.size());
   out.history.reserve(options_.history);
+  out.phase_history.reserve(options_.history);
   std::vector<std::int64_t> ordered;
   ordered.reserve(options_.history);
+  std::vector<std::int64_t> ordered_phase;
+  ordered_phase.reserve(options_.history);
   std::size_t head = 0;
   std::size_t size = 0;
   {
@@ -571,9 +765,12 @@ DcStatus DcMaintainer::status() const {
   // Unroll the ring buffer: oldest first, only the samples taken.
   const std::size_t cap = out.history.size();
   const std::size_t first = (head + cap - size) % cap;
-  for (std::size_t k = 0; k < size; ++k)
+  for (std::size_t k = 0; k < size; ++k) {
     ordered.push_back(out.history[(first + k) % cap]);
+    ordered_phase.push_back(out.phase_history[(first + k) % cap]);
+  }
   out.history = std::move(ordered);
+  out.phase_history = std::move(ordered_phase);
   return out;
 }
 
@@ -587,12 +784,36 @@ constexpr std::uint16_t kSync1Bit = 0x0400;
 
 }  // namespace
 
+std::string_view to_string(AssignActivateSource source) noexcept {
+  switch (source) {
+    case AssignActivateSource::config:
+      return "configuration";
+    case AssignActivateSource::esi:
+      return "ESI";
+    case AssignActivateSource::sii:
+      return "SII";
+    case AssignActivateSource::mode_default:
+      return "mode default";
+    case AssignActivateSource::none:
+      break;
+  }
+  return "none";
+}
+
 std::pair<std::uint16_t, AssignActivateSource> resolve_assign_activate(
-    const SyncConfig& sync, const wire::SiiImage* sii) noexcept {
+    const SyncConfig& sync, const wire::SiiImage* sii, const config::EsiDevice* esi) noexcept {
   if (sync.mode == SyncMode::free_run || sync.mode == SyncMode::sm_synchronous) {
     return {0, AssignActivateSource::none};
   }
   if (sync.assign_activate) return {*sync.assign_activate, AssignActivateSource::config};
+  if (esi != nullptr) {
+    const bool want_sync1 = sync.mode == SyncMode::sync1;
+    for (const auto& op : esi->dc_op_modes) {
+      const std::uint16_t aa = op.assign_activate;
+      if ((aa & kSync0Bit) == 0) continue;
+      if (((aa & kSync1Bit) != 0) == want_sync1) return {aa, AssignActivateSource::esi};
+    }
+  }
   if (sii != nullptr) {
     const bool want_sync1 = sync.mode == SyncMode::sync1;
     for (const auto& op : sii->dc) {
@@ -619,7 +840,7 @@ exec::Task<Result<DcSyncResult>> configure_sync(exec::EventLoop& loop, bus::Bus&
   const std::uint16_t st = request.station;
   const bus::TransactOptions options{request.timeout, 2};
   DcSyncResult result;
-  const auto [aa, source] = resolve_assign_activate(request.sync, request.sii);
+  const auto [aa, source] = resolve_assign_activate(request.sync, request.sii, request.esi);
   result.assign_activate = aa;
   result.source = source;
   result.latch_control[0] = latch_control(request.sync.latches, 0);

@@ -320,6 +320,8 @@ struct Master::Impl : DomainObserver {
     DcRuntimeOptions options;
     options.period = s.config.dc->cycle;
     options.threshold = s.config.dc->lock_threshold;
+    options.follow_reference = s.config.dc->follow_reference;
+    options.phase_target = -s.config.dc->frame_lead.value_or(s.config.dc->cycle / 4);
     auto dc = std::make_unique<DcMaintainer>(*s.bus, *s.dc_init, options);
     // Lock changes are rare: the bus thread only posts them to the loop.
     dc->set_lock_callback([this, weak = s.weak_from_this()](bool locked) {

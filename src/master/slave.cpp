@@ -589,11 +589,24 @@ exec::Task<Result<void>> Slave::Impl::apply_sync() {
                     fmt::format("{}: sync {} configured, but the slave has no distributed clock",
                                 who(), to_string(config.sync->mode)));
   }
+  if (!config.esi_file.empty() && !esi_device) {
+    auto file = config::load_esi(config.esi_file);
+    if (!file) co_return file.error().context(fmt::format("{}: ESI file", who()));
+    const std::optional<std::uint32_t> product =
+        sii ? std::optional(sii->decoded.image.identity.product_code) : std::nullopt;
+    auto device = config::find_esi_device(*file, product);
+    if (!device) {
+      co_return device.error().context(
+          fmt::format("{}: ESI file {} has no description of this device", who(), config.esi_file));
+    }
+    esi_device = **device;
+  }
   DcSyncRequest request;
   request.station = self.station();
   request.cycle = session.config.dc->cycle;
   request.sync = *config.sync;
   request.sii = sii ? &sii->decoded.image : nullptr;
+  request.esi = esi_device ? &*esi_device : nullptr;
   auto result = co_await configure_sync(session.loop, *session.bus, request);
   if (!result) co_return result.error().context(fmt::format("{}: configuring SYNC", who()));
   {
@@ -604,6 +617,24 @@ exec::Task<Result<void>> Slave::Impl::apply_sync() {
     latch_running = true;
     exec::spawn(session.loop, latch_loop(session.shared_from_this()));
   }
+  co_return ok();
+}
+
+exec::Task<Result<void>> Slave::Impl::reinit_dc() {
+  // dc_init is written once at startup, on this loop, before any slave steps.
+  if (!session.dc_init) co_return ok();
+  const auto& plan = session.dc_init->plan;
+  const bool planned = std::any_of(plan.slaves.begin(), plan.slaves.end(), [&](const auto& p) {
+    return p.dc && p.station == self.station();
+  });
+  if (!planned) co_return ok();
+  auto result =
+      co_await reinitialize_dc_slave(session.loop, *session.bus, plan, self.station(), {});
+  if (!result) {
+    co_return result.error().context(
+        fmt::format("{}: re-initialising its distributed clock", who()));
+  }
+  if (session.dc) session.dc->note_reinitialised(self.station());
   co_return ok();
 }
 
@@ -869,6 +900,7 @@ exec::Task<bool> Slave::Impl::probe_and_rebuild(std::shared_ptr<Session> keep) {
   }
   // Rebuild to PREOP (the SII identity must be the one seen before).
   auto up = co_await bring_up(keep);
+  if (up) up = co_await reinit_dc();
   if (!up) {
     std::lock_guard lock(mutex);
     fault = fmt::format("down; rebuild failed: {}", up.error().describe());

@@ -33,6 +33,7 @@ struct Slave::Impl {
   std::optional<std::uint16_t> al_code;
   wire::EscInformation esc{};
   std::optional<SiiReadResult> sii;
+  std::optional<config::EsiDevice> esi_device;  // from config.esi_file, once read
   std::optional<wire::SiiIdentity> known_identity;
   std::unique_ptr<Mailbox> mailbox;
   std::shared_ptr<const Driver> driver;
@@ -91,6 +92,9 @@ struct Slave::Impl {
   exec::Task<Result<void>> configure_preop(std::shared_ptr<Session> keep);
   // SYNC0/SYNC1 and latch units from config.sync, on the way to SAFEOP (DC sessions only).
   exec::Task<Result<void>> apply_sync();
+  // After a rebuild: a DC slave's offset, delay and filters again (a power cycle reset them),
+  // from a DC slave that kept its time; nothing is written to any other slave.
+  exec::Task<Result<void>> reinit_dc();
   std::optional<DcSyncResult> dc_sync;  // guarded by `mutex`
   // Latch edges (config.sync->latches) are polled while the slave is in SAFEOP or OP and handed
   // to the subscribers of the latch's name.

@@ -46,9 +46,11 @@ slaves:
       - {index: 0x6060, subindex: 0, type: i8, value: 8}
       - {index: 0x1C12, type: bytes, value: "01 00 00 16", complete_access: true}
     pdo_source: coe
+    esi: devices/drive.xml
     sync: {mode: sync0, pulse_ns: 1000, shift_ns: -2000, assign_activate: 0x0300,
            latches: [{name: probe, unit: 1, edge: falling}]}
-dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns: 50}
+dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns: 50,
+     follow_reference: false, frame_lead_us: 100}
 )");
   ASSERT_TRUE(config) << config.error().describe();
   EXPECT_EQ(config->base_station, 0x2000);
@@ -90,6 +92,32 @@ dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns
   ASSERT_TRUE(config->dc.has_value());
   EXPECT_EQ(config->dc->cycle, std::chrono::nanoseconds(500us));
   EXPECT_EQ(config->dc->lock_policy, LockPolicy::recovering);
+  EXPECT_FALSE(config->dc->follow_reference);
+  EXPECT_EQ(config->dc->frame_lead, std::chrono::nanoseconds(100us));
+  // Relative to the ring file's directory (the source here has none: as written).
+  EXPECT_EQ(drive.esi_file, "devices/drive.xml");
+}
+
+TEST(MasterConfigFile, EsiPathsAreRelativeToTheRingFile) {
+  auto config = parse_master_config("slaves: [{name: d, esi: esi/d.xml}]\n", "/etc/ecat/ring.yaml");
+  ASSERT_TRUE(config) << config.error().describe();
+  EXPECT_EQ(config->slaves[0].esi_file, "/etc/ecat/esi/d.xml");
+  auto absolute = parse_master_config("slaves: [{name: d, esi: /opt/d.xml}]\n", "/etc/r.yaml");
+  ASSERT_TRUE(absolute) << absolute.error().describe();
+  EXPECT_EQ(absolute->slaves[0].esi_file, "/opt/d.xml");
+}
+
+TEST(MasterConfigFile, FrameLeadMustLieWithinHalfTheCycle) {
+  auto config = parse_master_config("dc: {cycle_us: 1000, frame_lead_us: 600}\n");
+  ASSERT_FALSE(config);
+  EXPECT_NE(config.error().describe().find("dc.frame_lead 600000 ns must lie in 0 .. half"),
+            std::string::npos)
+      << config.error().describe();
+  MasterConfig direct;
+  direct.dc->frame_lead = std::chrono::microseconds(-1);
+  EXPECT_FALSE(validate(direct));
+  direct.dc->frame_lead = std::chrono::microseconds(499);
+  EXPECT_TRUE(validate(direct));
 }
 
 TEST(MasterConfigFile, DcFalseDisablesAndDefaultsHold) {
@@ -140,6 +168,8 @@ INSTANTIATE_TEST_SUITE_P(
                 "slaves[0].sync.latches[0].unit"},
         BadCase{"slaves: [{name: x, sync: {latches: [{unit: 1}]}}]\n", "a latch needs a name"},
         BadCase{"dc: {lock_policy: maybe}\n", "unknown lock_policy"},
+        BadCase{"dc: {follow_reference: perhaps}\n", "dc.follow_reference"},
+        BadCase{"slaves: [{name: x, esi: \"\"}]\n", "must name an ESI file"},
         BadCase{"slaves: {name: x}\n", "must be a list"},
         BadCase{"slaves: [ {name: x\n", "YAML syntax error"}));
 

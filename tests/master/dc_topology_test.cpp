@@ -296,8 +296,21 @@ TEST(DcSync, AssignActivateSources) {
   sync.mode = SyncMode::sync1;
   EXPECT_EQ(resolve_assign_activate(sync, &sii),
             std::make_pair(std::uint16_t{0x0730}, AssignActivateSource::sii));
+  // An ESI description comes before the SII; an OpMode without SYNC0 never matches.
+  config::EsiDevice esi;
+  esi.dc_op_modes = {{"DcOff", "", 0x0000}, {"DcSync01", "", 0x0770}, {"DcSync", "", 0x0340}};
+  sync.mode = SyncMode::sync0;
+  EXPECT_EQ(resolve_assign_activate(sync, &sii, &esi),
+            std::make_pair(std::uint16_t{0x0340}, AssignActivateSource::esi));
+  sync.mode = SyncMode::sync1;
+  EXPECT_EQ(resolve_assign_activate(sync, &sii, &esi),
+            std::make_pair(std::uint16_t{0x0770}, AssignActivateSource::esi));
+  config::EsiDevice without_dc;
+  EXPECT_EQ(resolve_assign_activate(sync, &sii, &without_dc),
+            std::make_pair(std::uint16_t{0x0730}, AssignActivateSource::sii));
+  EXPECT_EQ(to_string(AssignActivateSource::esi), "ESI");
   sync.assign_activate = 0x0E00;
-  EXPECT_EQ(resolve_assign_activate(sync, &sii),
+  EXPECT_EQ(resolve_assign_activate(sync, &sii, &esi),
             std::make_pair(std::uint16_t{0x0E00}, AssignActivateSource::config));
 }
 

@@ -2,7 +2,10 @@
 // activation, SYNC0 written on the way to SAFEOP from the slave's sync configuration, the lock
 // reported by dc_status / await_dc_locked / reference_clock, and a lost lock handled by the
 // configured policy (recovering: the session heals when the clocks lock again).
+#include <algorithm>
 #include <chrono>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -10,6 +13,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <ecat/master/master.hpp>
 #include <ecat/sim/dc_unit.hpp>
@@ -192,6 +196,236 @@ TEST_F(MasterDcTest, ClockJumpLosesTheLockAndRecoveringHealsIt) {
   EXPECT_GE(status->unlock_count, 1u);
   EXPECT_GT(status->lock_count, locks_before);
   EXPECT_EQ(master_->status().illegal_transitions, 0u);
+}
+
+// A reference clock that runs 95 ppm fast against the host: unsteered, the master's cycle
+// slides along the SYNC0 grid by 95 us every second.
+constexpr const char* kFastReferenceRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: generic, clock: {drift_ppm: 95, offset_ns: 3000000}}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: axis_1, profile: servo, clock: {drift_ppm: -40, offset_ns: 1500000}}
+    - {name: axis_2, profile: servo, clock: {drift_ppm: 60, offset_ns: 900000000}}
+)";
+
+// How far the phase moved between the first and the last `window` samples of `history`
+// (medians, unwrapped over the cycle so a slide through +-cycle/2 counts in full).
+std::int64_t phase_slide(const std::vector<std::int64_t>& history, std::size_t window,
+                         std::int64_t cycle) {
+  std::vector<std::int64_t> unwrapped;
+  unwrapped.reserve(history.size());
+  for (std::size_t i = 0; i < history.size(); ++i) {
+    if (i == 0) {
+      unwrapped.push_back(history[0]);
+      continue;
+    }
+    std::int64_t step = history[i] - history[i - 1];
+    if (step > cycle / 2) step -= cycle;
+    if (step < -cycle / 2) step += cycle;
+    unwrapped.push_back(unwrapped.back() + step);
+  }
+  auto median = [](std::vector<std::int64_t> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  const std::vector<std::int64_t> first(unwrapped.begin(),
+                                        unwrapped.begin() + static_cast<std::ptrdiff_t>(window));
+  const std::vector<std::int64_t> last(unwrapped.end() - static_cast<std::ptrdiff_t>(window),
+                                       unwrapped.end());
+  return median(last) - median(first);
+}
+
+class MasterDcSteeringTest : public MasterDcTest {
+ protected:
+  // Runs the fast-reference ring for `seconds` of phase history after the phase settled (or
+  // after the lock, without steering) and returns the status.
+  DcStatus observe(bool follow, std::chrono::milliseconds span) {
+    auto config = dc_config();
+    config.dc->follow_reference = follow;
+    server_ = test::make_sim_server(kFastReferenceRing);
+    EXPECT_TRUE(server_);
+    if (!server_) return {};
+    auto link = server_->serve_memory();
+    master_ = std::make_unique<Master>(std::move(config));
+    EXPECT_TRUE(master_->start(std::move(*link)));
+    EXPECT_TRUE(master_->await_operational(20s));
+    EXPECT_TRUE(master_->await_dc_locked(20s));
+    if (follow) {
+      EXPECT_TRUE(eventually([&] { return master_->dc_status()->phase_settled; }))
+          << "steering never settled";
+    }
+    const auto samples_before = master_->dc_status()->samples;
+    std::this_thread::sleep_for(span);
+    auto status = *master_->dc_status();
+    // Keep only what was sampled during the span.
+    const auto taken = static_cast<std::size_t>(status.samples - samples_before);
+    if (status.phase_history.size() > taken) {
+      status.phase_history.erase(status.phase_history.begin(),
+                                 status.phase_history.end() - static_cast<std::ptrdiff_t>(taken));
+    }
+    return status;
+  }
+};
+
+TEST_F(MasterDcSteeringTest, TheCycleFollowsTheReferenceClockAtAConstantPhase) {
+  const auto status = observe(true, 2500ms);
+  ASSERT_GE(status.phase_history.size(), 150u);
+  EXPECT_TRUE(status.follows_reference);
+  EXPECT_TRUE(status.phase_settled);
+  EXPECT_EQ(status.phase_target_ns, -250'000);  // a quarter of the 1 ms cycle ahead of SYNC0
+  // The reference runs 95 ppm fast: the cycle runs about that much faster to stay with it
+  // (the drift is estimated from host reception times: a loaded machine skews it).
+  EXPECT_NEAR(status.cycle_rate_ppm, -95.0, 50.0);
+  // Constant phase: 2.5 s at 95 ppm would slide 237 us; steered it stays put.
+  const auto slide = phase_slide(status.phase_history, 40, 1'000'000);
+  EXPECT_LT(std::llabs(slide), 30'000) << "phase slid " << slide << " ns";
+  std::vector<std::int64_t> sorted = status.phase_history;
+  std::sort(sorted.begin(), sorted.end());
+  const auto median = sorted[sorted.size() / 2];
+  EXPECT_LT(std::llabs(median), 50'000) << "median phase error " << median << " ns";
+}
+
+TEST_F(MasterDcSteeringTest, WithoutFollowingThePhaseSlidesAtTheReferenceDrift) {
+  // The contrast that shows the test above measures something: the same ring unsteered.
+  const auto status = observe(false, 2500ms);
+  ASSERT_GE(status.phase_history.size(), 150u);
+  EXPECT_FALSE(status.follows_reference);
+  EXPECT_EQ(status.cycle_rate_ppm, 0.0);
+  const auto slide = phase_slide(status.phase_history, 40, 1'000'000);
+  EXPECT_GT(std::llabs(slide), 120'000) << "phase slid only " << slide << " ns";
+}
+
+// A power-cycled DC slave comes back with offset, delay and filters at their power-up values:
+// the reconnect puts it back on the others' time, writing to it alone.
+void power_cycle_and_heal(Master& master, sim::SimServer& server, const char* victim,
+                          std::size_t victim_position, std::uint16_t victim_station) {
+  ASSERT_TRUE(master.await_dc_locked(20s));
+  auto offsets = [&] {
+    return server.with_segment([](sim::Segment& segment, sim::FaultInjector&) {
+      std::vector<std::int64_t> out;
+      for (std::size_t i = 0; i < segment.size(); ++i)
+        out.push_back(segment.esc(i).dc() != nullptr ? segment.esc(i).dc()->offset() : 0);
+      return out;
+    });
+  };
+  const auto before = offsets();
+  ASSERT_TRUE(server.power_cycle(victim));
+  ASSERT_TRUE(eventually([&] { return (*master.slave(victim))->state() == SlaveState::down; }))
+      << victim << " was never seen down";
+  ASSERT_TRUE(eventually(
+      [&] {
+        auto status = master.dc_status();
+        if (!status || !status->locked) return false;
+        for (const auto& s : status->slaves)
+          if (s.station == victim_station) return s.reinitialised == 1;
+        return false;
+      },
+      30s))
+      << "no re-initialisation and lock after the power cycle";
+  ASSERT_TRUE(eventually([&] { return master.state() == MasterState::operational; }));
+  const auto after = offsets();
+  ASSERT_EQ(after.size(), before.size());
+  for (std::size_t i = 0; i < before.size(); ++i) {
+    if (i == victim_position) continue;
+    EXPECT_EQ(after[i], before[i]) << "the offset of slave " << i << " was touched";
+  }
+  EXPECT_NE(after[victim_position], 0) << "the victim's offset was not written again";
+  auto status = master.dc_status();
+  ASSERT_TRUE(status);
+  for (const auto& s : status->slaves)
+    EXPECT_LT(std::llabs(s.difference_ns), 100) << s.station;
+}
+
+TEST_F(MasterDcTest, APowerCycledDriveGetsItsClockBackWithoutDisturbingTheOthers) {
+  ASSERT_NO_FATAL_FAILURE(start(dc_config()));
+  power_cycle_and_heal(*master_, *server_, "axis_2", 4, 0x1004);
+  // Its SYNC0 runs again, on the shared time base.
+  EXPECT_TRUE(eventually([&] {
+    return server_->with_segment([](sim::Segment& segment, sim::FaultInjector&) {
+      return segment.esc(4).dc()->sync_state() == sim::SyncUnitState::running;
+    });
+  }));
+}
+
+TEST_F(MasterDcTest, APowerCycledReferenceClockTakesItsTimeFromAnotherDcSlave) {
+  ASSERT_NO_FATAL_FAILURE(start(dc_config()));
+  power_cycle_and_heal(*master_, *server_, "coupler", 0, 0x1000);
+}
+
+// The drives' description, written for this test: its DC OpMode asks for an AssignActivate
+// that neither the SII nor the mode default would give.
+constexpr const char* kServoEsi = R"(<?xml version="1.0" encoding="utf-8"?>
+<EtherCATInfo Version="1.6">
+  <Vendor><Id>#x00000ACE</Id><Name>ecat tests</Name></Vendor>
+  <Descriptions>
+    <Devices>
+      <Device Physics="YY">
+        <Type ProductCode="#x00002402" RevisionNo="1">SERVO</Type>
+        <Name LcId="1033">Simulated servo</Name>
+        <Dc>
+          <OpMode><Name>FreeRun</Name><Desc>free run</Desc><AssignActivate>#x0</AssignActivate></OpMode>
+          <OpMode><Name>DcSync</Name><Desc>SYNC0</Desc><AssignActivate>#x320</AssignActivate></OpMode>
+        </Dc>
+      </Device>
+    </Devices>
+  </Descriptions>
+</EtherCATInfo>
+)";
+
+TEST_F(MasterDcTest, AssignActivateComesFromTheEsiWhenOneIsGiven) {
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("ecat-master-dc-esi-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const auto esi = dir / "servo.xml";
+  std::ofstream(esi) << kServoEsi;
+  auto config = dc_config();
+  for (auto& s : config.slaves) {
+    if (s.name == "axis_1") s.esi_file = esi.string();
+  }
+  ASSERT_NO_FATAL_FAILURE(start(config));
+  const auto with_esi = (*master_->slave("axis_1"))->info();
+  ASSERT_TRUE(with_esi.dc_sync);
+  EXPECT_EQ(with_esi.dc_sync->assign_activate, 0x0320);
+  EXPECT_EQ(with_esi.dc_sync->source, AssignActivateSource::esi);
+  // The other drive has no ESI: the SII's DC category (or the mode default) decides.
+  const auto without = (*master_->slave("axis_2"))->info();
+  ASSERT_TRUE(without.dc_sync);
+  EXPECT_NE(without.dc_sync->source, AssignActivateSource::esi);
+  EXPECT_TRUE(eventually([&] {
+    return server_->with_segment([](sim::Segment& segment, sim::FaultInjector&) {
+      return segment.esc(3).dc()->sync_state() == sim::SyncUnitState::running;
+    });
+  }));
+  std::filesystem::remove_all(dir);
+}
+
+TEST(MasterDc, AMissingEsiFileIsNamedInTheSlavesFailure) {
+  auto server = test::make_sim_server(kRing);
+  ASSERT_TRUE(server);
+  auto config = dc_config();
+  for (auto& s : config.slaves) {
+    if (s.name == "axis_1") s.esi_file = "/nonexistent/servo.xml";
+  }
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  Master master(config);
+  ASSERT_TRUE(master.start(std::move(*link)));
+  // The drive cannot reach SAFEOP: activation_blocked, naming the slave and the file.
+  ASSERT_TRUE(eventually([&] { return master.state() == MasterState::activation_blocked; }, 10s))
+      << to_string(master.state());
+  const auto failures = master.status().activation_failures;
+  ASSERT_FALSE(failures.empty());
+  bool named = false;
+  for (const auto& f : failures) {
+    if (f.slave == "axis_1" &&
+        f.error.describe().find("/nonexistent/servo.xml") != std::string::npos) {
+      named = true;
+    }
+  }
+  EXPECT_TRUE(named) << failures.front().error.describe();
+  ASSERT_TRUE(master.stop());
 }
 
 TEST(MasterDc, IdleOrDisabledSaysWhy) {

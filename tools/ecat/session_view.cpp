@@ -71,10 +71,22 @@ void print_dc(master::Master& master) {
   auto reference = master.reference_clock();
   fmt::print(
       "distributed clocks: {}, reference {} (0x{:04x}), {} DC slaves, max |difference| {} "
-      "ns, phase error {} ns, {} lock(s) / {} loss(es)\n",
+      "ns, {} lock(s) / {} loss(es)\n",
       dc->locked ? "locked" : "NOT locked", reference ? reference->slave : "?",
-      dc->reference_station, dc->slaves.size(), dc->max_difference_ns, dc->phase_error_ns,
-      dc->lock_count, dc->unlock_count);
+      dc->reference_station, dc->slaves.size(), dc->max_difference_ns, dc->lock_count,
+      dc->unlock_count);
+  if (dc->follows_reference) {
+    fmt::print(
+        "  cycle follows the reference ({}): rate {:+.1f} ppm, frames {} us before SYNC0, "
+        "phase error {} ns (max {} ns since settled), reference drift {:+.1f} ppm\n",
+        dc->phase_settled ? "settled" : "settling", dc->cycle_rate_ppm, -dc->phase_target_ns / 1000,
+        dc->phase_error_ns, dc->max_abs_phase_error_ns, dc->reference_drift_ppm);
+  } else {
+    fmt::print(
+        "  cycle free-running against the reference: phase {} ns, reference drift {:+.1f} "
+        "ppm\n",
+        dc->phase_ns, dc->reference_drift_ppm);
+  }
 }
 
 json slave_json(const master::SlaveInfo& info) {
@@ -128,6 +140,11 @@ json status_json(master::Master& master) {
                  {"reference_station", dc->reference_station},
                  {"max_difference_ns", dc->max_difference_ns},
                  {"phase_error_ns", dc->phase_error_ns},
+                 {"phase_target_ns", dc->phase_target_ns},
+                 {"follows_reference", dc->follows_reference},
+                 {"phase_settled", dc->phase_settled},
+                 {"cycle_rate_ppm", dc->cycle_rate_ppm},
+                 {"reference_drift_ppm", dc->reference_drift_ppm},
                  {"lock_count", dc->lock_count},
                  {"unlock_count", dc->unlock_count}};
   } else {

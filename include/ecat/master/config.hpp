@@ -78,6 +78,10 @@ struct SlaveConfig {
   ProcessDataRequest process_data;
   TargetState target = TargetState::op;
   std::optional<SyncConfig> sync;
+  // An ESI (EtherCAT Slave Information) file describing the device. The master takes the sync
+  // mode's AssignActivate from its DC OpModes (before the SII's DC category); the device is the
+  // file's entry with the slave's product code. Read when SYNC is first configured.
+  std::string esi_file;
   // AL status poll period while the slave is in PREOP or above; empty disables it.
   std::optional<std::chrono::nanoseconds> health_poll = std::chrono::milliseconds(250);
   // SDO downloads run in PREOP before process data is set up (after the driver's own).
@@ -100,6 +104,11 @@ struct DcConfig {
   std::chrono::nanoseconds lock_threshold = std::chrono::nanoseconds(100);
   std::chrono::nanoseconds lock_timeout = std::chrono::seconds(5);
   std::uint32_t warmup_cycles = 0;
+  // The master's cycle follows the reference clock: its wake-ups are steered so that the frame
+  // passes the reference `frame_lead` before each point of the SYNC0 grid (SYNC0 itself fires at
+  // the grid point plus the slave's sync0_shift). Empty frame_lead: a quarter of the cycle.
+  bool follow_reference = true;
+  std::optional<std::chrono::nanoseconds> frame_lead;
 };
 
 // How the master's cycle (bus) thread runs. Both are requests: when the system refuses them

@@ -28,6 +28,7 @@
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/bus/realtime.hpp>
+#include <ecat/config/esi.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/master/config.hpp>
@@ -144,6 +145,24 @@ exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& 
                                                std::vector<std::uint16_t> stations,
                                                DcInitOptions options = {});
 
+// Re-initialises one DC slave whose clock settings are gone (a power cycle resets offset, delay
+// and filters to their power-up values) without touching any other slave: a BWR of 0x0900 latches
+// receive times (it changes nothing else, anywhere), the slave's latched local time is compared
+// with that of a DC slave that kept its time (the anchor: the reference clock, or the first other
+// DC slave when the slave is the reference itself), and the offset that puts it on the anchor's
+// system time, its planned delay, the filter depths and a filter reset are written to it alone.
+// The runtime FRMWs then pull its drift in. Errc::not_found when `station` is not a DC slave of
+// `plan`; other errors name the step and the station.
+struct DcReinitResult {
+  std::uint16_t station = 0;
+  std::uint16_t anchor_station = 0;  // 0: no other DC slave (the master's time was used)
+  std::int64_t offset_ns = 0;        // written to 0x0920
+  std::uint32_t delay_ns = 0;        // written to 0x0928
+};
+exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, bus::Bus& bus,
+                                                         const DcPlan& plan, std::uint16_t station,
+                                                         DcInitOptions options = {});
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -157,12 +176,19 @@ struct DcRuntimeOptions {
   std::uint64_t sync0_start = 0;
   std::chrono::nanoseconds sync0_cycle{0};  // 0: `period`
   std::chrono::nanoseconds stale_after{0};  // 0: `period`
+  // Cycle steering: the bus cycle follows the reference clock (Bus::set_cycle_rate and
+  // Bus::shift_cycle) so that the frame passes the reference at `phase_target` from the SYNC0
+  // grid (negative: ahead of the grid point), whatever the reference's drift against the host.
+  // The reference clock itself is never adjusted.
+  bool follow_reference = false;
+  std::chrono::nanoseconds phase_target{0};
 };
 
 struct DcSlaveStatus {
   std::uint16_t station = 0;
   std::int64_t difference_ns = 0;          // last 0x092C
   std::int64_t max_abs_difference_ns = 0;  // since start
+  std::uint64_t reinitialised = 0;         // re-initialisations after a reconnect
 };
 
 struct DcStatus {
@@ -175,13 +201,24 @@ struct DcStatus {
   std::uint64_t lock_count = 0;    // unlocked -> locked
   std::uint64_t unlock_count = 0;  // locked -> unlocked
   std::chrono::steady_clock::time_point last_lock_change{};
-  // Phase of the FRMW at the reference clock against the SYNC0 grid, in (-cycle/2, cycle/2]:
-  // positive = the frame passes the reference after the grid point.
+  // Phase of the last FRMW at the reference clock against the SYNC0 grid, in (-cycle/2, cycle/2]:
+  // positive = the frame passed the reference after the grid point.
+  std::int64_t phase_ns = 0;
+  std::int64_t phase_target_ns = 0;  // DcRuntimeOptions::phase_target
+  // phase_ns - phase_target_ns, wrapped into (-cycle/2, cycle/2]: what steering holds near 0.
   std::int64_t phase_error_ns = 0;
+  // Largest |phase_error_ns| since the steering settled (without steering: since start).
   std::int64_t max_abs_phase_error_ns = 0;
+  std::vector<std::int64_t> phase_history;  // phase_error_ns per sample (as `history`)
+  // Steering (DcRuntimeOptions::follow_reference).
+  bool follows_reference = false;
+  bool phase_settled = false;        // the error stayed within cycle/20 for 20 samples
+  double cycle_rate_ppm = 0.0;       // the rate applied to the cycle (Bus::set_cycle_rate)
+  std::int64_t cycle_offset_ns = 0;  // where the steered deadlines stand against the host grid
+  std::uint64_t phase_steps = 0;     // coarse re-alignments (start, lost phase)
   std::uint64_t reference_time = 0;  // system time from the last FRMW
   // The reference clock's rate against the host's steady clock, in ppm (positive: the reference
-  // runs fast), smoothed; what a cycle that follows the reference must add to its period.
+  // runs fast), smoothed. A cycle that follows the reference runs its period shortened by it.
   double reference_drift_ppm = 0.0;
   std::uint64_t frmw_sent = 0;
   std::uint64_t frmw_failed = 0;  // not ok (timeout, expired, wkc)
@@ -215,10 +252,14 @@ class DcMaintainer final : public CyclicParticipant {
   }
   // Starts counting the lock afresh (e.g. after re-initialising a slave).
   void reset_lock();
+  // Counts a re-initialisation of `station` (reinitialize_dc_slave) in its status. Any thread.
+  void note_reinitialised(std::uint16_t station);
   const DcRuntimeOptions& options() const noexcept { return options_; }
 
  private:
   void on_complete(bus::RealtimeTransaction& rt, bool with_reads);
+  // The steering controller, on the bus thread (under mutex_) for every FRMW answered.
+  void steer(std::int64_t frame_error_ns);
 
   bus::Bus& bus_;
   DcRuntimeOptions options_;
@@ -229,6 +270,21 @@ class DcMaintainer final : public CyclicParticipant {
   bus::RealtimeTransaction* pending_ = nullptr;  // bus thread only
   std::uint64_t ticks_ = 0;                      // bus thread only
   std::uint32_t below_ = 0;                      // bus thread only
+  // Steering state, bus thread only.
+  std::int64_t submitted_lateness_ns_ = 0;  // how late the tick that sent the pending FRMW woke
+  // The last reference time read and when its reply arrived: the FRMW carries the time predicted
+  // from them, which is what the other slaves receive should the reference not answer (down).
+  std::uint64_t last_ref_time_ = 0;
+  std::int64_t last_ref_host_ns_ = 0;
+  double drift_for_prediction_ppm_ = 0.0;
+  double feedforward_ppm_ = 0.0;   // -reference drift
+  double lateness_mean_ns_ = 0.0;  // the bus thread's usual wake-up lateness
+  bool lateness_seen_ = false;
+  double integral_ppm_ = 0.0;  // the controller's integral, as a rate
+  std::uint32_t hold_ = 0;     // samples to skip while a coarse step takes effect
+  std::uint32_t settled_samples_ = 0;
+  std::uint32_t far_samples_ = 0;  // consecutive samples far off (lost phase)
+  bool acquired_ = false;
   std::atomic<bool> locked_{false};
   std::atomic<bool> lock_lost_{false};
   std::atomic<bool> reset_requested_{false};
@@ -236,7 +292,7 @@ class DcMaintainer final : public CyclicParticipant {
 
   mutable std::mutex mutex_;  // guards status_ (short sections, no allocation under it)
   DcStatus status_;
-  std::size_t history_head_ = 0;  // ring buffer in status_.history
+  std::size_t history_head_ = 0;  // ring buffers status_.history and status_.phase_history
   std::size_t history_size_ = 0;
   // Rate estimate: per window, the sample with the largest (reference - host reception) offset,
   // i.e. the least host latency; the rate is the slope between two windows' best samples.
@@ -259,12 +315,15 @@ struct DcSyncRequest {
   SyncConfig sync;
   // The slave's SII (for the DC category), when the master has it.
   const wire::SiiImage* sii = nullptr;
+  // The slave's ESI device description (its DC OpModes), when the configuration names one.
+  const config::EsiDevice* esi = nullptr;
   // How far ahead of the slave's current system time the first pulse is placed.
   std::chrono::nanoseconds start_lead = std::chrono::milliseconds(100);
   std::chrono::nanoseconds timeout = std::chrono::milliseconds(200);
 };
 
-enum class AssignActivateSource : std::uint8_t { config, sii, mode_default, none };
+enum class AssignActivateSource : std::uint8_t { config, esi, sii, mode_default, none };
+std::string_view to_string(AssignActivateSource source) noexcept;
 
 struct DcSyncResult {
   std::uint16_t assign_activate = 0;
@@ -275,10 +334,12 @@ struct DcSyncResult {
   std::uint8_t latch_control[2]{};
 };
 
-// AssignActivate for `sync`: SyncConfig::assign_activate, else the SII DC category's entry for
-// the mode (SYNC0 only / SYNC1), else 0x0300 (sync0) / 0x0700 (sync1); 0 for free run.
+// AssignActivate for `sync`: SyncConfig::assign_activate, else the first ESI DC OpMode for the
+// mode (SYNC0 without SYNC1 / with SYNC1), else the SII DC category's entry for it, else 0x0300
+// (sync0) / 0x0700 (sync1); 0 for free run and SM-synchronous.
 std::pair<std::uint16_t, AssignActivateSource> resolve_assign_activate(
-    const SyncConfig& sync, const wire::SiiImage* sii) noexcept;
+    const SyncConfig& sync, const wire::SiiImage* sii,
+    const config::EsiDevice* esi = nullptr) noexcept;
 
 // Reads 0x0910, places the first pulse on the next multiple of the cycle at least start_lead
 // ahead (plus sync0_shift), then: 0x0981 = 0, SYNC0/SYNC1 cycles, pulse length (when configured),
