@@ -564,6 +564,9 @@ void DcMaintainer::steer(std::int64_t frame_error_ns) {
     --hold_;
     return;
   }
+  // A coarse step still being spread over the ticks (a late bus thread applies it later than
+  // planned): the samples do not show its effect yet.
+  if (bus_.cycle_steering().pending.count() != 0) return;
   const std::int64_t fine = cycle / 20;
   const std::int64_t far = cycle / 8;
   far_samples_ = std::abs(e) > far ? far_samples_ + 1 : 0;
