@@ -667,19 +667,28 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
         window_best_host_ = host;
       }
       if (host - window_start_ns_ >= 200'000'000) {
-        if (have_last_ && window_best_host_ > last_best_host_) {
-          const auto dh = static_cast<double>(window_best_host_ - last_best_host_);
-          const double ppm =
-              static_cast<double>(window_best_offset_ - last_best_offset_) / dh * 1e6;
-          status_.reference_drift_ppm =
-              have_rate_ ? 0.7 * status_.reference_drift_ppm + 0.3 * ppm : ppm;
-          have_rate_ = true;
+        window_bests_[window_count_ % kRateWindows] = {window_best_host_, window_best_offset_};
+        ++window_count_;
+        const std::size_t n = std::min(window_count_, kRateWindows);
+        if (n >= 3) {
+          // Least-squares slope of offset over host time, relative to the first point kept.
+          const auto& origin = window_bests_[(window_count_ - n) % kRateWindows];
+          double sx = 0, sy = 0, sxx = 0, sxy = 0;
+          for (std::size_t k = 0; k < n; ++k) {
+            const auto& [h, o] = window_bests_[(window_count_ - n + k) % kRateWindows];
+            const auto x = static_cast<double>(h - origin.first);
+            const auto y = static_cast<double>(o - origin.second);
+            sx += x;
+            sy += y;
+            sxx += x * x;
+            sxy += x * y;
+          }
+          const double m = static_cast<double>(n);
+          const double den = m * sxx - sx * sx;
+          if (den > 0) status_.reference_drift_ppm = (m * sxy - sx * sy) / den * 1e6;
           feedforward_ppm_ = -status_.reference_drift_ppm;
           drift_for_prediction_ppm_ = status_.reference_drift_ppm;
         }
-        last_best_offset_ = window_best_offset_;
-        last_best_host_ = window_best_host_;
-        have_last_ = true;
         window_open_ = false;
       }
     }

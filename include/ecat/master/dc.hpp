@@ -300,10 +300,11 @@ class DcMaintainer final : public CyclicParticipant {
   std::int64_t window_best_offset_ = 0;
   std::int64_t window_best_host_ = 0;
   bool window_open_ = false;
-  std::int64_t last_best_offset_ = 0;
-  std::int64_t last_best_host_ = 0;
-  bool have_last_ = false;
-  bool have_rate_ = false;
+  // The last windows' best samples; the rate is their least-squares slope (a baseline of
+  // seconds: a few microseconds of latency floor then move the estimate by a few ppm only).
+  static constexpr std::size_t kRateWindows = 16;
+  std::array<std::pair<std::int64_t, std::int64_t>, kRateWindows> window_bests_{};  // host, off
+  std::size_t window_count_ = 0;  // windows closed (the ring holds the last kRateWindows)
 };
 
 // ---------------------------------------------------------------------------------------------
