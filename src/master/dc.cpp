@@ -545,7 +545,7 @@ constexpr double kSteerKp = 0.05;
 constexpr double kSteerKi = 2e-5;
 constexpr double kSteerMaxIntegralPpm = 200.0;
 constexpr std::uint32_t kSettleSamples = 20;
-constexpr std::uint32_t kFarSamplesForReacquire = 3;
+constexpr std::uint32_t kFarSamplesForReacquire = 10;  // medians, consecutive
 
 }  // namespace
 
@@ -558,8 +558,10 @@ void DcMaintainer::steer(std::int64_t frame_error_ns) {
   lateness_mean_ns_ =
       lateness_seen_ ? lateness_mean_ns_ + 0.02 * (lateness - lateness_mean_ns_) : lateness;
   lateness_seen_ = true;
-  const std::int64_t e =
+  const std::int64_t raw =
       wrap_phase(frame_error_ns - std::llround(lateness - lateness_mean_ns_), cycle);
+  // The rate follows the reference's measured drift (plus the integral) whatever else happens.
+  bus_.set_cycle_rate(feedforward_ppm_ + integral_ppm_);
   if (hold_ > 0) {
     --hold_;
     return;
@@ -567,6 +569,15 @@ void DcMaintainer::steer(std::int64_t frame_error_ns) {
   // A coarse step still being spread over the ticks (a late bus thread applies it later than
   // planned): the samples do not show its effect yet.
   if (bus_.cycle_steering().pending.count() != 0) return;
+  // The median of the last samples: a frame delayed on its way (a busy host, a late simulator)
+  // is an outlier, not a phase change.
+  recent_errors_[recent_count_ % recent_errors_.size()] = raw;
+  ++recent_count_;
+  if (recent_count_ < recent_errors_.size()) return;
+  auto sorted = recent_errors_;
+  const auto middle = static_cast<std::ptrdiff_t>(sorted.size() / 2);
+  std::nth_element(sorted.begin(), sorted.begin() + middle, sorted.end());
+  const std::int64_t e = sorted[sorted.size() / 2];
   const std::int64_t fine = cycle / 20;
   const std::int64_t far = cycle / 8;
   far_samples_ = std::abs(e) > far ? far_samples_ + 1 : 0;
@@ -577,19 +588,20 @@ void DcMaintainer::steer(std::int64_t frame_error_ns) {
     status_.phase_settled = false;
     if (std::abs(e) > fine) {
       // Acquire (or re-acquire) in one step; the bus spreads it over ticks of at most a
-      // quarter period, and the next samples still show the old phase: skip them.
+      // quarter period, and the next samples still show the old phase: skip them, and start
+      // the median afresh.
       bus_.shift_cycle(std::chrono::nanoseconds(-e));
       hold_ = 2 + static_cast<std::uint32_t>(std::abs(e) / std::max<std::int64_t>(1, cycle / 4));
+      recent_count_ = 0;
       ++status_.phase_steps;
       return;
     }
   }
-  // Fine: clamp what one sample may do (a late frame is an outlier, not a phase change).
+  // Fine: a proportional step and the slow integral, on a clamped error.
   const double clamped = static_cast<double>(std::clamp(e, -fine, fine));
   integral_ppm_ = std::clamp(integral_ppm_ - kSteerKi * clamped / static_cast<double>(cycle) * 1e6,
                              -kSteerMaxIntegralPpm, kSteerMaxIntegralPpm);
   bus_.shift_cycle(std::chrono::nanoseconds(std::llround(-kSteerKp * clamped)));
-  bus_.set_cycle_rate(feedforward_ppm_ + integral_ppm_);
   if (std::abs(e) <= fine && !status_.phase_settled && ++settled_samples_ >= kSettleSamples) {
     status_.phase_settled = true;
     status_.max_abs_phase_error_ns = 0;  // from now on: how well it holds

@@ -283,7 +283,9 @@ class DcMaintainer final : public CyclicParticipant {
   double integral_ppm_ = 0.0;  // the controller's integral, as a rate
   std::uint32_t hold_ = 0;     // samples to skip while a coarse step takes effect
   std::uint32_t settled_samples_ = 0;
-  std::uint32_t far_samples_ = 0;  // consecutive samples far off (lost phase)
+  std::uint32_t far_samples_ = 0;                // consecutive medians far off (lost phase)
+  std::array<std::int64_t, 5> recent_errors_{};  // the last phase errors (median filter)
+  std::size_t recent_count_ = 0;
   bool acquired_ = false;
   std::atomic<bool> locked_{false};
   std::atomic<bool> lock_lost_{false};
