@@ -65,6 +65,20 @@ struct SimServer::Impl {
     return last_time;
   }
 
+  // The segment time of a frame the link stamped at `stamped` (CLOCK_MONOTONIC): a frame is on
+  // the wire when it was sent, not when this thread got round to it. A busy host can hold the
+  // thread for hundreds of microseconds, where a real segment processes the frame microseconds
+  // after the master sent it; distributed clocks (the reference's time in a frame) depend on it.
+  // A stamp from the future or older than kMaxFrameAge is not trusted: then the time is now.
+  std::int64_t frame_clock(std::int64_t stamped) {
+    if (options.clock || stamped <= 0) return clock();
+    constexpr std::int64_t kMaxFrameAge = 50'000'000;
+    const std::int64_t now = monotonic_ns();
+    const std::int64_t t = stamped <= now && now - stamped <= kMaxFrameAge ? stamped : now;
+    last_time = std::max(last_time, t);
+    return last_time;
+  }
+
   void release_due(std::int64_t now, Batch& out) {
     while (!delayed.empty() && delayed.front().due_ns <= now) {
       out.push(delayed.front().bytes);
@@ -228,7 +242,8 @@ Result<void> SimServer::serve(std::unique_ptr<link::Link> link) {
       }
       {
         std::lock_guard lock(mutex_);
-        const std::int64_t now = s.clock();
+        const std::int64_t now =
+            received->has_value() ? s.frame_clock((*received)->timestamp_ns) : s.clock();
         if (received->has_value()) {
           handle_frame(s, *segment_, *injector_, (*received)->frame, now, out);
         } else {
