@@ -654,6 +654,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   void send_realtime_frames(RealtimeTransaction* rt, Clock::time_point now) {
     rt->stage_.store(RealtimeTransaction::Stage::in_flight, std::memory_order_release);
     rt->frame_timeout_ = frame_timeout();
+    rt->sent_timestamp_ns_ = to_ns(now);
     const auto datagrams = rt->layout_.datagrams();
     wire::FrameBuilder builder(wire::MutableBytes{send_buffer.data(), max_frame});
     std::optional<std::size_t> f;

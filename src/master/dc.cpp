@@ -619,6 +619,9 @@ void DcMaintainer::on_tick(const bus::CycleTick& tick) {
   bus::RealtimeTransaction& rt = reads ? frmw_and_reads_ : frmw_only_;
   pending_ = &rt;
   submitted_lateness_ns_ = (tick.woke_at - tick.deadline).count();
+  submitted_deadline_ns_ =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(tick.deadline.time_since_epoch())
+          .count();
   if (last_ref_host_ns_ != 0) {
     // Without the reference (a power cycle, a lost slave) nobody reads the FRMW and every other
     // DC slave writes what it carries into its clock loop: a prediction, not zeros.
@@ -657,7 +660,13 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       const std::int64_t error = wrap_phase(status_.phase_ns - status_.phase_target_ns, icycle);
       status_.phase_error_ns = error;
       status_.max_abs_phase_error_ns = std::max(status_.max_abs_phase_error_ns, std::abs(error));
-      if (options_.follow_reference) steer(error);
+      if (options_.follow_reference) {
+        // How late the frame left against its tick's deadline: the bus's own send timestamp
+        // when it has one (it covers the wake-up and everything the tick ran before the frame).
+        if (rt.sent_timestamp_ns() != 0 && submitted_deadline_ns_ != 0)
+          submitted_lateness_ns_ = rt.sent_timestamp_ns() - submitted_deadline_ns_;
+        steer(error);
+      }
       std::int64_t host = rt.reply_timestamp_ns();
       if (host == 0) {
         host = std::chrono::duration_cast<std::chrono::nanoseconds>(

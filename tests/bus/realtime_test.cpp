@@ -56,11 +56,20 @@ TEST(Realtime, CyclicLrwRoundTrips) {
   }
   EXPECT_EQ(rt.completions(), 100u);
   EXPECT_GT(rt.reply_timestamp_ns(), 0);
+  // Sent before its reply came back, after it was submitted.
+  EXPECT_GT(rt.sent_timestamp_ns(), 0);
+  EXPECT_LE(rt.sent_timestamp_ns(), rt.reply_timestamp_ns());
+  const auto before = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                          std::chrono::steady_clock::now().time_since_epoch())
+                          .count();
+  ASSERT_TRUE(bus->submit_realtime(rt, 100ms));
+  rt.wait();
+  EXPECT_GE(rt.sent_timestamp_ns(), before);
   EXPECT_TRUE(rt.result());
   const auto stats = bus->stats();
-  EXPECT_EQ(stats.realtime_completed, 100u);
-  EXPECT_EQ(stats.realtime_frames_sent, 100u);
-  EXPECT_EQ(stats.frames_sent, 100u);
+  EXPECT_EQ(stats.realtime_completed, 101u);
+  EXPECT_EQ(stats.realtime_frames_sent, 101u);
+  EXPECT_EQ(stats.frames_sent, 101u);
 }
 
 TEST(Realtime, ResubmittingWhilePendingIsBusy) {

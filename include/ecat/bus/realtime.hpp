@@ -61,6 +61,8 @@ class RealtimeTransaction {
   std::uint16_t irq(std::size_t slot) const noexcept;
   // Link receive timestamp (CLOCK_MONOTONIC ns) of the last reply frame, 0 when none.
   std::int64_t reply_timestamp_ns() const noexcept { return reply_timestamp_ns_; }
+  // When the bus started sending the last exchange (CLOCK_MONOTONIC ns), 0 before the first.
+  std::int64_t sent_timestamp_ns() const noexcept { return sent_timestamp_ns_; }
   // Completed exchanges, whatever their status.
   std::uint64_t completions() const noexcept {
     return completions_.load(std::memory_order_acquire);
@@ -123,6 +125,7 @@ class RealtimeTransaction {
   std::uint16_t failed_wkc_ = 0;
   std::optional<Error> link_error_;  // only set on a link failure (not a realtime-path event)
   std::int64_t reply_timestamp_ns_ = 0;
+  std::int64_t sent_timestamp_ns_ = 0;
   std::vector<std::uint8_t> sent_index_;  // datagram index used per slot in the last exchange
   std::size_t frames_needed_ = 0;
   const Bus* validated_for_ = nullptr;  // submit_realtime's layout check is done once per bus

@@ -272,6 +272,7 @@ class DcMaintainer final : public CyclicParticipant {
   std::uint32_t below_ = 0;                      // bus thread only
   // Steering state, bus thread only.
   std::int64_t submitted_lateness_ns_ = 0;  // how late the tick that sent the pending FRMW woke
+  std::int64_t submitted_deadline_ns_ = 0;  // that tick's deadline
   // The last reference time read and when its reply arrived: the FRMW carries the time predicted
   // from them, which is what the other slaves receive should the reference not answer (down).
   std::uint64_t last_ref_time_ = 0;
