@@ -667,7 +667,12 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
           submitted_lateness_ns_ = rt.sent_timestamp_ns() - submitted_deadline_ns_;
         steer(error);
       }
-      std::int64_t host = rt.reply_timestamp_ns();
+      // When the frame left (the bus's send stamp; else its reply's, else now). The frame
+      // passes the reference a latency after it left that is never negative: the window's
+      // least-latency sample (smallest reference - host) is the cleanest view of the reference.
+      std::int64_t host = rt.sent_timestamp_ns();
+      bool sent_based = host != 0;
+      if (host == 0) host = rt.reply_timestamp_ns();
       if (host == 0) {
         host = std::chrono::duration_cast<std::chrono::nanoseconds>(
                    std::chrono::steady_clock::now().time_since_epoch())
@@ -675,16 +680,19 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       }
       last_ref_time_ = ref_time;
       last_ref_host_ns_ = host;
-      // Host reception time = when the frame passed the reference + a latency that is never
-      // negative; the window's least-latency sample is the cleanest view of the reference.
+      // Sent-based offsets carry +latency (keep the smallest), reception-based -latency (keep the
+      // largest): compare them sign-adjusted.
       const std::int64_t offset = static_cast<std::int64_t>(ref_time) - host;
+      const std::int64_t score = sent_based ? -offset : offset;
       if (!window_open_) {
         window_open_ = true;
         window_start_ns_ = host;
         window_best_offset_ = offset;
+        window_best_score_ = score;
         window_best_host_ = host;
-      } else if (offset > window_best_offset_) {
+      } else if (score > window_best_score_) {
         window_best_offset_ = offset;
+        window_best_score_ = score;
         window_best_host_ = host;
       }
       if (host - window_start_ns_ >= 200'000'000) {

@@ -277,7 +277,7 @@ class MasterDcSteeringTest : public MasterDcTest {
 
 TEST_F(MasterDcSteeringTest, TheCycleFollowsTheReferenceClockAtAConstantPhase) {
   const auto status = observe(true, 2500ms);
-  ASSERT_GE(status.phase_history.size(), 150u);
+  ASSERT_GE(status.phase_history.size(), 100u);
   EXPECT_TRUE(status.follows_reference);
   EXPECT_TRUE(status.phase_settled);
   EXPECT_EQ(status.phase_target_ns, -250'000);  // a quarter of the 1 ms cycle ahead of SYNC0
@@ -297,7 +297,7 @@ TEST_F(MasterDcSteeringTest, TheCycleFollowsTheReferenceClockAtAConstantPhase) {
 TEST_F(MasterDcSteeringTest, WithoutFollowingThePhaseSlidesAtTheReferenceDrift) {
   // The contrast that shows the test above measures something: the same ring unsteered.
   const auto status = observe(false, 2500ms);
-  ASSERT_GE(status.phase_history.size(), 150u);
+  ASSERT_GE(status.phase_history.size(), 100u);
   EXPECT_FALSE(status.follows_reference);
   EXPECT_EQ(status.cycle_rate_ppm, 0.0);
   const auto slide = phase_slide(status.phase_history, 40, 1'000'000, true);

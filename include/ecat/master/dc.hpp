@@ -301,6 +301,7 @@ class DcMaintainer final : public CyclicParticipant {
   // i.e. the least host latency; the rate is the slope between two windows' best samples.
   std::int64_t window_start_ns_ = 0;
   std::int64_t window_best_offset_ = 0;
+  std::int64_t window_best_score_ = 0;  // the offset, signed so that larger is less latency
   std::int64_t window_best_host_ = 0;
   bool window_open_ = false;
   // The last windows' best samples; the rate is their least-squares slope (a baseline of
