@@ -551,13 +551,20 @@ constexpr std::uint32_t kFarSamplesForReacquire = 10;  // medians, consecutive
 
 void DcMaintainer::steer(std::int64_t frame_error_ns) {
   const std::int64_t cycle = options_.sync0_cycle.count();
-  // The frame's phase without the wake-up jitter: how late the bus thread woke to send this frame,
-  // against how late it usually wakes, is noise the controller cannot correct (following it would
-  // add it to the cycle). The usual lateness stays in: the mean frame is what must be on target.
+  // The frame's phase without the send jitter: how late this frame left against its deadline,
+  // compared with how late frames usually leave, is noise the controller cannot correct
+  // (following it would add it to the cycle). The usual lateness stays in: the typical frame is
+  // what must be on target. "Usual" is a running median (a step of 1 us towards each sample):
+  // a mean would be dragged by the rare very late frame and put the typical one off target.
   const auto lateness = static_cast<double>(submitted_lateness_ns_);
-  lateness_mean_ns_ =
-      lateness_seen_ ? lateness_mean_ns_ + 0.02 * (lateness - lateness_mean_ns_) : lateness;
-  lateness_seen_ = true;
+  if (!lateness_seen_) {
+    lateness_mean_ns_ = lateness;
+    lateness_seen_ = true;
+  } else if (lateness > lateness_mean_ns_) {
+    lateness_mean_ns_ += std::min(1000.0, lateness - lateness_mean_ns_);
+  } else {
+    lateness_mean_ns_ -= std::min(1000.0, lateness_mean_ns_ - lateness);
+  }
   const std::int64_t raw =
       wrap_phase(frame_error_ns - std::llround(lateness - lateness_mean_ns_), cycle);
   // The rate follows the reference's measured drift (plus the integral) whatever else happens.
