@@ -219,7 +219,9 @@ Result<void> SimServer::serve(std::unique_ptr<link::Link> link) {
       std::int64_t timeout_ns = 0;
       {
         std::lock_guard lock(mutex_);
-        const std::int64_t now = s.clock();
+        // Only a look at the clock: segment time moves when something is processed (a frame
+        // queued meanwhile is then processed at its own, earlier, send time).
+        const std::int64_t now = s.options.clock ? s.options.clock() : monotonic_ns();
         std::int64_t deadline = s.last_advance + period;
         if (auto due = injector_->next_due_ns()) deadline = std::min(deadline, *due);
         if (!s.delayed.empty()) deadline = std::min(deadline, s.delayed.front().due_ns);

@@ -279,7 +279,7 @@ class DcMaintainer final : public CyclicParticipant {
   std::int64_t last_ref_host_ns_ = 0;
   double drift_for_prediction_ppm_ = 0.0;
   double feedforward_ppm_ = 0.0;   // -reference drift
-  double lateness_mean_ns_ = 0.0;  // the bus thread's usual wake-up lateness
+  double lateness_mean_ns_ = 0.0;  // a frame's usual send lateness (running median)
   bool lateness_seen_ = false;
   double integral_ppm_ = 0.0;  // the controller's integral, as a rate
   std::uint32_t hold_ = 0;     // samples to skip while a coarse step takes effect
