@@ -276,32 +276,34 @@ class MasterDcSteeringTest : public MasterDcTest {
 };
 
 TEST_F(MasterDcSteeringTest, TheCycleFollowsTheReferenceClockAtAConstantPhase) {
-  const auto status = observe(true, 2500ms);
+  const auto status = observe(true, 3000ms);
   ASSERT_GE(status.phase_history.size(), 100u);
   EXPECT_TRUE(status.follows_reference);
   EXPECT_TRUE(status.phase_settled);
   EXPECT_EQ(status.phase_target_ns, -250'000);  // a quarter of the 1 ms cycle ahead of SYNC0
   // The reference runs 95 ppm fast: the cycle runs about that much faster to stay with it
   // (the drift is estimated from host reception times: a loaded machine skews it).
-  EXPECT_NEAR(status.cycle_rate_ppm, -95.0, 50.0);
-  // Constant phase: 2.5 s at 95 ppm would slide 237 us; steered it stays put.
-  const auto slide = phase_slide(status.phase_history, 40, 1'000'000, false);
-  EXPECT_LT(std::llabs(slide), 30'000)
+  EXPECT_NEAR(status.cycle_rate_ppm, -95.0, 60.0);
+  // Constant phase: 3 s at 95 ppm would slide 285 us; steered it stays put (the bounds leave
+  // room for a loaded machine, where every sample carries tens of microseconds of host noise;
+  // dc_bench gives the figures).
+  const auto slide = phase_slide(status.phase_history, 60, 1'000'000, false);
+  EXPECT_LT(std::llabs(slide), 60'000)
       << "phase slid " << slide << " ns; " << status.phase_steps << " coarse steps";
   std::vector<std::int64_t> sorted = status.phase_history;
   std::sort(sorted.begin(), sorted.end());
   const auto median = sorted[sorted.size() / 2];
-  EXPECT_LT(std::llabs(median), 50'000) << "median phase error " << median << " ns";
+  EXPECT_LT(std::llabs(median), 80'000) << "median phase error " << median << " ns";
 }
 
 TEST_F(MasterDcSteeringTest, WithoutFollowingThePhaseSlidesAtTheReferenceDrift) {
   // The contrast that shows the test above measures something: the same ring unsteered.
-  const auto status = observe(false, 2500ms);
+  const auto status = observe(false, 3000ms);
   ASSERT_GE(status.phase_history.size(), 100u);
   EXPECT_FALSE(status.follows_reference);
   EXPECT_EQ(status.cycle_rate_ppm, 0.0);
-  const auto slide = phase_slide(status.phase_history, 40, 1'000'000, true);
-  EXPECT_GT(std::llabs(slide), 120'000) << "phase slid only " << slide << " ns";
+  const auto slide = phase_slide(status.phase_history, 60, 1'000'000, true);
+  EXPECT_GT(std::llabs(slide), 150'000) << "phase slid only " << slide << " ns";
 }
 
 // A power-cycled DC slave comes back with offset, delay and filters at their power-up values:
