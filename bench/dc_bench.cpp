@@ -184,15 +184,16 @@ Row run(std::size_t n, double seconds, bool follow) {
       }
       row.resid_mean = sum / static_cast<double>(after_lock);
     }
-    // The phase samples of the run (one per 0x092C read, every 5 ms), unwrapped: a drifting
-    // reference walks across the (-cycle/2, cycle/2] window.
+    // The phase samples of the run (one per 0x092C read, every 5 ms).
     const std::size_t taken =
         std::min<std::size_t>(status.phase_history.size(), status.samples - samples_at_run);
     std::vector<std::int64_t> phase(status.phase_history.end() - static_cast<std::ptrdiff_t>(taken),
                                     status.phase_history.end());
     if (!phase.empty()) {
+      // Steered, the error lives around 0 and is taken as measured (a whole-cycle slip is no
+      // phase change); free-running, it walks across +-cycle/2 and is followed.
       constexpr std::int64_t kCycle = 1'000'000;
-      for (std::size_t k = 1; k < phase.size(); ++k) {
+      for (std::size_t k = 1; !follow && k < phase.size(); ++k) {
         std::int64_t step = phase[k] - phase[k - 1];
         if (step > kCycle / 2) step -= kCycle;
         if (step < -kCycle / 2) step += kCycle;
