@@ -1249,7 +1249,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   // Advances the steering by one tick of `period`; returns the offset for the next deadline.
   // Bus thread, under cycle_mutex.
   nanoseconds steer(nanoseconds period) {
-    if (steer_reset.exchange(false, std::memory_order_acq_rel)) steer_offset_exact = 0.0;
+    take_steering_reset();
     const std::int64_t ppb = steer_rate_ppb.load(std::memory_order_relaxed);
     if (ppb != 0) {
       steer_offset_exact += static_cast<double>(period.count()) * static_cast<double>(ppb) * 1e-9;
@@ -1269,12 +1269,17 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     return nanoseconds(offset);
   }
 
+  // The offset the next deadline gets without advancing the steering. Under cycle_mutex.
   nanoseconds current_offset() {
+    take_steering_reset();
+    return nanoseconds(static_cast<std::int64_t>(std::llround(steer_offset_exact)));
+  }
+
+  void take_steering_reset() {
     if (steer_reset.exchange(false, std::memory_order_acq_rel)) {
       steer_offset_exact = 0.0;
       steer_offset_ns.store(0, std::memory_order_relaxed);
     }
-    return nanoseconds(static_cast<std::int64_t>(std::llround(steer_offset_exact)));
   }
 
   void install_cycle(Cycle next) {

@@ -223,6 +223,40 @@ std::array<std::uint8_t, 2> le16(std::uint16_t v) {
   return b;
 }
 
+// BWR 0x0900: every slave latches the receive times of its ports (nothing else changes, anywhere).
+// Returns the master's time at the latch (the middle of the exchange). `who` prefixes errors.
+exec::Task<Result<std::int64_t>> latch_receive_times(exec::EventLoop& loop, bus::Bus& bus,
+                                                     const std::function<std::int64_t()>& clock,
+                                                     std::chrono::nanoseconds timeout,
+                                                     std::string who) {
+  const std::int64_t before = clock();
+  bus::Transaction tx;
+  const std::uint8_t zero[4]{};
+  tx.bwr(reg::kDcReceiveTimePort0, zero);
+  auto reply = co_await exec::transact(loop, bus, std::move(tx), bus::TransactOptions{timeout, 0});
+  if (!reply) co_return reply.error().context(who + ": receive time latch (BWR 0x0900)");
+  if (reply->wkc(0) == 0) {
+    co_return Error(Errc::wkc_mismatch,
+                    who + ": receive time latch (BWR 0x0900) not acknowledged by any slave");
+  }
+  const std::int64_t after = clock();
+  co_return before + (after - before) / 2;
+}
+
+// What puts one DC slave on the common time: offset, delay, filter depths, and the speed counter
+// start written again (0: the ESC's power-up value), which resets the filters.
+void add_clock_writes(bus::Transaction& tx, std::uint16_t station, std::int64_t offset_ns,
+                      std::uint32_t delay_ns, std::uint16_t speed_counter_start,
+                      const DcInitOptions& options) {
+  tx.fpwr(station, reg::kDcSystemTimeOffset, le64(static_cast<std::uint64_t>(offset_ns)), 1);
+  tx.fpwr(station, reg::kDcSystemTimeDelay, le32(delay_ns), 1);
+  const std::uint8_t depths[2] = {options.system_time_filter_depth,
+                                  options.speed_counter_filter_depth};
+  tx.fpwr(station, reg::kDcSystemTimeFilterDepth, depths, 1);
+  tx.fpwr(station, reg::kDcSpeedCounterStart,
+          le16(speed_counter_start != 0 ? speed_counter_start : std::uint16_t{0x1000}), 1);
+}
+
 }  // namespace
 
 exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& bus,
@@ -236,20 +270,10 @@ exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& 
   const bus::TransactOptions once{options.transaction_timeout, 0};
 
   // 1. Latch the receive times of every port of every slave.
-  const std::int64_t before = master_clock();
-  {
-    bus::Transaction tx;
-    const std::uint8_t zero[4]{};
-    tx.bwr(reg::kDcReceiveTimePort0, zero);
-    auto reply = co_await exec::transact(loop, bus, std::move(tx), once);
-    if (!reply) co_return reply.error().context("DC init: receive time latch (BWR 0x0900)");
-    if (reply->wkc(0) == 0) {
-      co_return Error(Errc::wkc_mismatch,
-                      "DC init: receive time latch (BWR 0x0900) not acknowledged by any slave");
-    }
-  }
-  const std::int64_t after = master_clock();
-  const std::int64_t master_time = before + (after - before) / 2;
+  auto latched =
+      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, "DC init");
+  if (!latched) co_return std::move(latched).error();
+  const std::int64_t master_time = *latched;
 
   // 2. Everything the plan needs, one transaction for all slaves.
   std::vector<DcSlaveSnapshot> snapshots(stations.size());
@@ -308,15 +332,8 @@ exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& 
     bus::Transaction tx;
     for (const auto& s : result.plan.slaves) {
       if (!s.dc) continue;
-      tx.fpwr(s.station, reg::kDcSystemTimeOffset, le64(static_cast<std::uint64_t>(s.offset_ns)),
-              1);
-      tx.fpwr(s.station, reg::kDcSystemTimeDelay, le32(s.delay_ns), 1);
-      const std::uint8_t depths[2] = {options.system_time_filter_depth,
-                                      options.speed_counter_filter_depth};
-      tx.fpwr(s.station, reg::kDcSystemTimeFilterDepth, depths, 1);
-      std::uint16_t start = snapshots[s.position].speed_counter_start;
-      if (start == 0) start = 0x1000;  // the ESC's power-up value
-      tx.fpwr(s.station, reg::kDcSpeedCounterStart, le16(start), 1);
+      add_clock_writes(tx, s.station, s.offset_ns, s.delay_ns,
+                       snapshots[s.position].speed_counter_start, options);
     }
     auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
     if (!reply) co_return reply.error().context("DC init: writing offsets, delays and filters");
@@ -387,19 +404,12 @@ exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, 
   }
   auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
   const bus::TransactOptions reliable{options.transaction_timeout, 2};
-  const bus::TransactOptions once{options.transaction_timeout, 0};
   const auto who = fmt::format("DC re-init of station 0x{:04X}", station);
 
-  // 1. Latch: a BWR of 0x0900 only latches receive times, on every slave; nothing else changes.
-  const std::int64_t before = master_clock();
-  {
-    bus::Transaction tx;
-    const std::uint8_t zero[4]{};
-    tx.bwr(reg::kDcReceiveTimePort0, zero);
-    auto reply = co_await exec::transact(loop, bus, std::move(tx), once);
-    if (!reply) co_return reply.error().context(who + ": receive time latch (BWR 0x0900)");
-  }
-  const std::int64_t after = master_clock();
+  // 1. Latch: it changes nothing but the receive-time registers, on any slave.
+  auto latched =
+      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
+  if (!latched) co_return std::move(latched).error();
 
   // 2. The slave's latched local time and speed counter start; the anchor's latched local time
   //    and offset (its system time at the latch).
@@ -421,8 +431,7 @@ exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, 
     }
   }
   const std::uint64_t epu = wire::load_le64(reply->data(0).data());
-  std::uint16_t speed_start = wire::load_le16(reply->data(1).data());
-  if (speed_start == 0) speed_start = 0x1000;  // the ESC's power-up value
+  const std::uint16_t speed_start = wire::load_le16(reply->data(1).data());
 
   // System time T of the frame at the reference clock: every DC slave's system time at its own
   // latch is T + its delay. From the anchor: T = its local time + its offset - its delay.
@@ -433,7 +442,7 @@ exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, 
     reference_time = static_cast<std::int64_t>(anchor_epu + anchor_offset -
                                                static_cast<std::uint64_t>(anchor->delay_ns));
   } else {
-    reference_time = before + (after - before) / 2;  // alone: the master's time, as at startup
+    reference_time = *latched;  // alone: the master's time at the latch, as at startup
   }
   DcReinitResult result;
   result.station = station;
@@ -444,13 +453,7 @@ exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, 
 
   // 3. Offset, delay, filter depths and filter reset: to this slave alone.
   bus::Transaction writes;
-  writes.fpwr(station, reg::kDcSystemTimeOffset, le64(static_cast<std::uint64_t>(result.offset_ns)),
-              1);
-  writes.fpwr(station, reg::kDcSystemTimeDelay, le32(result.delay_ns), 1);
-  const std::uint8_t depths[2] = {options.system_time_filter_depth,
-                                  options.speed_counter_filter_depth};
-  writes.fpwr(station, reg::kDcSystemTimeFilterDepth, depths, 1);
-  writes.fpwr(station, reg::kDcSpeedCounterStart, le16(speed_start), 1);
+  add_clock_writes(writes, station, result.offset_ns, result.delay_ns, speed_start, options);
   auto written = co_await exec::transact(loop, bus, std::move(writes), reliable);
   if (!written) co_return written.error().context(who + ": writing offset, delay and filters");
   co_return result;
@@ -549,24 +552,24 @@ constexpr std::uint32_t kFarSamplesForReacquire = 10;  // medians, consecutive
 
 }  // namespace
 
-void DcMaintainer::steer(std::int64_t frame_error_ns) {
+void DcMaintainer::steer(std::int64_t frame_error_ns, std::int64_t lateness_ns) {
   const std::int64_t cycle = options_.sync0_cycle.count();
   // The frame's phase without the send jitter: how late this frame left against its deadline,
   // compared with how late frames usually leave, is noise the controller cannot correct
   // (following it would add it to the cycle). The usual lateness stays in: the typical frame is
   // what must be on target. "Usual" is a running median (a step of 1 us towards each sample):
   // a mean would be dragged by the rare very late frame and put the typical one off target.
-  const auto lateness = static_cast<double>(submitted_lateness_ns_);
+  const auto lateness = static_cast<double>(lateness_ns);
   if (!lateness_seen_) {
-    lateness_mean_ns_ = lateness;
+    lateness_usual_ns_ = lateness;
     lateness_seen_ = true;
-  } else if (lateness > lateness_mean_ns_) {
-    lateness_mean_ns_ += std::min(1000.0, lateness - lateness_mean_ns_);
+  } else if (lateness > lateness_usual_ns_) {
+    lateness_usual_ns_ += std::min(1000.0, lateness - lateness_usual_ns_);
   } else {
-    lateness_mean_ns_ -= std::min(1000.0, lateness_mean_ns_ - lateness);
+    lateness_usual_ns_ -= std::min(1000.0, lateness_usual_ns_ - lateness);
   }
   const std::int64_t raw =
-      wrap_phase(frame_error_ns - std::llround(lateness - lateness_mean_ns_), cycle);
+      wrap_phase(frame_error_ns - std::llround(lateness - lateness_usual_ns_), cycle);
   // The rate follows the reference's measured drift (plus the integral) whatever else happens.
   bus_.set_cycle_rate(feedforward_ppm_ + integral_ppm_);
   if (hold_ > 0) {
@@ -625,7 +628,6 @@ void DcMaintainer::on_tick(const bus::CycleTick& tick) {
   ++ticks_;
   bus::RealtimeTransaction& rt = reads ? frmw_and_reads_ : frmw_only_;
   pending_ = &rt;
-  submitted_lateness_ns_ = (tick.woke_at - tick.deadline).count();
   submitted_deadline_ns_ =
       std::chrono::duration_cast<std::chrono::nanoseconds>(tick.deadline.time_since_epoch())
           .count();
@@ -667,39 +669,19 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       const std::int64_t error = wrap_phase(status_.phase_ns - status_.phase_target_ns, icycle);
       status_.phase_error_ns = error;
       status_.max_abs_phase_error_ns = std::max(status_.max_abs_phase_error_ns, std::abs(error));
-      if (options_.follow_reference) {
-        // How late the frame left against its tick's deadline: the bus's own send timestamp
-        // when it has one (it covers the wake-up and everything the tick ran before the frame).
-        if (rt.sent_timestamp_ns() != 0 && submitted_deadline_ns_ != 0)
-          submitted_lateness_ns_ = rt.sent_timestamp_ns() - submitted_deadline_ns_;
-        steer(error);
-      }
-      // When the frame left (the bus's send stamp; else its reply's, else now). The frame
-      // passes the reference a latency after it left that is never negative: the window's
-      // least-latency sample (smallest reference - host) is the cleanest view of the reference.
-      std::int64_t host = rt.sent_timestamp_ns();
-      bool sent_based = host != 0;
-      if (host == 0) host = rt.reply_timestamp_ns();
-      if (host == 0) {
-        host = std::chrono::duration_cast<std::chrono::nanoseconds>(
-                   std::chrono::steady_clock::now().time_since_epoch())
-                   .count();
-      }
+      // When the frame left: a reply means the bus sent it, so its send stamp is set. The stamp
+      // covers the wake-up and everything the tick ran before the frame.
+      const std::int64_t host = rt.sent_timestamp_ns();
+      if (options_.follow_reference) steer(error, host - submitted_deadline_ns_);
       last_ref_time_ = ref_time;
       last_ref_host_ns_ = host;
-      // Sent-based offsets carry +latency (keep the smallest), reception-based -latency (keep the
-      // largest): compare them sign-adjusted.
+      // The frame passes the reference a latency after it left that is never negative: the
+      // window's least-latency sample (smallest reference - send) is the cleanest view of it.
       const std::int64_t offset = static_cast<std::int64_t>(ref_time) - host;
-      const std::int64_t score = sent_based ? -offset : offset;
-      if (!window_open_) {
+      if (!window_open_ || offset < window_best_offset_) {
+        if (!window_open_) window_start_ns_ = host;
         window_open_ = true;
-        window_start_ns_ = host;
         window_best_offset_ = offset;
-        window_best_score_ = score;
-        window_best_host_ = host;
-      } else if (score > window_best_score_) {
-        window_best_offset_ = offset;
-        window_best_score_ = score;
         window_best_host_ = host;
       }
       if (host - window_start_ns_ >= 200'000'000) {
@@ -854,21 +836,18 @@ std::pair<std::uint16_t, AssignActivateSource> resolve_assign_activate(
     return {0, AssignActivateSource::none};
   }
   if (sync.assign_activate) return {*sync.assign_activate, AssignActivateSource::config};
+  // An entry for the mode: SYNC0 on, SYNC1 on exactly when the mode is sync1.
+  const bool want_sync1 = sync.mode == SyncMode::sync1;
+  auto fits = [want_sync1](std::uint16_t aa) {
+    return (aa & kSync0Bit) != 0 && ((aa & kSync1Bit) != 0) == want_sync1;
+  };
   if (esi != nullptr) {
-    const bool want_sync1 = sync.mode == SyncMode::sync1;
-    for (const auto& op : esi->dc_op_modes) {
-      const std::uint16_t aa = op.assign_activate;
-      if ((aa & kSync0Bit) == 0) continue;
-      if (((aa & kSync1Bit) != 0) == want_sync1) return {aa, AssignActivateSource::esi};
-    }
+    for (const auto& op : esi->dc_op_modes)
+      if (fits(op.assign_activate)) return {op.assign_activate, AssignActivateSource::esi};
   }
   if (sii != nullptr) {
-    const bool want_sync1 = sync.mode == SyncMode::sync1;
-    for (const auto& op : sii->dc) {
-      const std::uint16_t aa = op.assign_activate;
-      if ((aa & kSync0Bit) == 0) continue;
-      if (((aa & kSync1Bit) != 0) == want_sync1) return {aa, AssignActivateSource::sii};
-    }
+    for (const auto& op : sii->dc)
+      if (fits(op.assign_activate)) return {op.assign_activate, AssignActivateSource::sii};
   }
   return {sync.mode == SyncMode::sync1 ? std::uint16_t{0x0700} : std::uint16_t{0x0300},
           AssignActivateSource::mode_default};

@@ -259,7 +259,8 @@ class DcMaintainer final : public CyclicParticipant {
  private:
   void on_complete(bus::RealtimeTransaction& rt, bool with_reads);
   // The steering controller, on the bus thread (under mutex_) for every FRMW answered.
-  void steer(std::int64_t frame_error_ns);
+  // `lateness_ns`: how late the frame left against its tick's deadline.
+  void steer(std::int64_t frame_error_ns, std::int64_t lateness_ns);
 
   bus::Bus& bus_;
   DcRuntimeOptions options_;
@@ -271,15 +272,14 @@ class DcMaintainer final : public CyclicParticipant {
   std::uint64_t ticks_ = 0;                      // bus thread only
   std::uint32_t below_ = 0;                      // bus thread only
   // Steering state, bus thread only.
-  std::int64_t submitted_lateness_ns_ = 0;  // how late the tick that sent the pending FRMW woke
-  std::int64_t submitted_deadline_ns_ = 0;  // that tick's deadline
+  std::int64_t submitted_deadline_ns_ = 0;  // deadline of the tick that sent the pending FRMW
   // The last reference time read and when its reply arrived: the FRMW carries the time predicted
   // from them, which is what the other slaves receive should the reference not answer (down).
   std::uint64_t last_ref_time_ = 0;
   std::int64_t last_ref_host_ns_ = 0;
   double drift_for_prediction_ppm_ = 0.0;
-  double feedforward_ppm_ = 0.0;   // -reference drift
-  double lateness_mean_ns_ = 0.0;  // a frame's usual send lateness (running median)
+  double feedforward_ppm_ = 0.0;    // -reference drift
+  double lateness_usual_ns_ = 0.0;  // a frame's usual send lateness (running median)
   bool lateness_seen_ = false;
   double integral_ppm_ = 0.0;  // the controller's integral, as a rate
   std::uint32_t hold_ = 0;     // samples to skip while a coarse step takes effect
@@ -301,7 +301,6 @@ class DcMaintainer final : public CyclicParticipant {
   // i.e. the least host latency; the rate is the slope between two windows' best samples.
   std::int64_t window_start_ns_ = 0;
   std::int64_t window_best_offset_ = 0;
-  std::int64_t window_best_score_ = 0;  // the offset, signed so that larger is less latency
   std::int64_t window_best_host_ = 0;
   bool window_open_ = false;
   // The last windows' best samples; the rate is their least-squares slope (a baseline of
