@@ -6,6 +6,8 @@
 
 #include <ecat/capture/capture_file.hpp>
 
+#include "core/read_file.hpp"
+
 namespace ecat::capture {
 
 namespace {
@@ -25,7 +27,6 @@ constexpr std::uint32_t kPcapngEnhancedPacket = 6;
 constexpr std::uint16_t kOptionEnd = 0;
 constexpr std::uint16_t kOptionTimestampResolution = 9;
 constexpr std::uint16_t kOptionTimestampOffset = 14;
-constexpr std::size_t kMaxCaptureBytes = std::size_t{1} << 31;
 constexpr std::uint32_t kMaxPacketBytes = 1u << 24;
 
 constexpr std::uint16_t kEtherTypeIpv4 = 0x0800;
@@ -112,22 +113,9 @@ bool link_type_supported(int link_type) noexcept {
 // Reading
 
 Result<CaptureFile> CaptureFile::open(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error(Errc::io_error, fmt::format("cannot open capture '{}'", path));
-  in.seekg(0, std::ios::end);
-  const std::streamoff size = in.tellg();
-  if (size < 0) return Error(Errc::io_error, fmt::format("cannot read capture '{}'", path));
-  if (static_cast<std::uint64_t>(size) > kMaxCaptureBytes) {
-    return Error(Errc::out_of_range, fmt::format("capture '{}' is {} bytes; at most {} are read",
-                                                 path, size, kMaxCaptureBytes));
-  }
-  in.seekg(0, std::ios::beg);
-  std::vector<std::uint8_t> bytes(static_cast<std::size_t>(size));
-  if (!bytes.empty() &&
-      !in.read(reinterpret_cast<char*>(bytes.data()), static_cast<std::streamsize>(size))) {
-    return Error(Errc::io_error, fmt::format("cannot read capture '{}'", path));
-  }
-  return from_bytes(std::move(bytes), path);
+  auto bytes = read_binary_file(path, FileKind::capture);
+  if (!bytes) return std::move(bytes).error();
+  return from_bytes(std::move(*bytes), path);
 }
 
 Result<CaptureFile> CaptureFile::from_bytes(std::vector<std::uint8_t> bytes, std::string name) {

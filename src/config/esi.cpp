@@ -1,7 +1,6 @@
 #include <algorithm>
 #include <cctype>
 #include <charconv>
-#include <fstream>
 #include <iterator>
 #include <map>
 
@@ -9,6 +8,8 @@
 #include <pugixml.hpp>
 
 #include <ecat/config/esi.hpp>
+
+#include "core/read_file.hpp"
 
 namespace ecat::config {
 
@@ -558,10 +559,9 @@ Result<EsiFile> parse_esi(std::string_view xml) {
 }
 
 Result<EsiFile> load_esi(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error(Errc::not_found, fmt::format("ESI file '{}' cannot be opened", path));
-  const std::string xml{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-  auto file = parse_esi(xml);
+  auto xml = read_file(path, FileKind::esi);
+  if (!xml) return std::move(xml).error();
+  auto file = parse_esi(*xml);
   if (!file) {
     return Error(file.error().code(), fmt::format("{}: {}", path, file.error().describe()));
   }

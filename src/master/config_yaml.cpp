@@ -2,7 +2,6 @@
 // naming file:line and the key path.
 #include <cstdint>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <sstream>
 
@@ -10,6 +9,7 @@
 
 #include <ecat/master/config.hpp>
 
+#include "core/read_file.hpp"
 #include "sim/spec_tree.hpp"
 
 namespace ecat::master {
@@ -548,14 +548,9 @@ Result<MasterConfig> parse_master_config(std::string_view yaml, std::string sour
 }
 
 Result<MasterConfig> load_master_config(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error(Errc::not_found, fmt::format("{}: cannot open the file", path));
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (text.str().size() > (4u << 20)) {
-    return Error(Errc::out_of_range, fmt::format("{}: larger than 4 MiB", path));
-  }
-  return parse_master_config(text.str(), path);
+  auto text = read_file(path, FileKind::ring);
+  if (!text) return std::move(text).error();
+  return parse_master_config(*text, path);
 }
 
 }  // namespace ecat::master

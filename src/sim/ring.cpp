@@ -3,17 +3,18 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <iterator>
 #include <limits>
 #include <map>
 
 #include <fmt/format.h>
+#include <yaml-cpp/depthguard.h>
 #include <yaml-cpp/yaml.h>
 
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/wiring.hpp>
 
+#include "core/read_file.hpp"
 #include "sim/fault_spec.hpp"
 #include "sim/spec_tree.hpp"
 
@@ -27,7 +28,6 @@ using detail::SpecNode;
 
 constexpr std::array<std::string_view, 6> kMasterSections{"master",  "link", "slaves",
                                                           "domains", "dc",   "targets"};
-constexpr std::size_t kMaxFileBytes = 4u << 20;
 constexpr std::size_t kMaxSlaves = 4096;
 constexpr std::size_t kMaxNodes = 200'000;  // after alias expansion: stops "billion laughs"
 constexpr int kMaxDepth = 48;
@@ -100,6 +100,12 @@ Result<SpecNode> detail::parse_yaml(std::string_view text, const SpecContext& co
     const YAML::Node root = YAML::Load(std::string(text));
     YamlConverter converter(context);
     return converter.convert(root, 0, 0);
+  } catch (const YAML::DeepRecursion& e) {
+    // yaml-cpp's own guard, hit before ours can count (its message is only "bad file").
+    SpecNode where;
+    where.line = e.mark.is_null() ? 0 : e.mark.line + 1;
+    return spec_error(context, where, "", fmt::format("nested deeper than {} levels", kMaxDepth),
+                      Errc::malformed);
   } catch (const YAML::Exception& e) {
     SpecNode where;
     where.line = e.mark.is_null() ? 0 : e.mark.line + 1;
@@ -665,9 +671,9 @@ std::span<const std::string_view> ring_master_sections() noexcept {
 
 Result<Ring> parse_ring(std::string_view text, std::string source, std::string base_dir) {
   SpecContext context{std::move(source)};
-  if (text.size() > kMaxFileBytes) {
-    return Error(Errc::out_of_range,
-                 fmt::format("{}: larger than {} bytes", context.source, kMaxFileBytes));
+  if (text.size() > max_file_bytes(FileKind::ring)) {
+    return Error(Errc::out_of_range, fmt::format("{}: larger than {}", context.source,
+                                                 describe_size(max_file_bytes(FileKind::ring))));
   }
   auto root = detail::parse_yaml(text, context);
   if (!root) return std::move(root).error();
@@ -675,26 +681,10 @@ Result<Ring> parse_ring(std::string_view text, std::string source, std::string b
 }
 
 Result<Ring> load_ring(const std::string& path) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {
-    return Error(Errc::invalid_argument, fmt::format("{}: is a directory, not a ring file", path));
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    return Error(std::filesystem::exists(path, ec) ? Errc::permission_denied : Errc::not_found,
-                 fmt::format("{}: cannot open the ring file", path));
-  }
-  std::string text;
-  char chunk[65536];
-  while (in.read(chunk, sizeof chunk) || in.gcount() > 0) {
-    text.append(chunk, static_cast<std::size_t>(in.gcount()));
-    if (text.size() > kMaxFileBytes) {
-      return Error(Errc::out_of_range,
-                   fmt::format("{}: larger than {} bytes", path, kMaxFileBytes));
-    }
-  }
+  auto text = read_file(path, FileKind::ring);
+  if (!text) return std::move(text).error();
   const std::string base = std::filesystem::path(path).parent_path().string();
-  return parse_ring(text, path, base);
+  return parse_ring(*text, path, base);
 }
 
 Result<std::unique_ptr<Segment>> build_segment(const Ring& ring) {

@@ -6,6 +6,8 @@
 #include <fmt/format.h>
 #include <pcap/pcap.h>
 
+#include "core/read_file.hpp"
+
 namespace ecat::tool {
 
 void CaptureReader::Closer::operator()(pcap* handle) const noexcept {
@@ -13,6 +15,11 @@ void CaptureReader::Closer::operator()(pcap* handle) const noexcept {
 }
 
 Result<CaptureReader> CaptureReader::open(const std::string& path) {
+  // libpcap reads whatever it is given: a directory, a device or an endless pipe must be refused
+  // before it starts.
+  if (auto regular = check_regular_file(path, FileKind::capture); !regular) {
+    return regular.error();
+  }
   std::array<char, PCAP_ERRBUF_SIZE> error{};
   std::unique_ptr<pcap, Closer> handle(pcap_open_offline_with_tstamp_precision(
       path.c_str(), PCAP_TSTAMP_PRECISION_NANO, error.data()));

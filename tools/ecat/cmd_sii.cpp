@@ -1,6 +1,5 @@
 // ecat sii FILE [--json]: decodes an SII EEPROM image file and prints it.
 // Exit codes: 0 decoded (possibly partially, see the warnings), 1 not decodable, 2 unreadable.
-#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <memory>
@@ -17,6 +16,7 @@
 #include <ecat/wire/sii.hpp>
 
 #include "command.hpp"
+#include "core/read_file.hpp"
 
 namespace {
 
@@ -24,9 +24,6 @@ using ecat::wire::SiiDecoded;
 using ecat::wire::SiiImage;
 using ecat::wire::SiiPdo;
 using nlohmann::json;
-
-// Far above any real EEPROM (the size word tops out at 8 MiB); stops us slurping /dev/zero.
-constexpr std::size_t kMaxFileBytes = 16u << 20;
 
 struct Options {
   std::string file;
@@ -464,28 +461,12 @@ void print_text(const Options& options, std::size_t file_size, const SiiDecoded&
 // ---------------------------------------------------------------------------------------------
 
 int run(const Options& options) {
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(options.file.c_str(), "rb"),
-                                                       &std::fclose);
-  if (!file) {
-    fmt::print(stderr, "ecat sii: cannot open {}: {}\n", options.file, std::strerror(errno));
+  auto read = ecat::read_binary_file(options.file, ecat::FileKind::eeprom);
+  if (!read) {
+    fmt::print(stderr, "ecat sii: {}\n", read.error().describe());
     return 2;
   }
-  std::vector<std::uint8_t> bytes;
-  std::uint8_t chunk[65536];
-  while (true) {
-    const std::size_t n = std::fread(chunk, 1, sizeof chunk, file.get());
-    bytes.insert(bytes.end(), chunk, chunk + n);
-    if (bytes.size() > kMaxFileBytes) {
-      fmt::print(stderr, "ecat sii: {} is larger than {} MiB; not an SII image\n", options.file,
-                 kMaxFileBytes >> 20);
-      return 1;
-    }
-    if (n < sizeof chunk) break;
-  }
-  if (std::ferror(file.get()) != 0) {
-    fmt::print(stderr, "ecat sii: cannot read {}: {}\n", options.file, std::strerror(errno));
-    return 2;
-  }
+  const std::vector<std::uint8_t>& bytes = *read;
 
   auto decoded = ecat::wire::decode_sii(bytes);
   if (!decoded) {

@@ -7,11 +7,10 @@
 // configuration), plus the ring's object presets. Signals: one per mapped entry (see
 // signals_from_layout). Option firmware=none: no firmware at all, for devices whose ESC answers
 // AL control by device emulation (the SII's ESC configuration must say so).
-#include <fstream>
-#include <iterator>
 
 #include <fmt/format.h>
 
+#include "core/read_file.hpp"
 #include "sim/devices/applications.hpp"
 #include "sim/devices/profiles.hpp"
 
@@ -29,13 +28,9 @@ Result<std::unique_ptr<Esc>> make_eeprom_device(const DeviceConfig& config) {
   if (config.file.empty()) {
     return Error(Errc::invalid_argument, "profile 'eeprom' needs file=<path of an SII image>");
   }
-  std::ifstream in(config.file, std::ios::binary);
-  if (!in) {
-    return Error(Errc::not_found,
-                 fmt::format("profile 'eeprom': cannot read SII image '{}'", config.file));
-  }
-  std::vector<std::uint8_t> eeprom{std::istreambuf_iterator<char>(in),
-                                   std::istreambuf_iterator<char>()};
+  auto read = read_binary_file(config.file, FileKind::eeprom);
+  if (!read) return read.error().context("profile 'eeprom'");
+  std::vector<std::uint8_t> eeprom = std::move(*read);
   auto decoded = wire::decode_sii(eeprom);
   if (!decoded) {
     return decoded.error().context(fmt::format("profile 'eeprom': SII image '{}'", config.file));
