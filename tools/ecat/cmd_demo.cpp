@@ -266,9 +266,9 @@ ecat::tool::Command setup_demo(CLI::App& parent) {
   auto options = std::make_shared<Options>();
   app->add_option("--duration", options->duration_s,
                   "Seconds to keep the ring in OP (at least as long as the walkthrough)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(ecat::tool::run_seconds());
   app->add_option("--timeout", options->timeout_s, "Seconds to wait for OP")
-      ->check(CLI::PositiveNumber);
+      ->check(ecat::tool::timeout_seconds());
   return {app, [options] { return run_demo(*options); }};
 }
 

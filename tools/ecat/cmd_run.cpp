@@ -238,7 +238,7 @@ void add_common(CLI::App* app, Options& o) {
   app->add_option("--backend,--link", o.link,
                   "What the master talks to: raw:IFACE, udp:HOST:PORT or sim:RING.yaml");
   app->add_option("--timeout", o.timeout_s, "Seconds to wait for the session to get running")
-      ->check(CLI::PositiveNumber);
+      ->check(ecat::tool::timeout_seconds());
   app->add_flag("--json", o.json, "Print JSON");
 }
 
@@ -247,7 +247,7 @@ ecat::tool::Command setup_run(CLI::App& parent) {
   auto options = std::make_shared<Options>();
   add_common(app, *options);
   app->add_option("--duration", options->duration_s, "Seconds to run once operational")
-      ->check(CLI::NonNegativeNumber);
+      ->check(ecat::tool::run_seconds());
   app->add_flag("!--no-chase", options->chase, "Do not walk a lit bit over the boolean outputs");
   return {app, [options] { return run_session(*options); }};
 }
