@@ -349,6 +349,7 @@ void Verifier::compare(std::size_t exchange, std::size_t k, const wire::Datagram
 
 Result<VerifyReport> Verifier::run() {
   report_.source = trace_.source;
+  report_.malformed_frames = trace_.malformed_frames;
   order_ = segment_.processing_order();
   if (trace_.exchanges.empty()) return report_;
   const std::int64_t t0 = trace_.frames[trace_.exchanges.front().request].timestamp_ns;
@@ -409,8 +410,8 @@ std::span<const VerifyRule> verify_rules() noexcept {
 }
 
 std::string VerifyReport::summary_line() const {
-  return fmt::format("datagrams={} wkc_match={}/{} data_match={}/{}", datagrams, wkc_matched,
-                     wkc_compared, data_matched, data_compared);
+  return fmt::format("datagrams={} wkc_match={}/{} data_match={}/{} malformed={}", datagrams,
+                     wkc_matched, wkc_compared, data_matched, data_compared, malformed_frames);
 }
 
 Result<VerifyReport> verify_capture(const CaptureTrace& trace, Segment& segment,
@@ -479,6 +480,13 @@ std::string format_verify_report(const VerifyReport& r) {
                          hex(m.actual_data));
     }
   }
+  if (r.malformed_frames > 0) {
+    out += fmt::format("\nmalformed EtherCAT frames (do not decode; counted as errors): {}\n",
+                       r.malformed_frames);
+  }
+  if (r.wkc_compared == 0) {
+    out += "\nnothing was compared: the capture holds no request with a recorded reply\n";
+  }
   out += r.summary_line() + "\n";
   return out;
 }
@@ -494,6 +502,7 @@ std::string verify_report_json(const VerifyReport& r) {
                      r.datagrams, r.wkc_compared, r.wkc_matched);
   out += fmt::format("  \"data_compared\": {},\n  \"data_matched\": {},\n", r.data_compared,
                      r.data_matched);
+  out += fmt::format("  \"malformed_frames\": {},\n", r.malformed_frames);
   out += fmt::format("  \"passed\": {},\n", r.passed() ? "true" : "false");
   out += "  \"per_command\": {";
   std::size_t k = 0;

@@ -388,7 +388,7 @@ TEST(Verify, IdenticalRepliesMatchEverywhere) {
   s.send({{Command::fprd, 4, fp(0x1001, reg::kStationAddress), {0, 0}}});
   s.send({{Command::fpwr, 5, fp(0x1000, reg::kAlControl), {0x02, 0}}});
   const VerifyReport r = s.verify();
-  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=2/2");
+  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=2/2 malformed=0");
   EXPECT_TRUE(r.passed());
   EXPECT_TRUE(r.mismatches.empty());
   EXPECT_EQ(r.exclusions.at("write_data"), 3u);
@@ -401,7 +401,7 @@ TEST(Verify, DataDifferencesOutsideTheRulesAreMismatches) {
   const auto i = s.send({{Command::fprd, 3, fp(0x1001, reg::kStationAddress), {0, 0}}});
   s.data(i)[1] = 0x20;  // the real slave said 0x2001
   const VerifyReport r = s.verify();
-  EXPECT_EQ(r.summary_line(), "datagrams=3 wkc_match=3/3 data_match=0/1");
+  EXPECT_EQ(r.summary_line(), "datagrams=3 wkc_match=3/3 data_match=0/1 malformed=0");
   EXPECT_FALSE(r.passed());
   ASSERT_EQ(r.mismatches.size(), 1u);
   const auto& m = r.mismatches[0];
@@ -423,7 +423,7 @@ TEST(Verify, WorkingCountersAndMissingRepliesAreAlwaysCompared) {
   s.send({{Command::fprd, 5, fp(0x1000, reg::kAlStatus), {0, 0}}});
   s.send({{Command::fprd, 6, fp(0x1000, reg::kAlStatus), {0, 0}}}, false);  // capture ends
   const VerifyReport r = s.verify();
-  EXPECT_EQ(r.summary_line(), "datagrams=6 wkc_match=3/5 data_match=2/2");
+  EXPECT_EQ(r.summary_line(), "datagrams=6 wkc_match=3/5 data_match=2/2 malformed=0");
   EXPECT_EQ(r.unanswered_at_end, 1u);
   ASSERT_EQ(r.mismatches.size(), 2u);
   EXPECT_EQ(r.mismatches[0].detail, "WKC expected 1, got 2");
@@ -445,7 +445,7 @@ TEST(Verify, TimeAndWiringDependentRegistersAreLeftOut) {
   const auto wd = s.send({{Command::fprd, 5, fp(0x1000, reg::kWatchdogStatus), {0, 0}}});
   s.data(wd)[0] = 0;
   const VerifyReport r = s.verify();
-  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=0/1");
+  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=0/1 malformed=0");
   EXPECT_EQ(r.exclusions.at("dc_time"), 1u);
   EXPECT_EQ(r.exclusions.at("error_counters"), 1u);
   EXPECT_EQ(r.exclusions.at("watchdog"), 1u);
@@ -468,7 +468,7 @@ TEST(Verify, SiiBusyDifferencesAndReservedBitsAreLeftOut) {
   EXPECT_EQ(r.exclusions.at("sii_busy"), 1u);
   EXPECT_EQ(r.differences_left_out.at("reserved"), 1u);  // only the first differs there
   EXPECT_EQ(r.differences_left_out.at("sii_busy"), 1u);
-  EXPECT_EQ(r.summary_line(), "datagrams=4 wkc_match=4/4 data_match=1/2");
+  EXPECT_EQ(r.summary_line(), "datagrams=4 wkc_match=4/4 data_match=1/2 malformed=0");
 }
 
 TEST(Verify, InputsReadThroughFmmusAreLeftOutOutputsAreCompared) {
@@ -494,10 +494,10 @@ TEST(Verify, InputsReadThroughFmmusAreLeftOutOutputsAreCompared) {
   s.data(i)[0] = 0xEE;  // a real sensor value
   const VerifyReport r = s.verify();
   EXPECT_EQ(r.exclusions.at("inputs"), 1u);
-  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=1/1");
+  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=1/1 malformed=0");
   const auto j = s.send({{Command::lrw, 6, 0x100, {0x00, 0x5A, 0x77}}});
   s.data(j)[2] = 0x78;  // unmapped byte: must come back unchanged
-  EXPECT_EQ(s.verify().summary_line(), "datagrams=6 wkc_match=6/6 data_match=1/2");
+  EXPECT_EQ(s.verify().summary_line(), "datagrams=6 wkc_match=6/6 data_match=1/2 malformed=0");
 }
 
 TEST(Verify, AlStatusStillShowingTheEarlierStateIsFirmwareTime) {
@@ -509,7 +509,7 @@ TEST(Verify, AlStatusStillShowingTheEarlierStateIsFirmwareTime) {
   s.data(j)[0] = 0x04;  // SAFEOP was never the state: a mismatch
   const VerifyReport r = s.verify();
   EXPECT_EQ(r.exclusions.at("al_transition"), 1u);
-  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=0/1");
+  EXPECT_EQ(r.summary_line(), "datagrams=5 wkc_match=5/5 data_match=0/1 malformed=0");
 }
 
 TEST(Verify, RulesAreDocumented) {
@@ -574,7 +574,7 @@ TEST(Profile, StationsInUseBeforeTheCaptureArePresetInAscendingOrder) {
   EXPECT_EQ((*segment)->esc(1).al_state(), wire::AlState::preop);
   auto report = verify_capture(w.trace(), **segment);
   ASSERT_TRUE(report.ok());
-  EXPECT_EQ(report->summary_line(), "datagrams=2 wkc_match=2/2 data_match=2/2");
+  EXPECT_EQ(report->summary_line(), "datagrams=2 wkc_match=2/2 data_match=2/2 malformed=0");
 }
 
 TEST(Profile, WritesSiiImagesRingAndJson) {

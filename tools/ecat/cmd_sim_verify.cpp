@@ -9,7 +9,8 @@
 //   ecat sim verify CAPTURE [--ring FILE] [--json]
 //     replays the master's requests of CAPTURE against a simulated segment (the ring file, or
 //     the profile rebuilt from the capture itself) and compares every reply; the last line is
-//     "datagrams=N wkc_match=A/B data_match=C/D". Exit 0 when every WKC matches and at least
+//     "datagrams=N wkc_match=A/B data_match=C/D malformed=M". Exit 0 when something was compared,
+//     every WKC matches, no frame was malformed and at least
 //     99 % of the compared data does, 1 otherwise, 2 when the capture or ring cannot be read.
 //
 // `ecat sim` (cmd_sim.cpp) carries them through sim_verify_commands.hpp.

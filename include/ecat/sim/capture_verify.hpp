@@ -65,6 +65,7 @@ struct VerifyReport {
   std::size_t wkc_matched = 0;
   std::size_t data_compared = 0;  // datagrams with at least one compared bit
   std::size_t data_matched = 0;
+  std::size_t malformed_frames = 0;  // EtherCAT frames of the capture that do not decode
   std::map<wire::Command, CommandTally> per_command;
   std::map<std::string, std::size_t> exclusions;  // rule id -> datagrams it applied to
   // rule id -> datagrams in which it left out bits that differed (without the rule they would
@@ -77,9 +78,14 @@ struct VerifyReport {
                ? 1.0
                : static_cast<double>(data_matched) / static_cast<double>(data_compared);
   }
-  // Every compared WKC matches and at least 99 % of the compared data does.
-  bool passed() const noexcept { return wkc_matched == wkc_compared && data_ratio() >= 0.99; }
-  // "datagrams=N wkc_match=A/B data_match=C/D"
+  // Something was compared, every compared WKC matches, at least 99 % of the compared data does,
+  // and no frame of the capture was malformed (a capture that cannot be read whole proves
+  // nothing about what it left out).
+  bool passed() const noexcept {
+    return wkc_compared > 0 && malformed_frames == 0 && wkc_matched == wkc_compared &&
+           data_ratio() >= 0.99;
+  }
+  // "datagrams=N wkc_match=A/B data_match=C/D malformed=M"
   std::string summary_line() const;
 };
 
