@@ -95,10 +95,41 @@ struct UdpLink::Impl {
   detail::Interrupter interrupter;
   detail::AtomicLinkStats stats;
 
-  // Server: the sender of the most recent datagram (written by receive, read by send).
+  // Server: the sender of the most recent datagram (written by receive, read by send), and the
+  // host it is pinned to (see UdpLinkOptions::peer_hold).
   mutable std::mutex peer_mutex;
   sockaddr_storage peer{};
   socklen_t peer_length = 0;
+  std::int64_t peer_heard_ns = 0;
+  std::atomic<std::uint64_t> foreign_frames{0};
+
+  // Takes a datagram's sender as the peer unless another host is the peer and was heard from
+  // within the hold time. Another port of the same host (a master restarted there) takes over.
+  bool accept_peer(const sockaddr_storage& from, socklen_t from_length) {
+    const std::int64_t now = detail::monotonic_ns();
+    std::lock_guard lock(peer_mutex);
+    const bool held = peer_length != 0 && !same_host(peer, from) &&
+                      now - peer_heard_ns < options.peer_hold.count();
+    if (held) return false;
+    peer = from;
+    peer_length = from_length;
+    peer_heard_ns = now;
+    return true;
+  }
+
+  static bool same_host(const sockaddr_storage& a, const sockaddr_storage& b) {
+    if (a.ss_family != b.ss_family) return false;
+    if (a.ss_family == AF_INET) {
+      return reinterpret_cast<const sockaddr_in&>(a).sin_addr.s_addr ==
+             reinterpret_cast<const sockaddr_in&>(b).sin_addr.s_addr;
+    }
+    if (a.ss_family == AF_INET6) {
+      return std::memcmp(&reinterpret_cast<const sockaddr_in6&>(a).sin6_addr,
+                         &reinterpret_cast<const sockaddr_in6&>(b).sin6_addr,
+                         sizeof(in6_addr)) == 0;
+    }
+    return false;
+  }
 
   std::array<std::uint8_t, kRxBufferSize> rx{};
 
@@ -202,6 +233,14 @@ Result<void> UdpLink::Impl::bind_server(const sockaddr* address, socklen_t lengt
 
 Result<void> UdpLink::Impl::open_server() {
   if (options.host.empty()) {
+    // Loopback unless told otherwise: a simulated segment is reachable from this machine only.
+    sockaddr_in loopback{};
+    loopback.sin_family = AF_INET;
+    loopback.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    loopback.sin_port = htons(options.port);
+    return bind_server(reinterpret_cast<const sockaddr*>(&loopback), sizeof loopback, false);
+  }
+  if (options.host == "*") {
     // Every address: one dual-stack IPv6 socket where IPv6 exists, plain IPv4 otherwise.
     sockaddr_in6 any6{};
     any6.sin6_family = AF_INET6;
@@ -341,10 +380,11 @@ Result<std::optional<ReceivedFrame>> UdpLink::receive(std::chrono::nanoseconds t
       if (deadline.expired()) return std::optional<ReceivedFrame>{};
       continue;
     }
-    if (server) {
-      std::lock_guard lock(s.peer_mutex);
-      s.peer = from;
-      s.peer_length = from_length;
+    if (server && !s.accept_peer(from, from_length)) {
+      detail::AtomicLinkStats::add(s.stats.frames_ignored);
+      detail::AtomicLinkStats::add(s.foreign_frames);
+      if (deadline.expired()) return std::optional<ReceivedFrame>{};
+      continue;
     }
     s.stats.received(d.size);
     ReceivedFrame frame;
@@ -373,6 +413,10 @@ LinkStats UdpLink::stats() const {
 
 std::uint16_t UdpLink::local_port() const noexcept {
   return impl_->local_port;
+}
+
+std::uint64_t UdpLink::foreign_frames() const noexcept {
+  return impl_->foreign_frames.load(std::memory_order_relaxed);
 }
 
 std::string UdpLink::peer() const {

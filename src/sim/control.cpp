@@ -620,6 +620,12 @@ Result<std::string> find_control_socket() {
         continue;
       }
       const std::string path = it->path().string();
+      // Only this user's own sockets: another user's simulator (or a socket planted in /tmp under
+      // a matching name) is never talked to unless named with --control.
+      struct stat st {};
+      if (::lstat(path.c_str(), &st) != 0 || !S_ISSOCK(st.st_mode) || st.st_uid != ::geteuid()) {
+        continue;
+      }
       if (std::find(alive.begin(), alive.end(), path) == alive.end() && someone_listens(path)) {
         alive.push_back(path);
       }
@@ -631,7 +637,8 @@ Result<std::string> find_control_socket() {
     where += (where.empty() ? "" : " and ") + d;
   if (alive.empty()) {
     return Error(Errc::not_found,
-                 fmt::format("no running simulator found (no live ecat-sim-*.sock in {}); start "
+                 fmt::format("no running simulator found (no live ecat-sim-*.sock of yours in {}); "
+                             "start "
                              "`ecat sim` or pass --control PATH",
                              where));
   }

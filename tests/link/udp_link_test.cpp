@@ -352,3 +352,55 @@ TEST(UdpLinkTest, SpinModeReceives) {
 
 }  // namespace
 }  // namespace ecat::link
+
+namespace ecat::link {
+namespace {
+
+// A server without an address listens on loopback only; "*" is every address, asked for.
+TEST(UdpLinkTest, ServerWithoutAddressListensOnLoopbackOnly) {
+  auto server = UdpLink::serve("", 0);
+  ASSERT_TRUE(server.ok()) << server.error().describe();
+  EXPECT_EQ((*server)->name(), "udp-server:127.0.0.1:" + std::to_string((*server)->local_port()));
+  auto every = UdpLink::serve("*", 0);
+  ASSERT_TRUE(every.ok()) << every.error().describe();
+  EXPECT_EQ((*every)->name().find("udp-server:127.0.0.1:"), std::string::npos) << (*every)->name();
+}
+
+// One master per segment: while 127.0.0.1 is heard from, 127.0.0.2 (another host on the loopback
+// network) is ignored and counted; after the hold time it takes over.
+TEST(UdpLinkTest, ServerAnswersOneHostAtATime) {
+  UdpLinkOptions options;
+  options.mode = UdpLinkOptions::Mode::server;
+  options.host = "127.0.0.1";
+  options.port = 0;
+  options.peer_hold = std::chrono::milliseconds(300);
+  auto server = UdpLink::open(options);
+  ASSERT_TRUE(server.ok()) << server.error().describe();
+  auto first = connect_to(**server);
+  ASSERT_TRUE(first);
+  UdpLinkOptions other;
+  other.host = "127.0.0.1";
+  other.port = (*server)->local_port();
+  other.bind_address = "127.0.0.2";
+  auto second = UdpLink::open(other);
+  if (!second.ok()) GTEST_SKIP() << "cannot bind 127.0.0.2: " << second.error().describe();
+
+  ASSERT_TRUE(first->send(frame_with(1, 20)).ok());
+  EXPECT_EQ(receive_frame(**server), frame_with(1, 20));
+  ASSERT_TRUE((*second)->send(frame_with(2, 20)).ok());
+  auto ignored = (*server)->receive(100ms);
+  ASSERT_TRUE(ignored.ok());
+  EXPECT_FALSE(ignored->has_value()) << "a frame of another host was taken while the first held";
+  EXPECT_EQ((*server)->foreign_frames(), 1u);
+  EXPECT_EQ((*server)->stats().frames_ignored, 1u);
+  ASSERT_TRUE((*server)->send(frame_with(3, 20)).ok());
+  EXPECT_EQ(receive_frame(*first), frame_with(3, 20));
+
+  std::this_thread::sleep_for(400ms);
+  ASSERT_TRUE((*second)->send(frame_with(4, 20)).ok());
+  EXPECT_EQ(receive_frame(**server), frame_with(4, 20));
+  EXPECT_EQ((*server)->peer().rfind("127.0.0.2:", 0), 0u) << (*server)->peer();
+}
+
+}  // namespace
+}  // namespace ecat::link

@@ -12,6 +12,7 @@
 // The client commands find the running simulator's control socket on their own when only one
 // runs (or take --control PATH). Exit codes: 0 done, 1 the simulator refused the request, 2 bad
 // usage or no simulator to talk to.
+#include <charconv>
 #include <csignal>
 #include <cstdio>
 #include <memory>
@@ -68,35 +69,36 @@ int fail(int code, const std::string& message) {
 
 // ---- Serving ------------------------------------------------------------------------------------
 
+// --udp ADDR:PORT, :PORT or PORT. Without an address the simulator listens on loopback only;
+// another address (0.0.0.0, "*", a host's own address) is the user's choice and is said aloud.
 Result<std::unique_ptr<link::Link>> open_served_link(const Options& o) {
   if (!o.udp.empty()) {
     const auto colon = o.udp.rfind(':');
-    if (colon == std::string::npos) {
-      return Error(Errc::invalid_argument,
-                   fmt::format("--udp '{}': expected ADDR:PORT (e.g. 127.0.0.1:34980; port 0 "
-                               "lets the system choose)",
-                               o.udp));
-    }
-    std::string host = o.udp.substr(0, colon);
+    std::string host = colon == std::string::npos ? std::string() : o.udp.substr(0, colon);
     if (host.size() >= 2 && host.front() == '[' && host.back() == ']') {
       host = host.substr(1, host.size() - 2);
     }
-    const std::string port_text = o.udp.substr(colon + 1);
-    unsigned long port = 0;
-    try {
-      std::size_t used = 0;
-      port = std::stoul(port_text, &used);
-      if (used != port_text.size()) port = 70000;
-    } catch (const std::exception&) {
-      port = 70000;
+    const std::string port_text = colon == std::string::npos ? o.udp : o.udp.substr(colon + 1);
+    std::uint16_t port = 0;
+    const auto [end, ec] =
+        std::from_chars(port_text.data(), port_text.data() + port_text.size(), port);
+    if (port_text.empty() || ec != std::errc() || end != port_text.data() + port_text.size()) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("--udp '{}': expected [ADDR:]PORT with PORT a number from 0 to "
+                               "65535 (e.g. 127.0.0.1:34980; port 0 lets the system choose)",
+                               o.udp));
     }
-    if (port > 65535) {
-      return Error(
-          Errc::invalid_argument,
-          fmt::format("--udp '{}': port '{}' is not a number from 0 to 65535", o.udp, port_text));
-    }
-    auto link = link::UdpLink::serve(host, static_cast<std::uint16_t>(port));
+    if (host == "0.0.0.0" || host == "::") host = "*";
+    auto link = link::UdpLink::serve(host, port);
     if (!link) return std::move(link).error();
+    const bool loopback =
+        host.empty() || host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0;
+    if (!loopback) {
+      std::fprintf(stderr,
+                   "ecat sim: %s is not loopback: any host that reaches this machine can drive "
+                   "the simulated ring (one at a time)\n",
+                   (*link)->name().c_str());
+    }
     return std::unique_ptr<link::Link>(std::move(*link));
   }
   link::RawLinkOptions options;
@@ -420,7 +422,9 @@ Command setup(CLI::App& parent) {
       "or control a running one");
   auto o = std::make_shared<Options>();
   app->add_option("--ring", o->ring, "Ring file (YAML, see docs/RING-FILE.md)");
-  app->add_option("--udp", o->udp, "Serve EtherCAT over UDP on ADDR:PORT (port 0: any)");
+  app->add_option("--udp", o->udp,
+                  "Serve EtherCAT over UDP on [ADDR:]PORT (default address: loopback only; "
+                  "0.0.0.0 or * for every interface; port 0: any)");
   app->add_option("--interface", o->interface,
                   "Serve raw EtherCAT on network interface IFACE (needs CAP_NET_RAW)");
   app->add_option("--control", o->control,
@@ -444,9 +448,9 @@ Command setup(CLI::App& parent) {
   inject_cmd->add_option("words", o->words, "KIND and its arguments (see `ecat sim fault kinds`)");
   inject_cmd->add_option("--json", o->fault_json, "The fault as JSON (scripts, nesting)");
   inject_cmd->add_option("--next", o->next, "Only for the next N exchanges")
-      ->check(CLI::PositiveNumber);
+      ->check(number_in(1, 1e9, "exchanges"));
   inject_cmd->add_option("--after-ms", o->after_ms, "Activate after MS milliseconds")
-      ->check(CLI::NonNegativeNumber);
+      ->check(number_in(0, 86'400'000, "ms"));
   inject_cmd->add_option("--after", o->after_milestone,
                          "Activate after a milestone: healthy_exchanges:N, "
                          "healthy_polls:SLAVE:N, mailbox_step:SLAVE:STEP:N");

@@ -3,6 +3,7 @@
 // simulator to serve; it needs no privileges.
 #pragma once
 
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -19,16 +20,21 @@ struct UdpLinkOptions {
   enum class Mode : std::uint8_t {
     // Sends to one peer (host:port) and receives only from it.
     client,
-    // Listens on host:port, receives from anyone, and send() replies to whoever sent the most
-    // recent datagram.
+    // Listens on host:port and send() replies to the sender of the most recent datagram. A
+    // segment has one master: while one host is heard from (see peer_hold), datagrams from other
+    // hosts are ignored (counted in frames_ignored and foreign_frames()).
     server,
   };
   Mode mode = Mode::client;
   // Client: the peer (IPv4 or IPv6 address, or a name resolved once, at open). Server: the local
-  // address to listen on; empty means every address (IPv6 and IPv4 where the system allows).
+  // address to listen on; empty means loopback (127.0.0.1), "*" every address (IPv6 and IPv4
+  // where the system allows).
   std::string host;
   // Client: the peer's port. Server: the port to listen on; 0 picks a free one (see local_port()).
   std::uint16_t port = wire::kEtherCatUdpPort;
+  // Server only: how long the master's host keeps the segment after its last datagram before
+  // another host may take over.
+  std::chrono::nanoseconds peer_hold = std::chrono::seconds(1);
   // Client only: the local address and port to send from (empty / 0: chosen by the kernel).
   std::string bind_address;
   std::uint16_t bind_port = 0;
@@ -68,6 +74,8 @@ class UdpLink final : public Link {
   std::uint16_t local_port() const noexcept;
   // "address:port" of the peer replies go to; empty for a server that has not heard from anyone.
   std::string peer() const;
+  // Server: datagrams ignored because another host held the segment.
+  std::uint64_t foreign_frames() const noexcept;
   bool has_kernel_timestamps() const noexcept;
 
   struct Impl;
