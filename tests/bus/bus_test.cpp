@@ -541,4 +541,30 @@ TEST(Bus, InfoReportsQueueDepthsAndFramesInFlight) {
 }
 
 }  // namespace
+// A reply that arrived while the bus thread was off the processor is not lost: two frames in
+// flight, their replies both queued, and the thread stalls after taking the first one for longer
+// than the frame timeout. The second reply is still taken, not counted as a loss and retried.
+TEST(Bus, RepliesWaitingAfterAStallAreNotLost) {
+  auto segment = make_segment();
+  segment->hold(true);
+  BusOptions options;
+  options.frame_timeout = 200ms;
+  auto bus = start_bus(segment, options);
+  Completions done;
+  for (std::size_t i = 0; i < 2; ++i) {
+    Transaction tx;
+    tx.fprd(0x1001, 0x1000, 1000);  // a frame each
+    ASSERT_TRUE(bus->submit(std::move(tx), done.make(i)));
+  }
+  ASSERT_TRUE(eventually([&] { return bus->info().frames_in_flight == 2; }));
+  segment->stall_after_next_receive(600ms);
+  segment->hold(false);
+  ASSERT_TRUE(done.wait_for(2));
+  EXPECT_TRUE(done.at(0).ok());
+  EXPECT_TRUE(done.at(1).ok());
+  const auto stats = bus->stats();
+  EXPECT_EQ(stats.frames_lost, 0u);
+  EXPECT_EQ(stats.retries, 0u);
+}
+
 }  // namespace ecat::bus::test

@@ -18,6 +18,8 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
+#include <utility>
 #include <vector>
 
 #include <ecat/link/link.hpp>
@@ -116,6 +118,12 @@ class FakeSegment {
   void set_reply_delay(std::chrono::nanoseconds delay) {
     std::lock_guard lock(mutex_);
     options_.reply_delay = delay;
+  }
+  // The next receive() that returns a frame sleeps `stall` before it returns, as a thread that
+  // is descheduled between two receives under load.
+  void stall_after_next_receive(std::chrono::nanoseconds stall) {
+    std::lock_guard lock(mutex_);
+    stall_ = stall;
   }
   // While held, replies are computed but not delivered; release delivers them in order.
   void hold(bool on) {
@@ -256,6 +264,12 @@ class FakeSegment {
         });
         ++frames_received_;
         bytes_received_ += frame.frame.size();
+        if (stall_ > std::chrono::nanoseconds(0)) {
+          // The receiving thread loses the processor right after it took this frame.
+          const auto stall = std::exchange(stall_, std::chrono::nanoseconds(0));
+          lock.unlock();
+          std::this_thread::sleep_for(stall);
+        }
         return std::optional<link::ReceivedFrame>(frame);
       }
       if (interrupted_) {
@@ -291,6 +305,7 @@ class FakeSegment {
   static constexpr std::size_t kBuffer = 2 * wire::kFrameHeaderSize + wire::kMaxDatagramLength + 64;
   static constexpr std::size_t kQueueSlots = 256;
 
+  std::chrono::nanoseconds stall_{0};
   struct Slave {
     std::vector<std::uint8_t> memory;
     std::vector<LogicalMapping> mappings;
