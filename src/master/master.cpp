@@ -173,6 +173,12 @@ struct Master::Impl : DomainObserver {
     std::optional<Error> last_error;
     while (!s->stopping) {
       auto up = co_await slave.impl().bring_up(s);
+      {
+        // Readable while the session waits: a caller that gives up early can say why.
+        std::lock_guard lock(slave.impl().mutex);
+        slave.impl().startup_error =
+            up ? std::nullopt : std::optional<std::string>(up.error().describe());
+      }
       if (up) {
         slave.impl().start_health(s);
         co_return ok();
@@ -208,8 +214,13 @@ struct Master::Impl : DomainObserver {
     if (!count) co_return count.error().context("discovering the ring");
     if (s->stopping) co_return Error(Errc::closed, "stopped");
     if (s->config.slaves.size() > *count) {
-      co_return Error(Errc::invalid_argument, fmt::format("{} slaves configured, the ring has {}",
-                                                          s->config.slaves.size(), *count));
+      std::string missing;
+      for (std::size_t i = *count; i < s->config.slaves.size(); ++i) {
+        missing += fmt::format("{}'{}'", missing.empty() ? "" : ", ", s->config.slaves[i].name);
+      }
+      co_return Error(Errc::invalid_argument,
+                      fmt::format("{} slaves configured, the ring has {} (nothing found for {})",
+                                  s->config.slaves.size(), *count, missing));
     }
     s->slave_count = *count;
     if (!s->config.frame_timeout) (void)bus.set_frame_timeout(auto_frame_timeout(*count));
@@ -1019,6 +1030,7 @@ std::vector<SlaveSummary> Master::slaves() const {
     summary.target = info.target;
     if (info.configuration_error) summary.fault = *info.configuration_error;
     if (info.fault) summary.fault = *info.fault;
+    summary.startup_error = info.startup_error;
     out.push_back(std::move(summary));
   }
   return out;

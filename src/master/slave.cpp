@@ -967,6 +967,7 @@ SlaveInfo Slave::info() const {
   out.attachments = impl_->attachments;
   out.configuration_error = impl_->configuration_error;
   out.fault = impl_->fault;
+  out.startup_error = impl_->startup_error;
   out.device_state = impl_->device_state;
   out.dc_sync = impl_->dc_sync;
   return out;

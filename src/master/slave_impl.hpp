@@ -49,6 +49,9 @@ struct Slave::Impl {
   std::optional<std::string> configuration_error;
   std::optional<Error> configuration_failure;  // the same, as the error it was
   std::optional<std::string> fault;
+  // Why the last attempt to bring the slave to PREOP failed, while the session still retries
+  // (awaiting_preop); cleared when the slave gets there.
+  std::optional<std::string> startup_error;
 
   struct Subscription {
     SubscriptionId id;

@@ -156,6 +156,15 @@ json status_json(master::Master& master) {
 int report_failure(master::Master& master, const Error& error) {
   fmt::print(stderr, "ecat: the session did not get running: {}\n", error.describe());
   auto status = master.status();
+  // Each slave that is not where the session wants it, with what it last reported.
+  for (const auto& s : status.slaves) {
+    if (s.startup_error) {
+      fmt::print(stderr, "  slave {} ({}): not in PREOP: {}\n", s.name, to_string(s.state),
+                 *s.startup_error);
+    } else if (s.fault) {
+      fmt::print(stderr, "  slave {} ({}): {}\n", s.name, to_string(s.state), *s.fault);
+    }
+  }
   for (const auto& f : status.activation_failures) {
     fmt::print(stderr, "  slave {}: {}\n", f.slave, f.error.describe());
   }

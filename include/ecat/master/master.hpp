@@ -47,6 +47,8 @@ struct SlaveSummary {
   SlaveState state = SlaveState::init;
   TargetState target = TargetState::op;
   std::optional<std::string> fault;  // a tracked slave-local fault, described
+  // Why the slave did not reach PREOP at its last attempt (awaiting_preop), described.
+  std::optional<std::string> startup_error;
 };
 
 struct DomainSummary {

@@ -65,6 +65,9 @@ struct SlaveInfo {
   std::vector<SmAttachment> attachments;
   std::optional<std::string> configuration_error;  // retained PREOP configuration failure
   std::optional<std::string> fault;                // tracked slave-local fault
+  // Why the last attempt to bring the slave to PREOP failed while the session still retries
+  // (awaiting_preop); empty once it is there.
+  std::optional<std::string> startup_error;
   DeviceState device_state;
   // The SYNC/latch configuration written on the way to SAFEOP (DC sessions with `sync` set).
   std::optional<DcSyncResult> dc_sync;
