@@ -203,6 +203,9 @@ struct Master::Impl : DomainObserver {
       }
       const bool awaiting = current() == MasterState::awaiting_preop;
       fail(awaiting ? "awaiting_preop_failed" : "startup_failed", result.error());
+      // The ring was up: slaves that got anywhere go back to INIT before the session ends.
+      co_await leave_slaves_in_init(s);
+      if (session != s) co_return;  // stop() ended the session meanwhile
       teardown();
       transition(MasterState::idle);
     }

@@ -296,6 +296,38 @@ TEST_F(MasterTest, ActivateDeactivateCycle) {
   ASSERT_TRUE(master.stop());
 }
 
+// A startup that fails after the ring is up (one slave never reaches PREOP: its identity is not
+// the configured one) ends in idle with every slave back in INIT, those that got to PREOP too.
+TEST_F(MasterTest, AFailedStartupLeavesEverySlaveInInit) {
+  auto config = full_config();
+  config.awaiting_preop_timeout = 1s;
+  config.slave_retry_interval = 50ms;
+  config.slaves[4].product_code = 0x0BADC0DE;
+  Master master(config);
+  ASSERT_TRUE(master.start(link()));
+  const auto in_preop = [&] {
+    for (const auto& s : server_->status().slaves) {
+      if (s.al_state == wire::AlState::preop) return true;
+    }
+    return false;
+  };
+  const auto deadline = std::chrono::steady_clock::now() + 10s;
+  bool saw_preop = false;
+  while (master.state() != MasterState::idle && std::chrono::steady_clock::now() < deadline) {
+    saw_preop = saw_preop || in_preop();
+    std::this_thread::sleep_for(2ms);
+  }
+  ASSERT_EQ(master.state(), MasterState::idle);
+  EXPECT_TRUE(saw_preop) << "the other slaves never reached PREOP: nothing to take back";
+  ASSERT_TRUE(master.last_failure().has_value());
+  EXPECT_EQ(master.last_failure()->kind, "awaiting_preop_failed");
+  EXPECT_NE(master.last_failure()->error.describe().find("drive"), std::string::npos)
+      << master.last_failure()->error.describe();
+  for (const auto& s : server_->status().slaves) {
+    EXPECT_EQ(s.al_state, wire::AlState::init) << s.name;
+  }
+}
+
 TEST_F(MasterTest, BadConfigurationsAreRefusedByName) {
   auto config = full_config();
   config.slaves[1].process_data = ProcessDataRequest::all("nowhere");
