@@ -378,7 +378,7 @@ TEST(RingLoad, FilesAndPaths) {
   auto missing = load_ring("/nonexistent/ring.yaml");
   ASSERT_FALSE(missing.ok());
   EXPECT_EQ(missing.error().code(), Errc::not_found);
-  EXPECT_EQ(missing.error().message(), "/nonexistent/ring.yaml: cannot open the ring file");
+  EXPECT_EQ(missing.error().message(), "/nonexistent/ring.yaml: no such ring file");
 
   const fs::path dir = fs::temp_directory_path() / fmt::format("ecat-ring-test-{}", ::getpid());
   fs::create_directories(dir);

@@ -644,7 +644,7 @@ TEST(Backend, ErrorsAndDelegation) {
   EXPECT_EQ(empty.error().message(), "invalid backend 'sim:': no ring file after 'sim:'");
   auto missing = open_backend("sim:/nonexistent.yaml");
   ASSERT_FALSE(missing.ok());
-  EXPECT_EQ(missing.error().message(), "/nonexistent.yaml: cannot open the ring file");
+  EXPECT_EQ(missing.error().message(), "/nonexistent.yaml: no such ring file");
   auto bogus = open_backend("bogus");
   ASSERT_FALSE(bogus.ok());
   EXPECT_THAT(bogus.error().message(), HasSubstr("no kind prefix"));

@@ -367,7 +367,7 @@ TEST_F(DecodeTool, MissingFileExitsWithTwo) {
   const auto result = run_tool(missing);
   EXPECT_EQ(result.status, 2);
   EXPECT_NE(result.err.find(missing), std::string::npos) << result.err;
-  EXPECT_NE(result.err.find("No such file"), std::string::npos) << result.err;
+  EXPECT_NE(result.err.find(": no such capture"), std::string::npos) << result.err;
   EXPECT_EQ(result.out, "");
 }
 

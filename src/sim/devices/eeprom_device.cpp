@@ -29,7 +29,9 @@ Result<std::unique_ptr<Esc>> make_eeprom_device(const DeviceConfig& config) {
     return Error(Errc::invalid_argument, "profile 'eeprom' needs file=<path of an SII image>");
   }
   auto read = read_binary_file(config.file, FileKind::eeprom);
-  if (!read) return read.error().context("profile 'eeprom'");
+  if (!read) {
+    return Error(read.error().code(), fmt::format("profile 'eeprom': {}", read.error().message()));
+  }
   std::vector<std::uint8_t> eeprom = std::move(*read);
   auto decoded = wire::decode_sii(eeprom);
   if (!decoded) {
