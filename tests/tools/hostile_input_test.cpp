@@ -170,10 +170,12 @@ TEST_F(HostileInput, FilesNamedInsideARingAreRefusedByName) {
 TEST_F(HostileInput, EndlessInputsAreRefusedAtOnce) {
   const auto pipe = fifo("stream");
   const auto start = std::chrono::steady_clock::now();
-  const auto r =
-      tool_.run_script(fmt::format("(yes 'a: [' > {0} 2>/dev/null &) ; \"$ECAT\" run {0}; s=$?; "
-                                   "(cat {0} > /dev/null &); exit $s",
-                                   quoted(pipe)));
+  // The writer blocks until a reader opens the FIFO, or dies of SIGPIPE once that reader closes
+  // it: either way it is stopped afterwards, never left running.
+  const auto r = tool_.run_script(
+      fmt::format("yes 'a: [' > {0} 2>/dev/null & w=$!; \"$ECAT\" run {0}; s=$?; kill $w "
+                  "2>/dev/null; wait $w 2>/dev/null; exit $s",
+                  quoted(pipe)));
   expect_clean_error(r, 2, "is a FIFO (named pipe); a ring file must be a regular file", "fifo");
   EXPECT_LT(std::chrono::steady_clock::now() - start, 30s);
   expect_clean_error(tool_.run("sii /dev/urandom"), 2, "is a device", "urandom");
