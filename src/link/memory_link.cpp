@@ -117,15 +117,15 @@ class MemoryLink final : public Link {
     std::unique_lock lock(in_->mutex);
     for (;;) {
       if (in_->reader_closed) return closed_error();
-      if (in_->interrupt) {
-        in_->interrupt = false;
-        return std::optional<ReceivedFrame>{};
-      }
       if (!in_->queue.empty()) {
         const ReceivedFrame frame = in_->queue.pop_into(rx_);
         lock.unlock();
         stats_.received(frame.frame.size());
         return std::optional<ReceivedFrame>(frame);
+      }
+      if (in_->interrupt) {
+        in_->interrupt = false;
+        return std::optional<ReceivedFrame>{};
       }
       if (in_->writer_closed) {
         return Error(Errc::closed, fmt::format("{}: the peer {} closed", name_, peer_name_));
@@ -208,9 +208,11 @@ class FunctionLink final : public Link, private ReplySink {
 
   Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds /*timeout*/) override {
     if (closed_.load(std::memory_order_acquire)) return closed_error();
-    if (interrupted_.exchange(false)) return std::optional<ReceivedFrame>{};
     std::unique_lock lock(mutex_);
-    if (replies_.empty()) return std::optional<ReceivedFrame>{};
+    if (replies_.empty()) {
+      interrupted_.store(false);
+      return std::optional<ReceivedFrame>{};
+    }
     const ReceivedFrame frame = replies_.pop_into(rx_);
     lock.unlock();
     stats_.received(frame.frame.size());

@@ -127,14 +127,15 @@ Result<WaitResult> wait_readable(int fd, Interrupter& interrupter, const Deadlin
       return os_error(Errc::io_error, fmt::format("{}: poll failed", link_name), errno);
     }
     if (n == 0) return WaitResult::timeout;
+    // A frame first: the interrupt stays pending and ends the next wait (POLLERR / POLLHUP also
+    // count as readable: the next recvmsg reports what happened).
+    if (fds[0].revents != 0) return WaitResult::readable;
     if (fds[1].revents != 0) {
       // Only a pending flag makes this an interrupt; a late eventfd write whose flag an earlier
       // receive already consumed is just drained.
       if (interrupter.consume()) return WaitResult::woken;
       interrupter.drain();
     }
-    // POLLERR / POLLHUP also count as readable: the next recvmsg reports what happened.
-    if (fds[0].revents != 0) return WaitResult::readable;
     if (deadline.expired()) return WaitResult::timeout;
   }
 }

@@ -274,11 +274,15 @@ Result<std::optional<ReceivedFrame>> RawLink::receive(std::chrono::nanoseconds t
   detail::UseScope use(s.guard);
   if (!use) return Error(Errc::closed, fmt::format("{}: link is closed", s.options.interface));
 
+  bool first_read = true;
   for (;;) {
     if (s.guard.closed()) {
       return Error(Errc::closed, fmt::format("{}: link is closed", s.options.interface));
     }
-    if (s.interrupter.consume()) return std::optional<ReceivedFrame>{};
+    // A frame that has arrived is taken before a pending interrupt is honoured; after a frame
+    // this link ignored, the interrupt is honoured at once (a flood cannot hold the caller).
+    if (!first_read && s.interrupter.consume()) return std::optional<ReceivedFrame>{};
+    first_read = false;
     sockaddr_ll from{};
     socklen_t from_length = sizeof from;
     const detail::Datagram d = detail::receive_datagram(
@@ -293,6 +297,7 @@ Result<std::optional<ReceivedFrame>> RawLink::receive(std::chrono::nanoseconds t
                               fmt::format("{}: receive failed", s.options.interface), d.error);
     }
     if (d.would_block) {
+      if (s.interrupter.consume()) return std::optional<ReceivedFrame>{};
       if (deadline.expired()) return std::optional<ReceivedFrame>{};
       if (s.options.spin) continue;
       auto waited =

@@ -348,9 +348,13 @@ Result<std::optional<ReceivedFrame>> UdpLink::receive(std::chrono::nanoseconds t
   if (!use) return Error(Errc::closed, fmt::format("{}: link is closed", s.name));
   const bool server = s.options.mode == UdpLinkOptions::Mode::server;
 
+  bool first_read = true;
   for (;;) {
     if (s.guard.closed()) return Error(Errc::closed, fmt::format("{}: link is closed", s.name));
-    if (s.interrupter.consume()) return std::optional<ReceivedFrame>{};
+    // A frame that has arrived is taken before a pending interrupt is honoured; after a frame
+    // this link ignored, the interrupt is honoured at once (a flood cannot hold the caller).
+    if (!first_read && s.interrupter.consume()) return std::optional<ReceivedFrame>{};
+    first_read = false;
     sockaddr_storage from{};
     socklen_t from_length = sizeof from;
     const detail::Datagram d = detail::receive_datagram(
@@ -365,6 +369,7 @@ Result<std::optional<ReceivedFrame>> UdpLink::receive(std::chrono::nanoseconds t
       return detail::os_error(Errc::io_error, fmt::format("{}: receive failed", s.name), d.error);
     }
     if (d.would_block) {
+      if (s.interrupter.consume()) return std::optional<ReceivedFrame>{};
       if (deadline.expired()) return std::optional<ReceivedFrame>{};
       if (s.options.spin) continue;
       auto waited = detail::wait_readable(s.socket.get(), s.interrupter, deadline, s.name);

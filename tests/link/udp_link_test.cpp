@@ -404,3 +404,27 @@ TEST(UdpLinkTest, ServerAnswersOneHostAtATime) {
 
 }  // namespace
 }  // namespace ecat::link
+
+namespace ecat::link {
+namespace {
+
+// A datagram that has arrived is returned before a pending interrupt, which then ends the next
+// receive: a reply is never hidden behind a wake-up.
+TEST(UdpLinkTest, AFrameThatArrivedComesBeforeAPendingInterrupt) {
+  auto server = serve_loopback();
+  ASSERT_TRUE(server);
+  auto client = connect_to(*server);
+  ASSERT_TRUE(client);
+  ASSERT_TRUE(client->send(frame_with(7)).ok());
+  // Loopback delivers inside sendto: the datagram is queued on the server's socket now.
+  server->interrupt();
+  EXPECT_EQ(receive_frame(*server, 0s), frame_with(7));
+  const auto start = Clock::now();
+  auto r = server->receive(5s);
+  ASSERT_TRUE(r.ok());
+  EXPECT_FALSE(r->has_value());
+  EXPECT_LT(Clock::now() - start, 1s);
+}
+
+}  // namespace
+}  // namespace ecat::link

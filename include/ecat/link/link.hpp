@@ -59,7 +59,9 @@ class Link {
   virtual Result<void> send(wire::Bytes ethercat_frame) = 0;
 
   // Waits up to `timeout` for one frame (a zero timeout polls). Returns std::nullopt on timeout or
-  // when interrupt() was called. Does not allocate.
+  // when interrupt() was called and no frame is waiting: a frame that has arrived is returned
+  // first (the interrupt then ends the next receive), so an interrupt never hides a reply.
+  // Does not allocate.
   virtual Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) = 0;
 
   // Wakes a receive() that is blocked now (or the next one, if none is).
