@@ -13,6 +13,7 @@
 // runs (or take --control PATH). Exit codes: 0 done, 1 the simulator refused the request, 2 bad
 // usage or no simulator to talk to.
 #include <charconv>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <memory>
@@ -393,10 +394,10 @@ int signal_request(const Options& o, const std::string& op) {
       try {
         std::size_t used = 0;
         const double v = std::stod(o.value, &used);
-        if (used != o.value.size()) throw std::invalid_argument(o.value);
+        if (used != o.value.size() || !std::isfinite(v)) throw std::invalid_argument(o.value);
         message["value"] = v;
       } catch (const std::exception&) {
-        return fail(2, fmt::format("'{}' is not a number (or true/false)", o.value));
+        return fail(2, fmt::format("'{}' is not a finite number (or true/false)", o.value));
       }
     }
   }
