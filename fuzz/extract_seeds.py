@@ -6,6 +6,11 @@ extract_seeds.py KIND SHARED_DATA_DIR OUT_DIR
   mailbox: the data of every FPRD/FPWR datagram of 6 bytes or more in those frames (mailbox
            buffers among them)
   sii:     every EEPROM image
+  ring_devices: rings that build devices from every EEPROM image (profile eeprom, alone, without
+           firmware, in pairs) and every ESI file (profile esi, alone and beside an image), in
+           fuzz_ring_devices' input format: YAML, then the files, each after the separator "\0\0FZ"
+           (a.bin, b.bin, c.xml, d.xml in that order)
+  master_config: nothing (the shared data holds no master configurations)
 """
 import os
 import struct
@@ -89,6 +94,52 @@ def datagrams(frame):
             return
 
 
+RING_SEPARATOR = b"\0\0FZ"
+
+
+def ring_input(yaml, *files):
+    """fuzz_ring_devices' input: the YAML, then each file after the separator."""
+    blob = yaml.encode()
+    for f in files:
+        blob += RING_SEPARATOR + f
+    return blob
+
+
+def ring_devices_seeds(shared):
+    images = []
+    d = os.path.join(shared, "eeprom")
+    for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
+        with open(os.path.join(d, name), "rb") as f:
+            images.append(f.read())
+    esis = []
+    d = os.path.join(shared, "esi")
+    for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
+        with open(os.path.join(d, name), "rb") as f:
+            esis.append(f.read())
+    # A file holding the separator would be split: the last part may hold it, so such a file goes
+    # last (d.xml); any other place skips it.
+    one = "simulator:\n  slaves:\n    - {name: dev, profile: %s, file: %s%s}\n"
+    for image in images:
+        if RING_SEPARATOR in image:
+            yield ring_input(one % ("eeprom", "d.xml", ""), b"", b"", b"", image)
+            continue
+        yield ring_input(one % ("eeprom", "a.bin", ""), image)
+        yield ring_input(one % ("eeprom", "a.bin", ", options: {firmware: none}"), image)
+    pair = ("simulator:\n  slaves:\n    - {name: coupler, profile: EK1100}\n"
+            "    - {name: first, profile: eeprom, file: a.bin, parent: coupler, port: 3}\n"
+            "    - {name: second, profile: eeprom, file: b.bin}\n")
+    clean = [i for i in images if RING_SEPARATOR not in i]
+    for a, b in zip(clean, clean[1:] + clean[:1]):
+        yield ring_input(pair, a, b)
+    for esi in esis:
+        yield ring_input(one % ("esi", "d.xml", ""), b"", b"", b"", esi)
+        if clean:
+            yield ring_input("simulator:\n  slaves:\n"
+                             "    - {name: io, profile: eeprom, file: a.bin}\n"
+                             "    - {name: drive, profile: esi, file: d.xml, clock: {drift_ppm: 20}}\n",
+                             clean[0], b"", b"", esi)
+
+
 def main():
     kind, shared, out = sys.argv[1], sys.argv[2], sys.argv[3]
     os.makedirs(out, exist_ok=True)
@@ -114,6 +165,9 @@ def main():
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
             with open(os.path.join(d, name), "rb") as f:
                 emit(f.read())
+    elif kind == "ring_devices":
+        for blob in ring_devices_seeds(shared):
+            emit(blob)
     elif kind in ("frame", "mailbox"):
         d = os.path.join(shared, "captures")
         for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:

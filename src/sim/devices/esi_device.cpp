@@ -163,8 +163,8 @@ void add_pdo_objects(ObjectDictionary& od, const config::EsiDevice& device,
           PdoEntryRef::decode(from_le_bytes<std::uint32_t>(default_of(o, s)).value_or(0)));
     }
     PdoMappingOptions options;
-    options.capacity =
-        static_cast<std::uint8_t>(std::clamp<std::size_t>(o.entries.size() - 1, refs.size(), 255));
+    options.capacity = static_cast<std::uint8_t>(
+        std::min<std::size_t>(std::max(o.entries.size() - 1, refs.size()), 255));
     options.writable = writable_in_preop(o);
     add_pdo_mapping(od, o.index, o.name, refs, options);
   }
@@ -200,7 +200,10 @@ void add_pdo_objects(ObjectDictionary& od, const config::EsiDevice& device,
     }
     PdoAssignmentOptions options;
     options.capacity =
-        static_cast<std::uint8_t>(std::clamp<std::size_t>(o->entries.size() - 1, pdos.size(), 255));
+        // More than 255 assigned PDOs (a hostile ESI) must not make the bounds cross: clamp is UB
+        // then.
+        static_cast<std::uint8_t>(
+            std::min<std::size_t>(std::max(o->entries.size() - 1, pdos.size()), 255));
     options.writable = writable_in_preop(*o);
     add_pdo_assignment(od, sm, direction, pdos, options);
     if (OdObject* added = od.find(index)) added->name = o->name;
