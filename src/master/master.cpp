@@ -44,6 +44,7 @@ struct Master::Impl : DomainObserver {
   }
 
   MasterConfig config;
+  EventHub events;  // before the loop: it outlives every task that publishes
   exec::EventLoop loop;
   std::shared_ptr<Session> session;  // loop thread writes; guarded by `mutex` for readers
 
@@ -79,6 +80,10 @@ struct Master::Impl : DomainObserver {
       state = to;
       cb = on_change;
     }
+    Event e = make_event(EventKind::master_state);
+    e.from = static_cast<std::uint8_t>(from);
+    e.to = static_cast<std::uint8_t>(to);
+    events.publish(e);
     if (cb) cb(from, to);
     changed.notify_all();
     return true;
@@ -456,6 +461,17 @@ struct Master::Impl : DomainObserver {
     const bool blocked = !failures.empty();
     {
       std::lock_guard lock(mutex);
+      // Each failure once while it lasts (activation is retried every retry_interval).
+      for (const auto& [name, f] : failures) {
+        auto before = activation_failures.find(name);
+        if (before != activation_failures.end() &&
+            before->second.error.describe() == f.error.describe()) {
+          continue;
+        }
+        Event e = make_event(EventKind::activation_failed, name, f.error.describe());
+        e.value = f.al_status_code.value_or(0);
+        events.publish(e);
+      }
       activation_failures = std::move(failures);
       if (blocked) {
         const auto& first = activation_failures.begin()->second;
@@ -488,6 +504,58 @@ struct Master::Impl : DomainObserver {
     transition(state_for(reached));
   }
 
+  void publish_domain_state(std::size_t index, const Domain& d, DomainState from, DomainState to,
+                            std::string_view detail) {
+    Event e = make_event(EventKind::domain_state, d.id(), detail);
+    e.subject = static_cast<std::int32_t>(index);
+    e.from = static_cast<std::uint8_t>(from);
+    e.to = static_cast<std::uint8_t>(to);
+    events.publish(e);
+  }
+
+  // While a session runs: what only counters and status show becomes events (DC lock gained and
+  // lost, the bus's frame losses and time-outs at 1, 10, 100 ..., the link failing).
+  exec::Task<void> watch(std::shared_ptr<Session> s) {
+    bool locked = false;
+    std::uint64_t lost_mark = 1;
+    std::uint64_t timeout_mark = 1;
+    bool link_down = false;
+    while (!s->stopping && session == s) {
+      co_await exec::sleep_for(loop, kWatchPeriod);
+      if (s->stopping || session != s) break;
+      if (s->dc) {
+        const auto dc = s->dc->status();
+        if (dc.locked != locked) {
+          locked = dc.locked;
+          Event e = make_event(locked ? EventKind::dc_locked : EventKind::dc_lost);
+          e.value = static_cast<std::uint64_t>(dc.max_difference_ns < 0 ? -dc.max_difference_ns
+                                                                        : dc.max_difference_ns);
+          events.publish(e);
+        }
+      }
+      const auto stats = s->bus->stats();
+      cross_marks(EventKind::frames_lost, stats.frames_lost, lost_mark);
+      cross_marks(EventKind::timeouts, stats.transaction_timeouts, timeout_mark);
+      if (!link_down) {
+        if (auto failure = s->bus->info().link_failure) {
+          link_down = true;
+          events.publish(make_event(EventKind::link_down, {}, failure->describe()));
+        }
+      }
+    }
+  }
+  static constexpr std::chrono::milliseconds kWatchPeriod{50};
+
+  // One event each time `count` passes the next power of ten.
+  void cross_marks(EventKind kind, std::uint64_t count, std::uint64_t& mark) {
+    if (count < mark) return;
+    while (mark <= count && mark < (std::uint64_t{1} << 62))
+      mark *= 10;
+    Event e = make_event(kind);
+    e.value = count;
+    events.publish(e);
+  }
+
   static MasterState state_for(TargetState target) {
     switch (target) {
       case TargetState::op:
@@ -503,18 +571,28 @@ struct Master::Impl : DomainObserver {
   void start_cycling(Session& s) {
     if (!s.cycler) s.cycler = std::make_unique<Cycler>(*s.bus);
     start_dc(s);
-    for (auto& d : s.domains) {
-      if (d->state() == DomainState::cycling || d->registrations().empty()) continue;
-      if (d->cycler() == nullptr) (void)s.cycler->add(*d);
-      (void)d->start_cycling();
+    for (std::size_t i = 0; i < s.domains.size(); ++i) {
+      Domain& d = *s.domains[i];
+      const DomainState before = d.state();
+      if (before == DomainState::cycling || d.registrations().empty()) continue;
+      if (d.cycler() == nullptr) (void)s.cycler->add(d);
+      if (!d.start_cycling()) continue;
+      publish_domain_state(i, d, before, DomainState::cycling,
+                           before == DomainState::stopped ? "restarted" : "");
+      if (before == DomainState::stopped) {
+        events.publish(make_event(EventKind::recovery_step, d.id(), "stopped domain restarted"));
+      }
     }
     if (!s.cycler->running()) (void)s.cycler->start();
     arm_pump(s.shared_from_this());
   }
 
   void stop_cycling(Session& s) {
-    for (auto& d : s.domains) {
-      if (d->state() == DomainState::cycling) (void)d->stop_cycling();
+    for (std::size_t i = 0; i < s.domains.size(); ++i) {
+      Domain& d = *s.domains[i];
+      if (d.state() == DomainState::cycling && d.stop_cycling()) {
+        publish_domain_state(i, d, DomainState::cycling, DomainState::stopped, "stopped");
+      }
     }
   }
 
@@ -564,6 +642,12 @@ struct Master::Impl : DomainObserver {
   // Rare events: the bus thread only posts (no formatting, no string copies); the text is made on
   // the loop, for a domain of the current session only.
   void on_cycle_degraded(Domain& domain, const CycleInvalid& invalid) override {
+    Event e = make_event(EventKind::domain_health, domain.id());
+    e.to = 0;
+    e.value = static_cast<std::uint64_t>(invalid.reason);
+    format_detail(e, "{} (expected wkc {}, got {})", to_string(invalid.reason),
+                  invalid.expected_wkc, invalid.actual_wkc);
+    events.publish(e);
     loop.post([this, d = &domain, invalid] {
       if (!owns(d)) return;
       raise_runtime_fault(
@@ -573,11 +657,19 @@ struct Master::Impl : DomainObserver {
     });
   }
   void on_cycle_recovered(Domain& domain) override {
+    Event e = make_event(EventKind::domain_health, domain.id());
+    e.to = 1;
+    events.publish(e);
     loop.post([this, d = &domain] {
       if (owns(d)) clear_runtime_fault("domain:" + d->id());
     });
   }
   void on_stopped(Domain& domain, const CycleInvalid& invalid, std::uint64_t misses) override {
+    Event e = make_event(EventKind::domain_state, domain.id());
+    e.from = static_cast<std::uint8_t>(DomainState::cycling);
+    e.to = static_cast<std::uint8_t>(DomainState::stopped);
+    format_detail(e, "after {} consecutive misses ({})", misses, to_string(invalid.reason));
+    events.publish(e);
     loop.post([this, d = &domain, reason = invalid.reason, misses] {
       if (!owns(d)) return;
       raise_runtime_fault("domain:" + d->id(),
@@ -597,10 +689,14 @@ struct Master::Impl : DomainObserver {
   void raise_runtime_fault(const std::string& key, const std::string& why) {
     auto s = session;
     if (!s || s->stopping) return;
+    bool changed_fault = false;
     {
       std::lock_guard lock(mutex);
-      runtime_faults[key] = why;
+      auto& kept = runtime_faults[key];
+      changed_fault = kept != why;
+      kept = why;
     }
+    if (changed_fault) events.publish(make_event(EventKind::fault_raised, key, why));
     const auto now = current();
     if (now == MasterState::operational || now == MasterState::deactivated ||
         now == MasterState::preop_ready || now == MasterState::activation_blocked) {
@@ -613,12 +709,21 @@ struct Master::Impl : DomainObserver {
     auto s = session;
     if (!s || s->stopping) return;
     bool empty;
+    std::string cleared;
     {
       std::lock_guard lock(mutex);
-      runtime_faults.erase(key);
+      if (auto it = runtime_faults.find(key); it != runtime_faults.end()) {
+        cleared = std::move(it->second);
+        runtime_faults.erase(it);
+      }
       empty = runtime_faults.empty();
     }
-    if (empty && current() == MasterState::recovering) exec::spawn(loop, run_activation(s));
+    if (!cleared.empty()) events.publish(make_event(EventKind::fault_cleared, key, cleared));
+    if (empty && current() == MasterState::recovering) {
+      events.publish(
+          make_event(EventKind::recovery_step, key, "runtime faults cleared: activating again"));
+      exec::spawn(loop, run_activation(s));
+    }
   }
 
   // ---- slave notices (loop) -------------------------------------------------------------------
@@ -649,9 +754,13 @@ struct Master::Impl : DomainObserver {
         }
         break;
       case SlaveNotice::Kind::retreated:
+        events.publish(
+            make_event(EventKind::recovery_step, notice.slave, "retreated: back to its target"));
         arm_slave_retry(s);
         break;
       case SlaveNotice::Kind::reconnected:
+        events.publish(make_event(EventKind::recovery_step, notice.slave,
+                                  "reconnected and rebuilt to PREOP: back to its target"));
         exec::spawn(loop, restore_slave(s, slave, key));
         break;
     }
@@ -688,10 +797,7 @@ struct Master::Impl : DomainObserver {
       arm_slave_retry(s);
       co_return;
     }
-    {
-      std::lock_guard lock(slave->impl().mutex);
-      slave->impl().fault.reset();
-    }
+    slave->impl().clear_fault();
     clear_runtime_fault(key);
   }
 
@@ -828,6 +934,7 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
         }
         auto s = std::make_shared<Session>(impl.loop, impl.config);
         s->notify = [&impl](const SlaveNotice& notice) { impl.on_notice(notice); };
+        s->events = &impl.events;
         bus::BusOptions options;
         if (impl.config.frame_timeout) options.frame_timeout = *impl.config.frame_timeout;
         if (impl.config.cycle_thread.fifo_priority || impl.config.cycle_thread.cpu) {
@@ -851,8 +958,10 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
           std::lock_guard lock(impl.mutex);
           impl.session = s;
         }
+        impl.events.publish(make_event(EventKind::link_up, {}, s->bus->info().link_name));
         impl.transition(MasterState::discovering);
         exec::spawn(impl.loop, impl.startup(s));
+        exec::spawn(impl.loop, impl.watch(s));
         co_return ok();
       }(*impl_, std::move(link)),
       kCallTimeout);
@@ -1174,6 +1283,57 @@ Result<Domain*> Master::domain(std::string_view id) {
   if (!s) return Error(Errc::wrong_state, "the master is not started");
   if (auto* found = s->find_domain(id)) return found;
   return Error(Errc::not_found, fmt::format("no domain named \"{}\"", id));
+}
+
+EventSubscriptionId Master::subscribe_events(EventCallback callback) {
+  return impl_->events.subscribe(std::move(callback));
+}
+
+bool Master::unsubscribe_events(EventSubscriptionId id) {
+  return impl_->events.unsubscribe(id);
+}
+
+std::shared_ptr<EventQueue> Master::open_event_queue(std::size_t capacity) {
+  return impl_->events.open_queue(capacity);
+}
+
+EventStats Master::event_stats() const noexcept {
+  return impl_->events.stats();
+}
+
+bool Master::flush_events(std::chrono::nanoseconds timeout) {
+  return impl_->events.flush(timeout);
+}
+
+MasterCounters Master::counters() const {
+  MasterCounters out;
+  out.events = impl_->events.stats();
+  std::lock_guard lock(impl_->mutex);
+  const auto& s = impl_->session;
+  if (!s) return out;
+  if (s->bus) {
+    const auto b = s->bus->stats();
+    out.frames_sent = b.frames_sent;
+    out.frames_received = b.frames_received;
+    out.frames_lost = b.frames_lost;
+    out.transaction_timeouts = b.transaction_timeouts;
+    out.retries = b.retries;
+    out.realtime_expired = b.realtime_expired;
+    out.cycle_deadlines_missed = b.cycle_deadlines_missed;
+  }
+  for (const auto& d : s->domains) {
+    const auto st = d->stats();
+    out.domains.push_back(
+        {d->id(), st.cycle_count, st.valid_count, st.wkc_mismatch_count, st.total_miss_count});
+  }
+  for (const auto& slave : s->slaves) {
+    const auto& c = slave->impl().counters;
+    out.slaves.push_back({slave->name(), c.wkc_errors.load(std::memory_order_relaxed),
+                          c.mailbox_retries.load(std::memory_order_relaxed),
+                          c.sdo_failures.load(std::memory_order_relaxed)});
+  }
+  if (s->dc) out.dc_max_difference_ns = s->dc->status().max_difference_ns;
+  return out;
 }
 
 void Master::on_state_change(std::function<void(MasterState, MasterState)> callback) {

@@ -23,6 +23,8 @@
 #include <ecat/master/slave.hpp>
 #include <ecat/wire/registers.hpp>
 
+#include "master/event_hub.hpp"
+
 namespace ecat::master {
 
 // What a slave tells its master (on the control loop).
@@ -60,6 +62,8 @@ struct Session : std::enable_shared_from_this<Session> {
   std::atomic<bool> health_held{false};
   // Set by the master: slaves report here (called on the loop).
   std::function<void(const SlaveNotice&)> notify;
+  // The master's event stream (outlives every session of the master).
+  EventHub* events = nullptr;
 
   Domain* find_domain(std::string_view id) const noexcept {
     for (const auto& d : domains) {

@@ -14,6 +14,7 @@
 #include <ecat/master/slave.hpp>
 #include <ecat/wire/bytes.hpp>
 
+#include "master/event_hub.hpp"
 #include "slave_impl.hpp"
 
 namespace ecat::master {
@@ -51,7 +52,7 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   }
   auto init = co_await al_request(loop, bus, station, wire::AlState::init, session.config.al);
   if (!init) co_return init.error().context(fmt::format("{}: reaching INIT", who()));
-  state.store(SlaveState::init);
+  set_state(SlaveState::init);
 
   bus::Transaction esc_tx;
   esc_tx.fprd(station, reg::kType, static_cast<std::uint16_t>(reg::kEscInformationSize), 1);
@@ -136,7 +137,7 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
     record_al_error(preop.error());
     co_return preop.error().context(fmt::format("{}: reaching PREOP", who()));
   }
-  state.store(SlaveState::preop);
+  set_state(SlaveState::preop);
 
   auto configured = co_await configure_preop(keep);
   if (!configured) {
@@ -477,7 +478,7 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
     status = *acked;
   }
   const auto from = status->status.state;
-  state.store(slave_state_of(from));
+  set_state(slave_state_of(from));
   auto path = al_path(from, target);
   if (!path) {
     co_return Error(Errc::invalid_argument,
@@ -493,14 +494,66 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
       record_al_error(stepped.error());
       // What the slave is in now (it may have fallen back).
       if (auto now = co_await read_al_status(loop, bus, station, session.config.al.transact)) {
-        state.store(slave_state_of(now->status.state));
+        set_state(slave_state_of(now->status.state));
       }
       co_return stepped.error().context(
           fmt::format("{}: requesting {}", who(), wire::to_string(target)));
     }
-    state.store(slave_state_of(step));
+    set_state(slave_state_of(step));
   }
   co_return ok();
+}
+
+// ---- what the event stream and the counters see ---------------------------------------------
+
+void Slave::Impl::set_state(SlaveState to) noexcept {
+  const SlaveState from = state.exchange(to);
+  if (from == to || session.events == nullptr) return;
+  Event e = make_event(EventKind::slave_state, self.name());
+  e.subject = self.position();
+  e.from = static_cast<std::uint8_t>(from);
+  e.to = static_cast<std::uint8_t>(to);
+  session.events->publish(e);
+}
+
+void Slave::Impl::raise_fault(std::string why) {
+  {
+    std::lock_guard lock(mutex);
+    if (fault == why) return;
+    fault = why;
+  }
+  if (session.events)
+    session.events->publish(make_event(EventKind::fault_raised, self.name(), why));
+}
+
+void Slave::Impl::clear_fault() {
+  std::optional<std::string> was;
+  {
+    std::lock_guard lock(mutex);
+    was.swap(fault);
+  }
+  if (was && session.events) {
+    session.events->publish(make_event(EventKind::fault_cleared, self.name(), *was));
+  }
+}
+
+void Slave::Impl::note_sdo_failure(const Error& error) {
+  counters.sdo_failures.fetch_add(1, std::memory_order_relaxed);
+  if (session.events == nullptr) return;
+  const auto abort = error.code_value(Errc::sdo_abort);
+  Event e = make_event(abort ? EventKind::sdo_failed
+                       : (error.code() == Errc::mailbox_error || error.code() == Errc::timeout)
+                           ? EventKind::mailbox_failed
+                           : EventKind::sdo_failed,
+                       self.name(), error.describe());
+  e.value = abort.value_or(0);
+  session.events->publish(e);
+}
+
+void Slave::Impl::note_mailbox_counters() noexcept {
+  if (!mailbox) return;
+  const auto& m = mailbox->stats();
+  counters.mailbox_retries.store(m.write_retries + m.repeat_requests, std::memory_order_relaxed);
 }
 
 exec::Task<Result<std::vector<std::uint8_t>>> Slave::Impl::sdo_upload(
@@ -508,7 +561,10 @@ exec::Task<Result<std::vector<std::uint8_t>>> Slave::Impl::sdo_upload(
   (void)keep;
   auto checked = check_mailbox();
   if (!checked) co_return checked.error();
-  co_return co_await master::upload_sdo(*mailbox, index, subindex, options);
+  auto value = co_await master::upload_sdo(*mailbox, index, subindex, options);
+  note_mailbox_counters();
+  if (!value) note_sdo_failure(value.error());
+  co_return value;
 }
 
 exec::Task<Result<void>> Slave::Impl::sdo_download(std::uint16_t index, std::uint8_t subindex,
@@ -523,7 +579,10 @@ exec::Task<Result<void>> Slave::Impl::sdo_download(std::uint16_t index, std::uin
         Errc::invalid_argument,
         fmt::format("{}: SDO download of 0x{:04x}:{:02x} with no data", who(), index, subindex));
   }
-  co_return co_await master::download_sdo(*mailbox, index, subindex, std::move(data), options);
+  auto done = co_await master::download_sdo(*mailbox, index, subindex, std::move(data), options);
+  note_mailbox_counters();
+  if (!done) note_sdo_failure(done.error());
+  co_return done;
 }
 
 exec::Task<Result<void>> Slave::Impl::apply_sync() {
@@ -812,13 +871,11 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
       // working counter is counted, and one such poll may be a passing fault: the slave is down
       // when the next poll fails as well.
       if (status.error().code() == Errc::timeout) continue;
+      counters.wkc_errors.fetch_add(1, std::memory_order_relaxed);
       if (++failed_polls < kFailedPollsForDown) continue;
       failed_polls = 0;
-      state.store(SlaveState::down);
-      {
-        std::lock_guard lock(mutex);
-        fault = fmt::format("down: {}", status.error().message());
-      }
+      set_state(SlaveState::down);
+      raise_fault(fmt::format("down: {}", status.error().message()));
       session.notify({SlaveNotice::Kind::down, self.name(), status.error().describe()});
       continue;
     }
@@ -835,12 +892,9 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
           fmt::format("left OP (AL status {}{}, code 0x{:04x} {})",
                       wire::to_string(status->status.state), status->status.error ? " + error" : "",
                       status->code, wire::al_status_code_text(status->code));
-      {
-        std::lock_guard lock(mutex);
-        fault = why;
-      }
+      raise_fault(why);
       if (!retreat) {
-        state.store(SlaveState::down);
+        set_state(SlaveState::down);
         session.notify(
             {SlaveNotice::Kind::down, self.name(), retreat.error().context(why).describe()});
       } else {
@@ -862,12 +916,9 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
       }
     };
     if (rank(seen) < rank(now)) {
-      state.store(seen);
+      set_state(seen);
       const auto why = fmt::format("fell from {} to {}", to_string(now), to_string(seen));
-      {
-        std::lock_guard lock(mutex);
-        fault = why;
-      }
+      raise_fault(why);
       session.notify({SlaveNotice::Kind::retreated, self.name(), why});
     }
   }
@@ -902,12 +953,10 @@ exec::Task<bool> Slave::Impl::probe_and_rebuild(std::shared_ptr<Session> keep) {
   auto up = co_await bring_up(keep);
   if (up) up = co_await reinit_dc();
   if (!up) {
-    std::lock_guard lock(mutex);
-    fault = fmt::format("down; rebuild failed: {}", up.error().describe());
+    raise_fault(fmt::format("down; rebuild failed: {}", up.error().describe()));
     co_return false;
   }
-  std::lock_guard lock(mutex);
-  fault.reset();
+  clear_fault();
   co_return true;
 }
 

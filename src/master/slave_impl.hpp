@@ -53,6 +53,24 @@ struct Slave::Impl {
   // (awaiting_preop); cleared when the slave gets there.
   std::optional<std::string> startup_error;
 
+  // Read by Master::counters() from any thread.
+  struct Counters {
+    std::atomic<std::uint64_t> wkc_errors{0};       // health polls without this slave's WKC
+    std::atomic<std::uint64_t> sdo_failures{0};     // SDO transfers that failed
+    std::atomic<std::uint64_t> mailbox_retries{0};  // refreshed after each SDO transfer
+  } counters;
+
+  // Every change of `state` goes through here: it is published as a slave.state event.
+  void set_state(SlaveState to) noexcept;
+  // A tracked fault raised (published) or cleared (published when there was one). Take `mutex`
+  // for neither: they take it.
+  void raise_fault(std::string why);
+  void clear_fault();
+  // An SDO transfer's failure, counted and published (sdo.failed or mailbox.failed).
+  void note_sdo_failure(const Error& error);
+  // Copies the mailbox's retry counts into `counters` (loop thread, after an exchange).
+  void note_mailbox_counters() noexcept;
+
   struct Subscription {
     SubscriptionId id;
     std::string signal;

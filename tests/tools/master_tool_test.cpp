@@ -2,6 +2,7 @@
 // ring file (positional, --json, backend from the file or --backend) and `ecat slaves --json`.
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -61,6 +62,40 @@ TEST(MasterTool, CtrlCTakesEverySlaveBackToInitAndExitsCleanly) {
   ASSERT_EQ(r.status, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("awaiting_preop -> operational"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("stopped: every slave back in INIT\n"), std::string::npos) << r.out;
+}
+
+// `ecat run --events`: the event stream live, one line per event; with --json one object per line
+// (JSON Lines), the final status included.
+TEST(MasterTool, RunShowsTheEventStream) {
+  ToolRunner tool("events");
+  auto r = tool.run("run '" + default_ring() + "' --duration 0.3 --events --no-chase");
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("master.state idle -> discovering"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("slave.state drive: safeop -> op"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("domain.state main: open -> cycling"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("master.state operational -> idle"), std::string::npos) << r.out;
+
+  r = tool.run("run '" + default_ring() + "' --duration 0.3 --events --json --no-chase");
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  std::istringstream lines(r.out);
+  std::string line;
+  std::size_t events = 0;
+  bool status = false;
+  std::uint64_t last_seq = 0;
+  while (std::getline(lines, line)) {
+    const auto doc = json::parse(line);  // every line is one JSON object
+    if (doc.contains("event")) {
+      ++events;
+      EXPECT_GT(doc.at("seq").get<std::uint64_t>(), last_seq) << line;
+      last_seq = doc.at("seq").get<std::uint64_t>();
+    } else {
+      status = doc.at("state") == "operational";
+    }
+  }
+  EXPECT_GT(events, 10u) << r.out;
+  EXPECT_TRUE(status) << r.out;
+  EXPECT_NE(r.out.find(R"("event":"master.state","from":"awaiting_preop")"), std::string::npos)
+      << r.out;
 }
 
 TEST(MasterTool, SlavesJsonListsIdentityAndPorts) {

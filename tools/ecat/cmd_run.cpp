@@ -49,6 +49,7 @@ struct Options {
   double timeout_s = 20.0;
   bool json = false;
   bool chase = true;
+  bool events = false;
 };
 
 // The link and configuration a run uses.
@@ -135,7 +136,22 @@ int run_session(const Options& options) {
   auto setup = prepare(options, false);
   if (!setup) return 2;
   Master master(setup->config);
-  if (!options.json) {
+  if (options.events) {
+    // The event stream, live: one line per event (--json: one JSON object per line).
+    const auto started_at = std::chrono::steady_clock::now().time_since_epoch();
+    master.subscribe_events(
+        [json = options.json, started_at](const ecat::master::Event& e, std::uint64_t missed) {
+          if (json) {
+            if (missed > 0) fmt::print("{{\"event\":\"events.missed\",\"count\":{}}}\n", missed);
+            fmt::print("{}\n", ecat::master::event_json(e));
+          } else {
+            if (missed > 0) fmt::print("({} events missed)\n", missed);
+            const double t = static_cast<double>(e.time_ns - started_at.count()) / 1e9;
+            fmt::print("{:9.3f}  {}\n", t, ecat::master::describe(e));
+          }
+          std::fflush(stdout);
+        });
+  } else if (!options.json) {
     master.on_state_change([](MasterState from, MasterState to) {
       fmt::print("master: {} -> {}\n", to_string(from), to_string(to));
       std::fflush(stdout);
@@ -166,7 +182,8 @@ int run_session(const Options& options) {
     ecat::tool::sleep_unless_interrupted(100ms);
   }
   if (options.json) {
-    fmt::print("{}\n", status_json(master).dump(2));
+    // With --events the output is JSON Lines throughout: the status is one line too.
+    fmt::print("{}\n", options.events ? status_json(master).dump() : status_json(master).dump(2));
   } else {
     fmt::print("\nafter {:.1f} s:\n", options.duration_s);
     print_domains(master);
@@ -200,6 +217,7 @@ int run_session(const Options& options) {
   const bool operational =
       master.state() == MasterState::operational || master.state() == MasterState::preop_ready;
   (void)master.stop();
+  if (options.events) (void)master.flush_events();
   if (!options.json) fmt::print("stopped: every slave back in INIT\n");
   return operational ? 0 : 1;
 }
@@ -249,6 +267,8 @@ ecat::tool::Command setup_run(CLI::App& parent) {
   app->add_option("--duration", options->duration_s, "Seconds to run once operational")
       ->check(ecat::tool::run_seconds());
   app->add_flag("!--no-chase", options->chase, "Do not walk a lit bit over the boolean outputs");
+  app->add_flag("--events", options->events,
+                "Print the master's event stream live (with --json: one JSON object per line)");
   return {app, [options] { return run_session(*options); }};
 }
 

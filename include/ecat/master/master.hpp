@@ -25,6 +25,7 @@
 #include <ecat/link/link.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/dc.hpp>
+#include <ecat/master/events.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
@@ -76,6 +77,37 @@ struct ReferenceClock {
   std::string slave;
   std::uint16_t station = 0;
   std::uint16_t position = 0;
+};
+
+// Counters of a running session, readable at any time (zeros when no session runs). Each is
+// cumulative since the session started.
+struct MasterCounters {
+  // The bus (see bus::BusStats for the full set).
+  std::uint64_t frames_sent = 0;
+  std::uint64_t frames_received = 0;
+  std::uint64_t frames_lost = 0;           // no reply within the frame timeout
+  std::uint64_t transaction_timeouts = 0;  // acyclic work that failed with a time-out
+  std::uint64_t retries = 0;               // acyclic transactions re-sent after a loss
+  std::uint64_t realtime_expired = 0;      // cyclic exchanges dropped as stale before sending
+  std::uint64_t cycle_deadlines_missed = 0;
+  struct DomainCounters {
+    std::string id;
+    std::uint64_t cycles = 0;
+    std::uint64_t valid = 0;
+    std::uint64_t wkc_mismatches = 0;
+    std::uint64_t misses = 0;  // transport misses (time-out, expired, link error)
+  };
+  std::vector<DomainCounters> domains;
+  struct SlaveCounters {
+    std::string name;
+    std::uint64_t wkc_errors = 0;       // health polls answered without this slave's WKC
+    std::uint64_t mailbox_retries = 0;  // mailbox requests repeated or recovered (repeat request)
+    std::uint64_t sdo_failures = 0;     // SDO transfers that failed (aborts included)
+  };
+  std::vector<SlaveCounters> slaves;
+  // Distributed clocks: the largest |difference| of the last sample, when DC runs.
+  std::optional<std::int64_t> dc_max_difference_ns;
+  EventStats events;
 };
 
 struct MasterStatus {
@@ -151,6 +183,19 @@ class Master {
 
   // Called on the control thread after every state change (cheap; do not block).
   void on_state_change(std::function<void(MasterState from, MasterState to)> callback);
+
+  // The event stream (include/ecat/master/events.hpp): state changes of the master, its slaves
+  // and domains, faults raised and cleared, recovery steps, activation failures, domain cycle
+  // health, DC lock, the link, SDO and mailbox failures, frame losses and time-outs. Callbacks
+  // run on the master's dispatcher thread; a queue is pulled by the caller. Both last as long as
+  // the master, across sessions.
+  EventSubscriptionId subscribe_events(EventCallback callback);
+  bool unsubscribe_events(EventSubscriptionId id);
+  std::shared_ptr<EventQueue> open_event_queue(std::size_t capacity = 1024);
+  EventStats event_stats() const noexcept;
+  // Waits until every event raised so far has reached the subscribers (tests, orderly exits).
+  bool flush_events(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  MasterCounters counters() const;
 
   struct Impl;
 
