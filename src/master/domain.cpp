@@ -483,6 +483,7 @@ Result<void> Domain::start_cycling() {
   std::lock_guard lock(control_mutex_);
   const DomainState s = state();
   if (s == DomainState::cycling) {
+    refused_transitions_.fetch_add(1, std::memory_order_relaxed);
     return error(Errc::wrong_state, "cannot start cycling: already_cycling");
   }
   if (s == DomainState::open) {
@@ -497,6 +498,7 @@ Result<void> Domain::start_cycling() {
   DomainState expected = s;
   const auto next = transition(s, DomainEvent::start_cycling);
   if (!next || !state_.compare_exchange_strong(expected, *next, std::memory_order_acq_rel)) {
+    refused_transitions_.fetch_add(1, std::memory_order_relaxed);
     return error(Errc::wrong_state,
                  fmt::format("cannot start cycling from state {}", to_string(expected)));
   }
@@ -508,6 +510,7 @@ Result<void> Domain::stop_cycling() {
   DomainState s = state();
   const auto next = transition(s, DomainEvent::stop_cycling);
   if (!next || !state_.compare_exchange_strong(s, *next, std::memory_order_acq_rel)) {
+    refused_transitions_.fetch_add(1, std::memory_order_relaxed);
     return error(Errc::wrong_state,
                  fmt::format("cannot stop cycling: the domain is {}", to_string(s)));
   }
@@ -585,6 +588,7 @@ DomainStats Domain::stats() const noexcept {
   const Counters& c = *counters_;
   DomainStats s;
   s.state = state();
+  s.refused_transitions = refused_transitions_.load(std::memory_order_relaxed);
   const auto health = unpack(c.health.load(std::memory_order_relaxed));
   s.health.healthy = !health.has_value();
   s.health.invalid = health;

@@ -191,6 +191,7 @@ struct Master::Impl : DomainObserver {
       last_error = up.error();
       if (exec::Clock::now() + s->config.slave_retry_interval >= deadline) break;
       co_await exec::sleep_for(s->loop, s->config.slave_retry_interval);
+      slave.impl().note_retry_in_init();
     }
     if (s->stopping) co_return Error(Errc::closed, "session stopped");
     co_return last_error->context(fmt::format("slave {} did not reach PREOP within {} ms",
@@ -440,7 +441,7 @@ struct Master::Impl : DomainObserver {
     const bool recovering = current() == MasterState::recovering;
     for (auto& slave : s->slaves) {
       const auto target = min_target(want, slave->impl().config.target);
-      if (slave->state() == SlaveState::down) continue;
+      if (slave->impl().awaiting_rebuild()) continue;
       // While recovering, a retained PREOP failure of a slave without process data is a
       // slave-local fault its own retry loop heals: it does not hold the session in recovering.
       if (recovering && retained_slave_local(*slave)) continue;
@@ -820,7 +821,7 @@ struct Master::Impl : DomainObserver {
       for (auto& slave : s->slaves) {
         const auto target = min_target(want, slave->impl().config.target);
         const auto st = slave->state();
-        if (st == SlaveState::down) continue;
+        if (slave->impl().awaiting_rebuild()) continue;
         if (al_state_of(st) != target) {
           exec::spawn(loop, restore_slave(s, slave.get(), "slave:" + slave->name(), true));
         }
@@ -898,12 +899,12 @@ struct Master::Impl : DomainObserver {
     }
   }
 
-  exec::Task<Result<void>> stop_task() {
-    if (!session) co_return Error(Errc::wrong_state, "the master is already stopped");
+  exec::Task<Result<StopOutcome>> stop_task() {
+    if (!session) co_return StopOutcome::already_stopped;
     co_await leave_slaves_in_init(session);
     teardown();
     transition(MasterState::idle);
-    co_return ok();
+    co_return StopOutcome::stopped;
   }
 };
 
@@ -969,7 +970,7 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
   return std::move(*started);
 }
 
-Result<void> Master::stop() {
+Result<StopOutcome> Master::stop() {
   auto done = exec::run_blocking(impl_->loop, impl_->stop_task(), 10s);
   if (!done) return Error(Errc::timeout, "stop: the control thread did not answer");
   impl_->await_session_end();
@@ -1258,6 +1259,10 @@ MasterStatus Master::status() const {
     if (impl_->session) {
       out.link = impl_->session->bus ? impl_->session->bus->link_name() : "";
       out.slave_count = impl_->session->slave_count;
+      for (const auto& slave : impl_->session->slaves)
+        out.illegal_slave_transitions += slave->impl().fsm.refused();
+      for (const auto& d : impl_->session->domains)
+        out.illegal_domain_transitions += d->stats().refused_transitions;
     }
   }
   out.slaves = slaves();

@@ -52,7 +52,9 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   }
   auto init = co_await al_request(loop, bus, station, wire::AlState::init, session.config.al);
   if (!init) co_return init.error().context(fmt::format("{}: reaching INIT", who()));
-  set_state(SlaveState::init);
+  // A lost slave stays DOWN while it is rebuilt: the seed's edges are DOWN -> PREOP (the
+  // rebuild succeeds) and DOWN -> INIT (it is retried from INIT), nothing in between.
+  if (state() != SlaveState::down) set_state(SlaveState::init);
 
   bus::Transaction esc_tx;
   esc_tx.fprd(station, reg::kType, static_cast<std::uint16_t>(reg::kEscInformationSize), 1);
@@ -444,7 +446,7 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
   auto& loop = session.loop;
   auto& bus = *session.bus;
   const auto station = self.station();
-  if (state.load() == SlaveState::down) {
+  if (awaiting_rebuild()) {
     co_return Error(Errc::wrong_state, fmt::format("{} is down", who()));
   }
   struct Busy {
@@ -485,6 +487,10 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
                     fmt::format("{}: no AL path from {} to {}", who(), wire::to_string(from),
                                 wire::to_string(target)));
   }
+  // The seed's request edges go straight to the target (init -> op: "OP request path
+  // succeeds"): the steps on the way are the runtime's, and only where the diagram has no direct
+  // edge (out of BOOTSTRAP, into BOOTSTRAP from OP) is the state changed step by step.
+  const SlaveState final_state = slave_state_of(target);
   for (auto step : *path) {
     if (step == wire::AlState::safeop) {
       if (auto synced = co_await apply_sync(); !synced) co_return synced.error();
@@ -499,7 +505,9 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
       co_return stepped.error().context(
           fmt::format("{}: requesting {}", who(), wire::to_string(target)));
     }
-    set_state(slave_state_of(step));
+    if (step == path->back() || !slave_transition_allowed(state(), final_state)) {
+      set_state(slave_state_of(step));
+    }
   }
   co_return ok();
 }
@@ -507,12 +515,29 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
 // ---- what the event stream and the counters see ---------------------------------------------
 
 void Slave::Impl::set_state(SlaveState to) noexcept {
-  const SlaveState from = state.exchange(to);
-  if (from == to || session.events == nullptr) return;
+  const SlaveState from = fsm.state();
+  const auto change = fsm.change(to);
+  if (session.events == nullptr || change == SlaveFsm::Change::unchanged) return;
+  if (change == SlaveFsm::Change::refused) {
+    Event e = make_event(EventKind::fault_raised, self.name());
+    format_detail(e, "refused an undrawn state change {} -> {} (a bug: please report it)",
+                  to_string(from), to_string(to));
+    session.events->publish(e);
+    return;
+  }
   Event e = make_event(EventKind::slave_state, self.name());
   e.subject = self.position();
   e.from = static_cast<std::uint8_t>(from);
   e.to = static_cast<std::uint8_t>(to);
+  session.events->publish(e);
+}
+
+void Slave::Impl::note_retry_in_init() noexcept {
+  if (!fsm.retries_in_init() || session.events == nullptr) return;
+  Event e = make_event(EventKind::slave_state, self.name(), "auto-advance retries");
+  e.subject = self.position();
+  e.from = static_cast<std::uint8_t>(SlaveState::init);
+  e.to = static_cast<std::uint8_t>(SlaveState::init);
   session.events->publish(e);
 }
 
@@ -712,7 +737,7 @@ exec::Task<void> Slave::Impl::latch_loop(std::shared_ptr<Session> keep) {
   while (!session.stopping) {
     co_await exec::sleep_for(session.loop, kPeriod);
     if (session.stopping) break;
-    const auto now = state.load();
+    const auto now = state();
     if (now != SlaveState::safeop && now != SlaveState::op) continue;
     auto events = co_await poll_latches(session.loop, *session.bus, self.station());
     if (!events || events->empty()) continue;  // a lost slave is the health poll's business
@@ -739,7 +764,7 @@ exec::Task<void> Slave::Impl::latch_loop(std::shared_ptr<Session> keep) {
 }
 
 Result<void> Slave::Impl::check_mailbox() const {
-  const auto s = state.load();
+  const auto s = state();
   if (s == SlaveState::down) return Error(Errc::wrong_state, fmt::format("{} is down", who()));
   if (s == SlaveState::init || s == SlaveState::bootstrap) {
     return Error(Errc::wrong_state,
@@ -853,8 +878,8 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
       failed_polls = 0;
       continue;
     }
-    const auto now = state.load();
-    if (now == SlaveState::down) {
+    const auto now = state();
+    if (awaiting_rebuild()) {
       if (co_await probe_and_rebuild(keep)) {
         session.notify({SlaveNotice::Kind::reconnected, self.name(), "back in PREOP"});
       }
@@ -874,12 +899,24 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
       counters.wkc_errors.fetch_add(1, std::memory_order_relaxed);
       if (++failed_polls < kFailedPollsForDown) continue;
       failed_polls = 0;
-      set_state(SlaveState::down);
+      if (now == SlaveState::init || now == SlaveState::bootstrap) {
+        // No edge to DOWN from here, and nothing to rebuild (slave_fsm.hpp): a fault while the
+        // slave does not answer.
+        lost_in_place = true;
+        raise_fault(fmt::format("lost while in {}: {}", to_string(now), status.error().message()));
+        continue;
+      }
+      // The fault first: whoever sees the slave DOWN finds why.
       raise_fault(fmt::format("down: {}", status.error().message()));
+      set_state(SlaveState::down);
       session.notify({SlaveNotice::Kind::down, self.name(), status.error().describe()});
       continue;
     }
     failed_polls = 0;
+    if (lost_in_place) {
+      lost_in_place = false;
+      clear_fault();
+    }
     const auto seen = slave_state_of(status->status.state);
     if (status->status.error) {
       std::lock_guard lock(mutex);
@@ -953,9 +990,13 @@ exec::Task<bool> Slave::Impl::probe_and_rebuild(std::shared_ptr<Session> keep) {
   auto up = co_await bring_up(keep);
   if (up) up = co_await reinit_dc();
   if (!up) {
+    // It answered, the rebuild failed: DOWN -> INIT, and the rebuild is retried from there.
+    rebuild_pending = true;
+    set_state(SlaveState::init);
     raise_fault(fmt::format("down; rebuild failed: {}", up.error().describe()));
     co_return false;
   }
+  rebuild_pending = false;
   clear_fault();
   co_return true;
 }
@@ -971,7 +1012,7 @@ Slave::Slave(Session& session, SlaveConfig config, std::uint16_t position, std::
 Slave::~Slave() = default;
 
 SlaveState Slave::state() const noexcept {
-  return impl_->state.load();
+  return impl_->state();
 }
 
 TargetState Slave::target() const {
@@ -998,7 +1039,7 @@ SlaveInfo Slave::info() const {
   out.name = name_;
   out.position = position_;
   out.station = station_;
-  out.state = impl_->state.load();
+  out.state = impl_->state();
   out.target = impl_->config.target;
   out.al_status_code = impl_->al_code;
   out.identity = impl_->known_identity;
@@ -1050,9 +1091,9 @@ Result<void> Slave::request(wire::AlState target, std::chrono::nanoseconds timeo
 }
 
 exec::Task<Result<void>> Slave::Impl::reconfigure(SlaveConfig next, std::shared_ptr<Session> keep) {
-  if (state.load() != SlaveState::preop) {
+  if (state() != SlaveState::preop) {
     co_return Error(Errc::wrong_state, fmt::format("{}: configure needs PREOP, the slave is in {}",
-                                                   who(), to_string(state.load())));
+                                                   who(), to_string(state())));
   }
   if (next.name != self.name()) {
     co_return Error(Errc::invalid_argument,
@@ -1077,9 +1118,9 @@ exec::Task<Result<void>> Slave::Impl::retry_configuration(std::shared_ptr<Sessio
     std::lock_guard lock(mutex);
     if (!configuration_error) co_return ok();
   }
-  if (state.load() != SlaveState::preop) {
+  if (state() != SlaveState::preop) {
     co_return Error(Errc::wrong_state, fmt::format("{}: retry needs PREOP, the slave is in {}",
-                                                   who(), to_string(state.load())));
+                                                   who(), to_string(state())));
   }
   auto done = co_await configure_preop(keep);
   std::lock_guard lock(mutex);

@@ -16,6 +16,7 @@
 #include <ecat/master/slave.hpp>
 
 #include "session.hpp"
+#include "slave_fsm.hpp"
 
 namespace ecat::master {
 
@@ -25,8 +26,17 @@ struct Slave::Impl {
   Slave& self;
   Session& session;
   SlaveConfig config;
-  // What the hardware last showed (adopted as found: a slave may be discovered in any state).
-  std::atomic<SlaveState> state{SlaveState::init};
+  // Its lifecycle: what the hardware last showed, changed only through set_state (slave_fsm.hpp).
+  SlaveFsm fsm;
+  SlaveState state() const noexcept { return fsm.state(); }
+  // Lost and not yet rebuilt: DOWN, or back in INIT after a failed rebuild that is retried.
+  // Loop thread.
+  bool rebuild_pending = false;
+  bool awaiting_rebuild() const noexcept {
+    return state() == SlaveState::down || (rebuild_pending && state() == SlaveState::init);
+  }
+  // Lost while in INIT or BOOTSTRAP (a fault, no state change); loop thread.
+  bool lost_in_place = false;
 
   // Guards everything below (application threads read snapshots; the loop writes).
   mutable std::mutex mutex;
@@ -60,8 +70,11 @@ struct Slave::Impl {
     std::atomic<std::uint64_t> mailbox_retries{0};  // refreshed after each SDO transfer
   } counters;
 
-  // Every change of `state` goes through here: it is published as a slave.state event.
+  // Every change of the state goes through here (the fsm refuses and counts an undrawn one);
+  // a change made is published as a slave.state event.
   void set_state(SlaveState to) noexcept;
+  // A bring-up retried from INIT: the seed's init -> init edge, published as such.
+  void note_retry_in_init() noexcept;
   // A tracked fault raised (published) or cleared (published when there was one). Take `mutex`
   // for neither: they take it.
   void raise_fault(std::string why);

@@ -243,51 +243,7 @@ MasterConfig session_config() {
   return config;
 }
 
-// Collects a master's events; waits for one that matches.
-class Recorder {
- public:
-  explicit Recorder(Master& master) {
-    master.subscribe_events([this](const Event& e, std::uint64_t missed) {
-      std::lock_guard lock(mutex_);
-      missed_ += missed;
-      events_.push_back(e);
-      cv_.notify_all();
-    });
-  }
-  template <class Predicate>
-  bool wait_for(Predicate predicate, std::chrono::nanoseconds timeout = 10s) {
-    std::unique_lock lock(mutex_);
-    return cv_.wait_for(lock, timeout,
-                        [&] { return std::any_of(events_.begin(), events_.end(), predicate); });
-  }
-  bool saw(EventKind kind, std::string_view name = {}, std::string_view from = {},
-           std::string_view to = {}) {
-    return wait_for([&](const Event& e) {
-      return e.kind == kind && (name.empty() || e.name() == name) &&
-             (from.empty() || e.from_name() == from) && (to.empty() || e.to_name() == to);
-    });
-  }
-  std::vector<Event> events() {
-    std::lock_guard lock(mutex_);
-    return events_;
-  }
-  std::uint64_t missed() {
-    std::lock_guard lock(mutex_);
-    return missed_;
-  }
-  std::string dump() {
-    std::string out;
-    for (const auto& e : events())
-      out += describe(e) + "\n";
-    return out;
-  }
-
- private:
-  std::mutex mutex_;
-  std::condition_variable cv_;
-  std::vector<Event> events_;
-  std::uint64_t missed_ = 0;
-};
+using test::EventRecorder;
 
 TEST(MasterEvents, ASessionTellsItsStatesHealthFaultsAndRecovery) {
   auto server = test::make_sim_server(kRing);
@@ -295,7 +251,7 @@ TEST(MasterEvents, ASessionTellsItsStatesHealthFaultsAndRecovery) {
   auto link = server->serve_memory();
   ASSERT_TRUE(link);
   Master master(session_config());
-  Recorder events(master);
+  EventRecorder events(master);
   auto queue = master.open_event_queue();
   ASSERT_TRUE(master.start(std::move(*link)));
   ASSERT_TRUE(master.await_operational(10s));
@@ -375,7 +331,7 @@ TEST(MasterEvents, FrameLossAndDcLockAreTold) {
   config.dc = DcConfig{};
   config.dc->cycle = 1ms;
   Master master(config);
-  Recorder events(master);
+  EventRecorder events(master);
   ASSERT_TRUE(master.start(std::move(*link)));
   ASSERT_TRUE(master.await_operational(10s));
   EXPECT_TRUE(events.saw(EventKind::dc_locked)) << events.dump();

@@ -10,10 +10,16 @@
 //   auto mailbox = bench->run(test::bring_to_preop(bench->loop, *bench->bus, 0x1001));
 #pragma once
 
+#include <algorithm>
 #include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <functional>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -22,13 +28,17 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/exec/transact.hpp>
+#include <ecat/master/events.hpp>
 #include <ecat/master/mailbox.hpp>
+#include <ecat/master/master.hpp>
 #include <ecat/master/sii_reader.hpp>
+#include <ecat/sim/device.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/segment.hpp>
 #include <ecat/sim/server.hpp>
@@ -245,5 +255,89 @@ inline exec::Task<Result<std::vector<MailboxConfig>>> bring_all_to_preop(exec::E
   }
   co_return configs;
 }
+
+// A built-in profile's SII image changed by `edit`, written to a temporary file for the `eeprom`
+// profile (removed by the caller); empty (and a test failure) when something does not work.
+inline std::filesystem::path edited_eeprom(const std::string& profile, const std::string& tag,
+                                           const std::function<void(wire::SiiImage&)>& edit) {
+  sim::DeviceConfig device;
+  device.profile = profile;
+  auto template_esc = sim::make_device(device);
+  if (!template_esc) {
+    ADD_FAILURE() << template_esc.error().describe();
+    return {};
+  }
+  const auto eeprom = (*template_esc)->eeprom();
+  auto decoded = wire::decode_sii(wire::Bytes(eeprom.data(), eeprom.size()));
+  if (!decoded) {
+    ADD_FAILURE() << decoded.error().describe();
+    return {};
+  }
+  auto image = decoded->image;
+  edit(image);
+  auto encoded = wire::encode_sii(image);
+  if (!encoded) {
+    ADD_FAILURE() << encoded.error().describe();
+    return {};
+  }
+  const auto file =
+      std::filesystem::temp_directory_path() / fmt::format("ecat-{}-{}.bin", tag, ::getpid());
+  std::ofstream(file, std::ios::binary)
+      .write(reinterpret_cast<const char*>(encoded->data()),
+             static_cast<std::streamsize>(encoded->size()));
+  return file;
+}
+
+// Collects a master's events; waits for one that matches.
+class EventRecorder {
+ public:
+  explicit EventRecorder(Master& master) : master_(master) {
+    id_ = master.subscribe_events([this](const Event& e, std::uint64_t missed) {
+      std::lock_guard lock(mutex_);
+      missed_ += missed;
+      events_.push_back(e);
+      cv_.notify_all();
+    });
+  }
+  ~EventRecorder() { master_.unsubscribe_events(id_); }
+  EventRecorder(const EventRecorder&) = delete;
+  EventRecorder& operator=(const EventRecorder&) = delete;
+
+  template <class Predicate>
+  bool wait_for(Predicate predicate, std::chrono::nanoseconds timeout = 10s) {
+    std::unique_lock lock(mutex_);
+    return cv_.wait_for(lock, timeout,
+                        [&] { return std::any_of(events_.begin(), events_.end(), predicate); });
+  }
+  bool saw(EventKind kind, std::string_view name = {}, std::string_view from = {},
+           std::string_view to = {}) {
+    return wait_for([&](const Event& e) {
+      return e.kind == kind && (name.empty() || e.name() == name) &&
+             (from.empty() || e.from_name() == from) && (to.empty() || e.to_name() == to);
+    });
+  }
+  std::vector<Event> events() {
+    std::lock_guard lock(mutex_);
+    return events_;
+  }
+  std::uint64_t missed() {
+    std::lock_guard lock(mutex_);
+    return missed_;
+  }
+  std::string dump() {
+    std::string out;
+    for (const auto& e : events())
+      out += describe(e) + "\n";
+    return out;
+  }
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::vector<Event> events_;
+  std::uint64_t missed_ = 0;
+  Master& master_;
+  EventSubscriptionId id_ = 0;
+};
 
 }  // namespace ecat::master::test

@@ -71,7 +71,7 @@ TEST(MasterTool, RunShowsTheEventStream) {
   auto r = tool.run("run '" + default_ring() + "' --duration 0.3 --events --no-chase");
   ASSERT_EQ(r.status, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("master.state idle -> discovering"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("slave.state drive: safeop -> op"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("slave.state drive: preop -> op"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("domain.state main: open -> cycling"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("master.state operational -> idle"), std::string::npos) << r.out;
 

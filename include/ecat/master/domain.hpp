@@ -192,7 +192,10 @@ struct DomainStats {
   std::uint64_t late_results = 0;        // results of older cycles that arrived after newer ones
   std::uint64_t output_stage_skips = 0;  // cycles sent with the previous outputs (writer held lock)
   std::uint64_t changes_dropped = 0;     // change records lost to a full queue
-  std::uint32_t last_wkc = 0;            // sum of the working counters of the latest reply
+  // Changes the state diagram does not draw that were asked for and refused (start while
+  // cycling, stop while not cycling).
+  std::uint64_t refused_transitions = 0;
+  std::uint32_t last_wkc = 0;  // sum of the working counters of the latest reply
   std::optional<Clock::time_point> last_valid_at;
   std::optional<Clock::time_point> last_invalid_at;
   std::optional<CycleInvalid> last_invalid;
@@ -429,6 +432,7 @@ class Domain final : public CyclicParticipant {
   const DomainConfig config_;
   std::atomic<DomainObserver*> observer_;
   std::atomic<DomainState> state_{DomainState::open};
+  std::atomic<std::uint64_t> refused_transitions_{0};  // undrawn changes asked for
   std::atomic<std::int64_t> period_ns_;
 
   mutable std::mutex control_mutex_;  // control plane only

@@ -110,6 +110,8 @@ struct MasterCounters {
   EventStats events;
 };
 
+enum class StopOutcome : std::uint8_t { stopped, already_stopped };
+
 struct MasterStatus {
   MasterState state = MasterState::idle;
   TargetState desired_target = TargetState::op;
@@ -123,6 +125,10 @@ struct MasterStatus {
   // State changes the seed's diagram does not draw that were asked for and refused: always 0
   // unless the master has a bug.
   std::uint64_t illegal_transitions = 0;
+  // The same for the session's slaves (their lifecycle, slave_fsm) and domains (start while
+  // cycling, stop while not cycling): always 0 unless the master has a bug.
+  std::uint64_t illegal_slave_transitions = 0;
+  std::uint64_t illegal_domain_transitions = 0;
   // What MasterConfig::cycle_thread came to ("SCHED_FIFO 80: applied; CPU 1: pinned"); empty when
   // nothing was asked.
   std::string cycle_thread;
@@ -140,9 +146,10 @@ class Master {
   Result<void> start(std::unique_ptr<link::Link> link);
   // Same, replacing the configuration first.
   Result<void> start(std::unique_ptr<link::Link> link, MasterConfig config);
-  // Tears the session down (domains, slaves, bus) and returns to idle. Errc::wrong_state when
-  // already idle ("already stopped").
-  Result<void> stop();
+  // Tears the session down (domains, slaves back to INIT, bus) and returns to idle. Stopping a
+  // master that is already idle is not an error: StopOutcome::already_stopped says so (the seed's
+  // :already_stopped). Errc::timeout when the control thread does not answer.
+  Result<StopOutcome> stop();
 
   MasterState state() const noexcept;
   MasterStatus status() const;
