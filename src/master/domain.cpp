@@ -333,6 +333,25 @@ nanoseconds Domain::realtime_budget() const noexcept {
 // ---------------------------------------------------------------------------------------------
 // Control plane
 
+Result<void> Domain::check_room(std::size_t count, std::size_t bytes) const {
+  std::lock_guard lock(control_mutex_);
+  const std::size_t used = entry_count_.load(std::memory_order_relaxed);
+  if (used + count > config_.max_registrations) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot register {} more: {} of {} registrations (max_registrations) "
+                             "used",
+                             count, used, config_.max_registrations));
+  }
+  if (image_size_ + bytes > config_.max_image_size) {
+    return error(
+        Errc::out_of_range,
+        fmt::format("cannot register {} more bytes: image_too_large: {} + {} bytes exceeds "
+                    "the {} byte maximum (max_image_size)",
+                    bytes, image_size_, bytes, config_.max_image_size));
+  }
+  return ok();
+}
+
 Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDirection direction,
                                            bool contributes_wkc) {
   if (bus_.on_bus_thread()) return refuse_on_bus_thread("register_pdo");

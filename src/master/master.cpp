@@ -413,10 +413,10 @@ struct Master::Impl : DomainObserver {
   exec::Task<void> run_activation(std::shared_ptr<Session> s) {
     TargetState want;
     {
+      // The failures of the last attempt stay readable until this one has its own (they are
+      // replaced below): a status read meanwhile must not find a blocked session without them.
       std::lock_guard lock(mutex);
       want = desired;
-      activation_failures.clear();
-      activation_error.reset();
     }
     if (want != TargetState::preop) {
       start_cycling(*s);
@@ -474,6 +474,7 @@ struct Master::Impl : DomainObserver {
         events.publish(e);
       }
       activation_failures = std::move(failures);
+      activation_error.reset();
       if (blocked) {
         const auto& first = activation_failures.begin()->second;
         activation_error =
@@ -729,9 +730,13 @@ struct Master::Impl : DomainObserver {
 
   // ---- slave notices (loop) -------------------------------------------------------------------
 
+  // A retained PREOP failure of a slave configured without process data. A slave configured
+  // with process data whose registration failed has no attachments either, yet it is not
+  // slave-local: the session without its data is not operational (it stays blocked).
   static bool retained_slave_local(Slave& slave) {
     std::lock_guard lock(slave.impl().mutex);
-    return slave.impl().configuration_error.has_value() && slave.impl().attachments.empty();
+    return slave.impl().configuration_error.has_value() && slave.impl().attachments.empty() &&
+           slave.impl().config.process_data.kind == ProcessDataRequest::Kind::none;
   }
 
   static bool carries_process_data(Slave& slave) {

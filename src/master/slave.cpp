@@ -332,6 +332,20 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
                                                     plan.size(), fmmu_available));
   }
 
+  // Room for all of it first, domain by domain: all of the slave's SyncManagers or none.
+  std::map<std::string, std::pair<std::size_t, std::size_t>> needed;  // domain -> count, bytes
+  for (const auto& a : plan) {
+    if (session.find_domain(a.domain)->registration(PdoKey{station, a.sync_manager})) continue;
+    auto& [count, bytes] = needed[a.domain];
+    ++count;
+    bytes += a.size;
+  }
+  for (const auto& [id, need] : needed) {
+    if (auto room = session.find_domain(id)->check_room(need.first, need.second); !room) {
+      co_return room.error().context(fmt::format(
+          "{}: registering its {} SyncManager(s) in domain \"{}\"", who(), need.first, id));
+    }
+  }
   // Register with the domains (re-using a registration from before a reconnect).
   for (auto& a : plan) {
     Domain* domain = session.find_domain(a.domain);

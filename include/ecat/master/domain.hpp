@@ -327,6 +327,11 @@ class Domain final : public CyclicParticipant {
   // max_image_size (image_too_large) or max_registrations is reached.
   Result<std::uint32_t> register_pdo(PdoKey key, std::size_t bytes, PdoDirection direction,
                                      bool contributes_wkc = true);
+  // Whether `count` more registrations of `bytes` bytes in all fit (max_registrations,
+  // max_image_size), refused in the words register_pdo would use: a slave checks all its
+  // SyncManagers first, so it registers all of them or none (a half-registered slave would leave
+  // the domain expecting a working counter that cannot come).
+  Result<void> check_room(std::size_t count, std::size_t bytes) const;
   // open/stopped -> cycling. Errc::wrong_state when already cycling (already_cycling) or with
   // nothing registered (nothing_registered).
   Result<void> start_cycling();
