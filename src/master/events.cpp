@@ -23,7 +23,7 @@ constexpr std::array<std::string_view, kEventKindCount> kNames{
 template <std::size_t N>
 void copy_text(std::array<char, N>& out, std::string_view text) noexcept {
   const std::size_t n = std::min(text.size(), N - 1);
-  std::memcpy(out.data(), text.data(), n);
+  if (n > 0) std::memcpy(out.data(), text.data(), n);  // an empty view may hold a null pointer
   out[n] = '\0';
 }
 
@@ -136,10 +136,9 @@ std::string describe(const Event& e) {
   } else if (e.kind == EventKind::domain_health) {
     out += fmt::format(" {}", e.to_name());
   }
-  if (const auto key = value_key(e.kind); !key.empty()) {
-    out += e.kind == EventKind::activation_failed || e.kind == EventKind::sdo_failed
-               ? fmt::format(" {}=0x{:X}", key, e.value)
-               : fmt::format(" {}={}", key, e.value);
+  const bool code = e.kind == EventKind::activation_failed || e.kind == EventKind::sdo_failed;
+  if (const auto key = value_key(e.kind); !key.empty() && (!code || e.value != 0)) {
+    out += code ? fmt::format(" {}=0x{:X}", key, e.value) : fmt::format(" {}={}", key, e.value);
   }
   if (!e.detail().empty()) out += fmt::format(" ({})", e.detail());
   return out;
@@ -160,7 +159,10 @@ std::string event_json(const Event& e) {
   } else if (e.kind == EventKind::domain_health) {
     j["healthy"] = e.to != 0;
   }
-  if (const auto key = value_key(e.kind); !key.empty()) j[std::string(key)] = e.value;
+  const bool code = e.kind == EventKind::activation_failed || e.kind == EventKind::sdo_failed;
+  if (const auto key = value_key(e.kind); !key.empty() && (!code || e.value != 0)) {
+    j[std::string(key)] = e.value;  // a code of 0 is none: no key
+  }
   if (!e.detail().empty()) j["detail"] = e.detail();
   // Text cut to fit a fixed-size event may end inside a UTF-8 sequence: replace, never throw.
   return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);

@@ -661,7 +661,9 @@ TEST_P(SharedCapture, ProfileBuildsAndTheSimulatorAnswersLikeTheRealSegment) {
   // The ring file `ecat sim profile` writes answers exactly as the profile itself.
   if (profile->slaves.empty()) return;
   const auto dir = std::filesystem::path(ECAT_BINARY_DIR) /
-                   (std::string("capture_ring_") + std::string(e.file).substr(0, 12));
+                   // The whole name: two captures share their first characters, and CTest runs
+                   // them in parallel.
+                   (std::string("capture_ring_") + std::filesystem::path(e.file).stem().string());
   std::filesystem::remove_all(dir);
   ASSERT_TRUE(write_capture_profile(*profile, dir.string()).ok());
   auto ring = load_ring((dir / "ring.yaml").string());

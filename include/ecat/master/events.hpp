@@ -51,7 +51,7 @@ std::optional<EventKind> event_kind_from_string(std::string_view name) noexcept;
 
 struct Event {
   static constexpr std::size_t kNameSize = 32;
-  static constexpr std::size_t kDetailSize = 160;
+  static constexpr std::size_t kDetailSize = 256;
 
   std::uint64_t sequence = 0;  // 1, 2, 3 ... per master, in the order events were dispatched
   std::int64_t time_ns = 0;    // steady clock, when the event was raised
