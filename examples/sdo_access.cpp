@@ -44,8 +44,7 @@ int main(int argc, char** argv) {
   auto config = ecat::master::load_master_config(ring);
   auto backend = ecat::sim::open_backend("sim:" + ring);
   if (!config || !backend) {
-    std::fprintf(stderr, "%s\n",
-                 (!config ? config.error() : backend.error()).describe().c_str());
+    std::fprintf(stderr, "%s\n", (!config ? config.error() : backend.error()).describe().c_str());
     return 1;
   }
   ecat::master::Master master(*config);
