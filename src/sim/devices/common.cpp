@@ -279,11 +279,9 @@ std::vector<GeneratedSignal> signals_from_layout(const ObjectDictionary& od,
       const OdObject* object = od.find(m.index);
       const OdObject* pdo = od.find(m.pdo_index);
       if (entry == nullptr || object == nullptr) continue;
-      // Only what has a number to read (entry_number's rule): an entry mapped with no bits, more
-      // than 8 bytes or a variable length (an image may map any of these) is no signal.
-      if (is_variable_length(entry->data_type) || entry->value.empty() || entry->value.size() > 8) {
-        continue;
-      }
+      // Only what has a number to read: an entry mapped with no bits, more than 8 bytes, a
+      // variable length or a REAL of the wrong size (an image may map any of these) is no signal.
+      if (!entry_number(od, m.index, m.subindex)) continue;
       std::size_t mapped_in_pdo = 0;
       for (const auto& other : layout->entries) {
         if (other.pdo_index == m.pdo_index && !other.gap) ++mapped_in_pdo;
