@@ -33,7 +33,8 @@ Cia402Application::Cia402Application(StandardConfig config)
   };
   for (const auto& s : kSignals) {
     const ObjectEntry* entry = dictionary().find(s.index, 0);
-    if (entry == nullptr) continue;
+    // Absent, or nothing a number can be read from (an ESI may describe the object so): no signal.
+    if (entry == nullptr || !entry_number(dictionary(), s.index, 0)) continue;
     SignalInfo info;
     info.name = s.name;
     info.direction = s.direction;
