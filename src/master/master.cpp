@@ -390,7 +390,22 @@ struct Master::Impl : DomainObserver {
 
   // DcConfig::await_lock: activation drives the slaves up only once the clocks are locked.
   exec::Task<Result<void>> await_lock(std::shared_ptr<Session> s) {
-    if (!s->config.dc || !s->config.dc->await_lock || !s->dc) co_return ok();
+    if (!s->config.dc || !s->dc) co_return ok();
+    // Warm-up: the maintainer sends this many drift-compensation FRMWs (counted as sent, each one
+    // cycle) before any slave goes on to SAFEOP, so their clocks have converged when SYNC starts.
+    const std::uint64_t warmup = s->config.dc->warmup_cycles;
+    const auto warmup_limit =
+        exec::Clock::now() + s->config.dc->cycle * (2 * warmup) + s->config.dc->lock_timeout;
+    while (s->dc->status().frmw_sent < warmup) {
+      if (s->stopping) co_return Error(Errc::closed, "session stopped");
+      if (exec::Clock::now() >= warmup_limit) {
+        co_return Error(Errc::timeout,
+                        fmt::format("distributed clocks: {} of {} warm-up cycles in time",
+                                    s->dc->status().frmw_sent, warmup));
+      }
+      co_await exec::sleep_for(loop, 1ms);
+    }
+    if (!s->config.dc->await_lock) co_return ok();
     const auto deadline = exec::Clock::now() + s->config.dc->lock_timeout;
     while (!s->dc->locked()) {
       if (s->stopping) co_return Error(Errc::closed, "session stopped");

@@ -349,3 +349,40 @@ TEST(MasterEvents, FrameLossAndDcLockAreTold) {
 
 }  // namespace
 }  // namespace ecat::master
+
+namespace ecat::master {
+namespace {
+
+// dc.warmup_cycles: the maintainer runs that many DC cycles before any slave goes on to SAFEOP
+// (a lower bound on time, which a loaded machine can only lengthen).
+TEST(MasterEvents, DcWarmupCyclesRunBeforeSafeop) {
+  auto server = test::make_sim_server(kRing);
+  ASSERT_TRUE(server);
+  std::unique_ptr<link::Link> link = server->function_link();
+  auto config = session_config();
+  config.dc = DcConfig{};
+  config.dc->cycle = 1ms;
+  config.dc->warmup_cycles = 300;
+  Master master(config);
+  test::EventRecorder events(master);
+  ASSERT_TRUE(master.start(std::move(link)));
+  ASSERT_TRUE(master.await_operational(10s));
+  ASSERT_TRUE(master.flush_events());
+  std::optional<std::int64_t> cycling;
+  std::optional<std::int64_t> first_safeop;
+  for (const auto& e : events.events()) {
+    if (e.kind == EventKind::domain_state && e.to_name() == "cycling" && !cycling) {
+      cycling = e.time_ns;
+    }
+    if (e.kind == EventKind::slave_state && e.from_name() == "preop" && !first_safeop) {
+      first_safeop = e.time_ns;
+    }
+  }
+  ASSERT_TRUE(cycling && first_safeop) << events.dump();
+  EXPECT_GE(*first_safeop - *cycling, std::chrono::nanoseconds(290ms).count()) << events.dump();
+  EXPECT_GE(master.dc_status()->frmw_sent, 300u);
+  ASSERT_TRUE(master.stop());
+}
+
+}  // namespace
+}  // namespace ecat::master

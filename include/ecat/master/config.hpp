@@ -103,6 +103,8 @@ struct DcConfig {
   LockPolicy lock_policy = LockPolicy::advisory;
   std::chrono::nanoseconds lock_threshold = std::chrono::nanoseconds(100);
   std::chrono::nanoseconds lock_timeout = std::chrono::seconds(5);
+  // DC cycles (drift-compensation FRMWs) the maintainer runs at the first activation before any
+  // slave goes on to SAFEOP.
   std::uint32_t warmup_cycles = 0;
   // The master's cycle follows the reference clock: its wake-ups are steered so that the frame
   // passes the reference `frame_lead` before each point of the SYNC0 grid (SYNC0 itself fires at
