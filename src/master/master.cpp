@@ -425,7 +425,29 @@ struct Master::Impl : DomainObserver {
 
   // Brings every activatable slave to min(desired, its target), starting the domains first.
   // Ends operational / deactivated / preop_ready, or activation_blocked with the failures kept.
+  // One activation at a time: one asked for while another runs (a retry timer and a cleared
+  // fault can both start one) makes the running one go round again instead of racing it (two
+  // overlapping runs once ended in operational and then asked for operational ->
+  // activation_blocked, which the diagram does not draw). Loop thread; the flags are the
+  // session's (a stopped session takes them along).
   exec::Task<void> run_activation(std::shared_ptr<Session> s) {
+    if (s->activation_running) {
+      // The running one goes round again; a caller that awaits this (activate, deactivate) sees
+      // the state that run ends in.
+      s->activation_again = true;
+      while (s->activation_running && !s->stopping)
+        co_await exec::sleep_for(loop, 1ms);
+      co_return;
+    }
+    s->activation_running = true;
+    do {
+      s->activation_again = false;
+      co_await activate_once(s);
+    } while (s->activation_again && !s->stopping && session == s);
+    s->activation_running = false;
+  }
+
+  exec::Task<void> activate_once(std::shared_ptr<Session> s) {
     TargetState want;
     {
       // The failures of the last attempt stay readable until this one has its own (they are

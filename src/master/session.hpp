@@ -64,6 +64,9 @@ struct Session : std::enable_shared_from_this<Session> {
   std::function<void(const SlaveNotice&)> notify;
   // The master's event stream (outlives every session of the master).
   EventHub* events = nullptr;
+  // One activation at a time (Master::Impl::run_activation); loop thread.
+  bool activation_running = false;
+  bool activation_again = false;
 
   Domain* find_domain(std::string_view id) const noexcept {
     for (const auto& d : domains) {
