@@ -425,9 +425,28 @@ TEST(RetainedConfig, Scenario30_RetainedMailboxTimeoutAndOutputsRetreatCoexist) 
   EXPECT_FALSE(ring->saw(MasterState::recovering));
 }
 
+// Scenarios 32 and 35: the inputs' retreat to SAFEOP, injected while the session recovers, must
+// be seen. The inputs are input-only: in SAFEOP they still answer their share of the LRW, so the
+// domain stays valid, and the recovery's re-activation walks every slave to OP anyway (it reads
+// SAFEOP on the way, a state the monitor may or may not sample): a master whose health poll
+// missed the retreat would pass the other checks. Seen: the inputs' poll reported that they left
+// OP (their fault names the state it found; it stands until the slave retry brings them back).
+// Then the device is in OP again, as the master says.
+void expect_inputs_retreat_seen(ScenarioRing& ring, const Monitor& monitor) {
+  EXPECT_TRUE(eventually([&] {
+    return !monitor.matching("fault:inputs:left OP (AL status SAFEOP").empty();
+  })) << "the inputs' retreat never showed in the API: "
+      << monitor.seen();
+  EXPECT_TRUE(eventually([&] { return ring.device_state("inputs") == wire::AlState::op; }))
+      << "the simulated inputs stayed in "
+      << wire::to_string(ring.device_state("inputs").value_or(wire::AlState::init))
+      << " while the master reports " << ring.describe();
+}
+
 TEST(RetainedConfig, Scenario32_RetreatArmedOnRecoveringLandsDuringRecovery) {
   auto ring = start_segmented(/*held_in_preop=*/false);
   ASSERT_TRUE(ring);
+  Monitor monitor(*ring->master);
   ASSERT_TRUE(ring->server->inject(sim::fault::next(sim::fault::disconnect("outputs"), 30)));
   ASSERT_TRUE(eventually([&] { return ring->state() == MasterState::recovering; }, 5s))
       << ring->describe();
@@ -440,6 +459,7 @@ TEST(RetainedConfig, Scenario32_RetreatArmedOnRecoveringLandsDuringRecovery) {
       },
       10s))
       << ring->describe();
+  expect_inputs_retreat_seen(*ring, monitor);
   EXPECT_TRUE(ring->loopback(true));
   EXPECT_TRUE(ring->loopback(false));
   EXPECT_EQ(ring->master->status().illegal_transitions, 0u);
@@ -448,6 +468,7 @@ TEST(RetainedConfig, Scenario32_RetreatArmedOnRecoveringLandsDuringRecovery) {
 TEST(RetainedConfig, Scenario35_ChainedFaultsOutputsHealFirst) {
   auto ring = start_segmented(/*held_in_preop=*/false);
   ASSERT_TRUE(ring);
+  Monitor monitor(*ring->master);
   ASSERT_TRUE(ring->server->inject(
       sim::fault::mailbox_abort("mailbox", 0x2003, 0x01, 0x08000000, MailboxStage::request)));
   ASSERT_TRUE(ring->server->inject(sim::fault::next(sim::fault::disconnect("mailbox"), 60)));
@@ -466,6 +487,7 @@ TEST(RetainedConfig, Scenario35_ChainedFaultsOutputsHealFirst) {
       },
       10s))
       << ring->describe();
+  expect_inputs_retreat_seen(*ring, monitor);
   EXPECT_TRUE(configuration_error(*ring, "mailbox").has_value());
   ring->server->clear_faults();
   ASSERT_TRUE(eventually([&] { return ring->slave_state("mailbox") == SlaveState::op; }, 10s))

@@ -33,6 +33,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <fcntl.h>
@@ -52,6 +53,9 @@
 #include <ecat/sim/faults.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
+#include <ecat/wire/al.hpp>
+#include <ecat/wire/frame.hpp>
+#include <ecat/wire/registers.hpp>
 
 namespace ecat::scenarios {
 
@@ -118,6 +122,8 @@ struct RingSpec {
   std::string ring_yaml;
   // Called once the ring is served (in the raw namespace, for raw), before the master starts.
   std::function<void()> before_start;
+  // Wraps the master's end of the link before the master starts (e.g. to log its frames).
+  std::function<std::unique_ptr<link::Link>(std::unique_ptr<link::Link>)> wrap_link;
 };
 
 inline std::string ring_yaml(RingKind kind) {
@@ -260,6 +266,19 @@ class Monitor {
       if (auto domain = master_.domain(d.id))
         last_invalid_at_[d.id] = (*domain)->stats().last_invalid_at;
     }
+    // States from the event stream too: every change, however brief, not only the sampled ones.
+    subscription_ = master_.subscribe_events([this](const master::Event& e, std::uint64_t) {
+      std::string what;
+      if (e.kind == master::EventKind::slave_state) {
+        what = fmt::format("state:{}:{}", e.name(), e.to_name());
+      } else if (e.kind == master::EventKind::master_state) {
+        what = fmt::format("master:{}", e.to_name());
+      } else {
+        return;
+      }
+      std::lock_guard lock(mutex_);
+      seen_.emplace(what, samples_);
+    });
     thread_ = std::thread([this] { run(); });
   }
   ~Monitor() { stop(); }
@@ -269,6 +288,7 @@ class Monitor {
   void stop() {
     running_ = false;
     if (thread_.joinable()) thread_.join();
+    if (subscription_ != 0) master_.unsubscribe_events(std::exchange(subscription_, 0));
   }
   bool saw(const std::string& what) const {
     std::lock_guard lock(mutex_);
@@ -352,6 +372,7 @@ class Monitor {
   std::map<std::string, std::uint64_t> seen_;  // entry -> first sample
   std::map<std::string, std::optional<master::Clock::time_point>> last_invalid_at_;  // thread
   std::uint64_t samples_ = 0;
+  master::EventSubscriptionId subscription_ = 0;
   std::thread thread_;
 };
 
@@ -389,6 +410,7 @@ class ScenarioRing {
       return nullptr;
     }
     if (spec.before_start) spec.before_start();
+    if (spec.wrap_link) *link = spec.wrap_link(std::move(*link));
     ring->master = std::make_unique<master::Master>(ring_config(spec));
     ring->master->on_state_change([r = ring.get()](MasterState, MasterState to) {
       std::lock_guard lock(r->states_mutex_);
@@ -415,6 +437,14 @@ class ScenarioRing {
   }
 
   ~ScenarioRing() {
+    if (master) {
+      // Every scenario, whatever it drove: no change the seed's diagrams do not draw, for the
+      // master, its slaves or its domains (each is refused and counted, never made).
+      const auto status = master->status();
+      EXPECT_EQ(status.illegal_transitions, 0u);
+      EXPECT_EQ(status.illegal_slave_transitions, 0u);
+      EXPECT_EQ(status.illegal_domain_transitions, 0u);
+    }
     if (master) (void)master->stop();
     master.reset();
     if (server) server->stop();
@@ -481,6 +511,33 @@ class ScenarioRing {
     for (const auto& f : status.runtime_faults)
       out += "; runtime fault: " + f;
     return out;
+  }
+
+  // The AL state the simulated device is really in (slave_state() is what the master believes).
+  std::optional<wire::AlState> device_state(const std::string& name) const {
+    for (const auto& s : server->status().slaves) {
+      if (s.name == name) return s.al_state;
+    }
+    return std::nullopt;
+  }
+
+  // One frame sent straight to the simulated segment, past the master (its faults apply): an FPRD
+  // of the AL status of `name` at its station. The working counter: 1 when the slave answers, 0
+  // when it is cut off; nullopt when no decodable reply came back.
+  std::optional<std::uint16_t> probe_wkc(const std::string& name) {
+    std::array<std::uint8_t, 64> buffer{};
+    wire::FrameBuilder frame(buffer);
+    wire::DatagramHeader header;
+    header.command = wire::Command::fprd;
+    header.index = 0xEE;
+    header.address = wire::physical_address(slave(name).station(), wire::reg::kAlStatus);
+    header.length = 2;
+    if (!frame.add(header)) return std::nullopt;
+    const auto replies = server->exchange(frame.finish());
+    if (replies.empty()) return std::nullopt;
+    const auto decoded = wire::decode_frame(replies.front());
+    if (!decoded || decoded.frame->datagram_count() != 1) return std::nullopt;
+    return (*decoded.frame->begin()).wkc;
   }
 
   // The simulator's scheduled, queued and scripted faults have all run out.

@@ -48,10 +48,8 @@ TEST(Scenario03, DisconnectedSlaveIsDownThenReconnected) {
   expect_healed(*ring);
   monitor.stop();
   EXPECT_TRUE(monitor.saw("fault:outputs")) << monitor.seen();
-  // Rebuilt from INIT and walked up again (each step is brief: one of them is sampled).
-  EXPECT_TRUE(monitor.saw("state:outputs:init") || monitor.saw("state:outputs:preop") ||
-              monitor.saw("state:outputs:safeop"))
-      << monitor.seen();
+  // Rebuilt while DOWN, straight to PREOP (the seed's down -> preop), then requested to OP.
+  EXPECT_TRUE(monitor.saw("state:outputs:preop")) << monitor.seen();
   EXPECT_TRUE(monitor.matching("state:inputs:down").empty()) << monitor.seen();
 }
 
@@ -325,7 +323,11 @@ std::unique_ptr<ScenarioRing> running(const RingSpec& spec, MasterState expected
 TEST(Scenario47, StartupHeldPreopDoesNotPoll) {
   auto ring = running(held_spec(), MasterState::preop_ready);
   ASSERT_TRUE(ring);
+  // A frame of our own, past the master, reaches the outputs before the cut ...
+  ASSERT_EQ(ring->probe_wkc("outputs"), 1);
   ASSERT_TRUE(ring->server->inject(fault::disconnect("outputs")));
+  // ... and not once it is in effect: a poll would have found them gone.
+  EXPECT_EQ(ring->probe_wkc("outputs"), 0) << "the disconnect did not take effect";
   EXPECT_TRUE(stays(
       [&] {
         return ring->state() == MasterState::preop_ready && !ring->slave_fault("outputs") &&
@@ -333,7 +335,10 @@ TEST(Scenario47, StartupHeldPreopDoesNotPoll) {
       },
       300ms))
       << ring->describe();
+  // Still cut off at the end of the window (the fault is sticky until cleared).
+  EXPECT_EQ(ring->probe_wkc("outputs"), 0) << "the disconnect did not last the window";
   ring->server->clear_faults();
+  EXPECT_EQ(ring->probe_wkc("outputs"), 1);
   EXPECT_TRUE(ring->all_slaves_in(SlaveState::preop));
   EXPECT_EQ(ring->master->status().illegal_transitions, 0u);
 }
