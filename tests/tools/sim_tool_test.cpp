@@ -286,7 +286,10 @@ TEST_F(SimTool, UsageErrors) {
   EXPECT_THAT(r.err, HasSubstr("give exactly one of --udp ADDR:PORT and --interface IFACE"));
   r = run_tool("--ring '" + ring_.string() + "' --udp 127.0.0.1:99999");
   EXPECT_EQ(r.status, 2);
-  EXPECT_THAT(r.err, HasSubstr("--udp '127.0.0.1:99999': expected [ADDR:]PORT with PORT a number from 0 to 65535"));
+  EXPECT_THAT(
+      r.err,
+      HasSubstr(
+          "--udp '127.0.0.1:99999': expected [ADDR:]PORT with PORT a number from 0 to 65535"));
   std::ofstream(ring_) << "simulator:\n  slaves:\n    - {name: s0, profile: EL9999}\n";
   r = run_tool("--ring '" + ring_.string() + "' --udp 127.0.0.1:0");
   EXPECT_EQ(r.status, 2);
