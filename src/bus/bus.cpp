@@ -294,7 +294,12 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   // ---- link failure
   std::atomic<bool> link_failed{false};
   mutable std::mutex failure_mutex;
-  std::optional<Error> link_failure;  // guarded by failure_mutex
+  std::optional<Error> link_failure;       // guarded by failure_mutex
+  std::optional<Error> last_reopen_error;  // guarded by failure_mutex
+  std::atomic<std::uint64_t> link_failures{0}, link_reopens{0}, reopen_attempts{0};
+  std::atomic<bool> link_reopenable{true};
+  Clock::time_point next_reopen_at{};  // bus thread
+  nanoseconds reopen_backoff{0};       // bus thread: the wait before the next attempt
 
   // ---- bus thread
   Queue fifo;  // reliable transactions with datagrams still to send, oldest first
@@ -409,9 +414,12 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       if (link_failed.load(std::memory_order_acquire)) {
         handle_link_failure();
         publish();
-        // Nothing can be sent; keep failing new work promptly until stopped.
-        wait_while_dead();
-        continue;
+        // Nothing can be sent; new work fails promptly until the link is back (or the bus
+        // stops).
+        if (!try_reopen(Clock::now())) {
+          wait_while_dead();
+          continue;
+        }
       }
       send_all();
       publish();
@@ -1145,9 +1153,45 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   void declare_link_failure(Error error) {
     {
       std::lock_guard lock(failure_mutex);
-      if (!link_failure) link_failure = std::move(error);
+      if (link_failure) return;
+      link_failure = std::move(error);
     }
+    link_failures.fetch_add(1, std::memory_order_relaxed);
+    reopen_backoff = options.reopen_backoff_min;
+    next_reopen_at = Clock::now() + reopen_backoff;
     link_failed.store(true, std::memory_order_release);
+  }
+
+  // While the link is failed: one attempt to reopen it when its time has come. True when the
+  // link is back (work flows again from the next turn of the loop).
+  bool try_reopen(Clock::time_point now) {
+    if (!link_reopenable.load(std::memory_order_relaxed) || now < next_reopen_at) return false;
+    reopen_attempts.fetch_add(1, std::memory_order_relaxed);
+    auto reopened = link->reopen();
+    if (!reopened) {
+      const Errc code = reopened.error().code();
+      {
+        std::lock_guard lock(failure_mutex);
+        last_reopen_error = reopened.error();
+      }
+      if (code == Errc::unsupported || code == Errc::closed) {
+        link_reopenable.store(false, std::memory_order_relaxed);
+        return false;
+      }
+      reopen_backoff = std::min(reopen_backoff * 2, options.reopen_backoff_max);
+      next_reopen_at = now + reopen_backoff;
+      return false;
+    }
+    {
+      std::lock_guard lock(failure_mutex);
+      link_failure.reset();
+      last_reopen_error.reset();
+    }
+    consecutive_send_errors = 0;
+    consecutive_receive_errors = 0;
+    link_reopens.fetch_add(1, std::memory_order_relaxed);
+    link_failed.store(false, std::memory_order_release);
+    return true;
   }
 
   // Forgets every frame in flight: no reply will be matched any more. Owners lose their
@@ -1209,7 +1253,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
 
   void wait_while_dead() {
     if (incoming_count.load() == 0 && rt_incoming_count.load() == 0 && !stop_requested.load()) {
-      std::this_thread::sleep_for(kDeadLinkPoll);
+      std::this_thread::sleep_for(kDeadLinkPoll);  // short: new work is failed promptly
     }
   }
 
@@ -1376,6 +1420,11 @@ Result<void> Bus::start() {
                  fmt::format("realtime_reserved_indices must be below {}, got {}", kIndexCount,
                              o.realtime_reserved_indices));
   }
+  if (o.reopen_backoff_min <= nanoseconds(0) || o.reopen_backoff_max < o.reopen_backoff_min) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("reopen backoff must be positive with min <= max, got {} ns .. {} ns",
+                             o.reopen_backoff_min.count(), o.reopen_backoff_max.count()));
+  }
   if (o.late_reply_quarantine < nanoseconds(0)) {
     return Error(Errc::invalid_argument, "late_reply_quarantine must not be negative");
   }
@@ -1447,6 +1496,8 @@ Result<void> Bus::submit(Transaction transaction, Completion completion, Transac
                              options.timeout.count()));
   }
   if (s.link_failed.load(std::memory_order_acquire)) {
+    // A stopped bus says so (Errc::closed): its link failing is no longer the news.
+    if (s.phase.load() != Impl::Phase::running) return s.not_running_error();
     return s.link_failed_error(summary(transaction));
   }
   auto p = std::make_unique<Impl::Pending>();
@@ -1676,6 +1727,14 @@ BusInfo Bus::info() const {
   const auto& s = *impl_;
   out.running = running();
   out.link_failure = s.failure();
+  {
+    std::lock_guard lock(s.failure_mutex);
+    out.last_reopen_error = s.last_reopen_error;
+  }
+  out.link_failures = s.link_failures.load(std::memory_order_relaxed);
+  out.link_reopens = s.link_reopens.load(std::memory_order_relaxed);
+  out.reopen_attempts = s.reopen_attempts.load(std::memory_order_relaxed);
+  out.link_reopenable = s.link_reopenable.load(std::memory_order_relaxed);
   out.frame_timeout = s.frame_timeout();
   out.max_frame_size = s.max_frame;
   out.realtime_queued = s.rt_incoming_count.load() + s.pub_rt_active.load();

@@ -340,6 +340,30 @@ void RawLink::interrupt() {
   impl_->interrupter.signal();
 }
 
+Result<void> RawLink::reopen() {
+  Impl& s = *impl_;
+  detail::UseScope use(s.guard);
+  if (!use) return Error(Errc::closed, fmt::format("{}: link is closed", s.options.interface));
+  auto fresh = open(s.options);
+  if (!fresh) {
+    return std::move(fresh).error().context(fmt::format("reopening {}", s.options.interface));
+  }
+  Impl& f = *(*fresh)->impl_;
+  s.socket = std::move(f.socket);
+  s.ifindex = f.ifindex;
+  s.interface_mac = f.interface_mac;
+  s.source_mac = f.source_mac;
+  s.max_frame = f.max_frame;
+  s.ignore_outgoing_in_kernel = f.ignore_outgoing_in_kernel;
+  s.kernel_timestamps = f.kernel_timestamps;
+  s.destination = f.destination;
+  {
+    std::lock_guard lock(s.responder_mutex);
+    s.reply_source = f.reply_source;
+  }
+  return ok();
+}
+
 void RawLink::close() {
   impl_->guard.close();
   impl_->interrupter.signal();

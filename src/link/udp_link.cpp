@@ -403,6 +403,23 @@ void UdpLink::interrupt() {
   impl_->interrupter.signal();
 }
 
+Result<void> UdpLink::reopen() {
+  Impl& s = *impl_;
+  detail::UseScope use(s.guard);
+  if (!use) return Error(Errc::closed, fmt::format("{}: link is closed", s.name));
+  // A fresh socket with the same options; a server keeps the port it had (even one the kernel
+  // picked), so that the peer finds it again.
+  auto fresh = std::make_unique<Impl>();
+  fresh->options = s.options;
+  if (s.options.mode == UdpLinkOptions::Mode::server) fresh->options.port = s.local_port;
+  auto opened = fresh->options.mode == UdpLinkOptions::Mode::client ? fresh->open_client()
+                                                                    : fresh->open_server();
+  if (!opened) return std::move(opened).error().context(fmt::format("reopening {}", s.name));
+  s.socket = std::move(fresh->socket);
+  s.kernel_timestamps = fresh->kernel_timestamps;
+  return ok();
+}
+
 void UdpLink::close() {
   impl_->guard.close();
   impl_->interrupter.signal();

@@ -101,6 +101,7 @@ Result<void> validate(const MasterConfig& config) {
   if (config.awaiting_preop_timeout.count() <= 0)
     return bad("awaiting_preop_timeout must be positive");
   if (config.retry_interval.count() <= 0) return bad("retry_interval must be positive");
+  if (config.link_recovery_window.count() <= 0) return bad("link_recovery_window must be positive");
   return ok();
 }
 

@@ -14,10 +14,10 @@ namespace ecat::master {
 namespace {
 
 constexpr std::array<std::string_view, kEventKindCount> kNames{
-    "master.state", "slave.state",    "domain.state",    "domain.health",
-    "fault.raised", "fault.cleared",  "recovery.step",   "activation.failed",
-    "dc.locked",    "dc.lost",        "link.down",       "link.up",
-    "sdo.failed",   "mailbox.failed", "bus.frames_lost", "bus.timeouts",
+    "master.state",  "slave.state",   "domain.state",      "domain.health",  "fault.raised",
+    "fault.cleared", "recovery.step", "activation.failed", "dc.locked",      "dc.lost",
+    "link.down",     "link.up",       "sdo.failed",        "mailbox.failed", "bus.frames_lost",
+    "bus.timeouts",  "link.reopened",
 };
 
 template <std::size_t N>
@@ -69,6 +69,7 @@ std::string_view subject_key(EventKind kind) noexcept {
     case EventKind::dc_lost:
     case EventKind::link_down:
     case EventKind::link_up:
+    case EventKind::link_reopened:
     case EventKind::frames_lost:
     case EventKind::timeouts:
       return "";
@@ -90,6 +91,8 @@ std::string_view value_key(EventKind kind) noexcept {
     case EventKind::frames_lost:
     case EventKind::timeouts:
       return "total";
+    case EventKind::link_reopened:
+      return "attempts";
     default:
       return "";
   }

@@ -53,6 +53,7 @@ struct Master::Impl : DomainObserver {
   MasterState state = MasterState::idle;
   TargetState desired = TargetState::op;
   std::optional<Error> startup_error;     // why the last startup ended in idle
+  std::optional<Error> ended_error;       // why the last session ended by itself (link lost)
   std::optional<Error> activation_error;  // why activation is blocked
   std::map<std::string, ActivationFailure> activation_failures;
   std::map<std::string, std::string> runtime_faults;
@@ -558,7 +559,7 @@ struct Master::Impl : DomainObserver {
     bool locked = false;
     std::uint64_t lost_mark = 1;
     std::uint64_t timeout_mark = 1;
-    bool link_down = false;
+    LinkWatch link;
     while (!s->stopping && session == s) {
       co_await exec::sleep_for(loop, kWatchPeriod);
       if (s->stopping || session != s) break;
@@ -575,15 +576,91 @@ struct Master::Impl : DomainObserver {
       const auto stats = s->bus->stats();
       cross_marks(EventKind::frames_lost, stats.frames_lost, lost_mark);
       cross_marks(EventKind::timeouts, stats.transaction_timeouts, timeout_mark);
-      if (!link_down) {
-        if (auto failure = s->bus->info().link_failure) {
-          link_down = true;
-          events.publish(make_event(EventKind::link_down, {}, failure->describe()));
-        }
-      }
+      if (!watch_link(s, link)) co_return;
     }
   }
   static constexpr std::chrono::milliseconds kWatchPeriod{50};
+
+  struct LinkWatch {
+    std::uint64_t failures = 0;  // bus counts seen so far
+    std::uint64_t reopens = 0;
+    std::optional<exec::Clock::time_point> down_since;
+  };
+
+  // The link as the bus reports it. A failed link is reopened by the bus with a bounded backoff:
+  // meanwhile the session is recovering (runtime fault "link"), and it heals by itself once the
+  // link is back. A link not back within link_recovery_window, one that cannot be reopened at
+  // all, or a bus that stopped under the session is a fatal subsystem exit: the session ends in
+  // idle with last_failure saying why. False when the session ended here.
+  bool watch_link(const std::shared_ptr<Session>& s, LinkWatch& w) {
+    const auto info = s->bus->info();
+    const auto now = exec::Clock::now();
+    if (info.link_failures != w.failures) {
+      w.failures = info.link_failures;
+      if (!w.down_since) w.down_since = now;
+      const std::string why = info.link_failure ? info.link_failure->describe()
+                                                : fmt::format("link {} failed", info.link_name);
+      events.publish(make_event(EventKind::link_down, {}, why));
+      raise_runtime_fault(kLinkFaultKey, why);
+    }
+    if (info.link_reopens != w.reopens) {
+      w.reopens = info.link_reopens;
+      Event e = make_event(EventKind::link_reopened, {}, info.link_name);
+      e.value = info.reopen_attempts;
+      events.publish(e);
+    }
+    if (w.down_since && !info.link_failure) {
+      w.down_since.reset();
+      clear_runtime_fault(kLinkFaultKey);
+    }
+    if (!info.running) {
+      end_session(s, "bus_stopped",
+                  Error(Errc::closed, fmt::format("the bus on link {} stopped while the session "
+                                                  "ran",
+                                                  info.link_name)));
+      return false;
+    }
+    if (!w.down_since || !info.link_failure) return true;
+    const Error& cause = *info.link_failure;
+    if (!info.link_reopenable) {
+      end_session(
+          s, "link_lost",
+          cause.context(cause.code(),
+                        fmt::format("link {} failed and cannot be reopened{}", info.link_name,
+                                    info.last_reopen_error
+                                        ? " (" + info.last_reopen_error->describe() + ")"
+                                        : std::string())));
+      return false;
+    }
+    if (now - *w.down_since >= s->config.link_recovery_window) {
+      end_session(
+          s, "link_lost",
+          cause.context(cause.code(),
+                        fmt::format("link {} did not come back within {} ms ({} reopen attempts; "
+                                    "last: {})",
+                                    info.link_name, ms(s->config.link_recovery_window).count(),
+                                    info.reopen_attempts,
+                                    info.last_reopen_error ? info.last_reopen_error->describe()
+                                                           : std::string("none"))));
+      return false;
+    }
+    return true;
+  }
+  static constexpr const char* kLinkFaultKey = "link";
+
+  // A fatal subsystem exit: the session ends and the master goes idle with last_failure saying
+  // why. Without a link the slaves cannot be walked to INIT; their SyncManager watchdogs take
+  // them out of OP.
+  void end_session(const std::shared_ptr<Session>& s, std::string kind, const Error& error) {
+    if (session != s || s->stopping) return;
+    {
+      std::lock_guard lock(mutex);
+      ended_error = error;
+    }
+    fail(std::move(kind), error);
+    teardown();
+    transition(MasterState::idle);
+  }
 
   // One event each time `count` passes the next power of ten.
   void cross_marks(EventKind kind, std::uint64_t count, std::uint64_t& mark) {
@@ -993,6 +1070,7 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
         {
           std::lock_guard lock(impl.mutex);
           impl.startup_error.reset();
+          impl.ended_error.reset();
           impl.activation_error.reset();
           impl.activation_failures.clear();
           impl.runtime_faults.clear();
@@ -1037,6 +1115,8 @@ Result<void> wait_for_state(Master::Impl& impl, std::chrono::nanoseconds timeout
     if (s == MasterState::idle) {
       if (impl.startup_error)
         return impl.startup_error->context(fmt::format("{}: startup failed", what));
+      if (impl.ended_error)
+        return impl.ended_error->context(fmt::format("{}: the session ended", what));
       return Error(Errc::wrong_state, fmt::format("{}: the master is not started", what));
     }
     if (running_counts && s == MasterState::activation_blocked && impl.activation_error) {

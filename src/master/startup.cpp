@@ -52,6 +52,10 @@ exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus:
     auto count =
         co_await count_slaves(loop, bus, {options.poll + std::chrono::milliseconds(50), 0});
     const auto now = Clock::now();
+    if (!count && count.error().code() == Errc::closed) {
+      // The bus stopped (the session ended) or its link was closed: no later poll can answer.
+      co_return count.error().context("discovering the ring");
+    }
     if (!count) {
       last_error = count.error();
       current.reset();

@@ -371,6 +371,81 @@ TEST(BusFaults, DeadLinkFailsEverythingWithTheLinkErrorAsCause) {
   EXPECT_GE(bus->stats().receive_errors, 1u);
 }
 
+TEST(BusFaults, AFailedLinkIsReopenedWithABoundedBackoffAndWorkFlowsAgain) {
+  auto segment = segment_with_value();
+  segment->allow_reopen(true);
+  BusOptions options;
+  options.reopen_backoff_min = 10ms;
+  options.reopen_backoff_max = 1s;
+  auto bus = start_bus(segment, options);
+  ASSERT_TRUE(bus->transact(read_register()));
+  segment->kill(Errc::io_error);
+  // The failure shows in the next request (it fails, naming the cause) and in info().
+  auto failed = bus->transact(read_register());
+  ASSERT_FALSE(failed);
+  EXPECT_NE(failed.error().describe().find("link is down"), std::string::npos)
+      << failed.error().describe();
+  ASSERT_TRUE(eventually([&] { return bus->info().reopen_attempts >= 2; }));
+  auto down = bus->info();
+  EXPECT_TRUE(down.link_failure.has_value());
+  EXPECT_EQ(down.link_failures, 1u);
+  EXPECT_EQ(down.link_reopens, 0u);
+  EXPECT_TRUE(down.link_reopenable);
+  ASSERT_TRUE(down.last_reopen_error.has_value());
+  EXPECT_NE(down.last_reopen_error->describe().find("still down"), std::string::npos);
+  // Bounded: the waits double from 10 ms, so the first 300 ms hold at most 5 attempts (10, 30,
+  // 70, 150, 310 ms after the failure) however fast the machine is.
+  const auto attempts_before = bus->info().reopen_attempts;
+  std::this_thread::sleep_for(300ms);
+  EXPECT_LE(bus->info().reopen_attempts - attempts_before, 5u);
+
+  segment->revive();
+  ASSERT_TRUE(eventually([&] { return bus->info().link_reopens == 1; }, 5s));
+  const auto up = bus->info();
+  EXPECT_FALSE(up.link_failure.has_value());
+  EXPECT_FALSE(up.last_reopen_error.has_value());
+  auto again = bus->transact(read_register());
+  ASSERT_TRUE(again) << again.error().describe();
+
+  // A second failure is counted and healed the same way.
+  segment->kill(Errc::io_error);
+  ASSERT_FALSE(bus->transact(read_register()));
+  ASSERT_TRUE(eventually([&] { return bus->info().link_failures == 2; }));
+  segment->revive();
+  ASSERT_TRUE(eventually([&] { return bus->info().link_reopens == 2; }, 5s));
+  EXPECT_TRUE(bus->transact(read_register()));
+}
+
+TEST(BusFaults, ALinkThatCannotBeReopenedStaysFailed) {
+  auto segment = segment_with_value();  // reopen not allowed: Errc::unsupported
+  auto bus = start_bus(segment);
+  segment->kill(Errc::io_error);
+  ASSERT_FALSE(bus->transact(read_register()));
+  ASSERT_TRUE(eventually([&] { return !bus->info().link_reopenable; }));
+  segment->revive();
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(segment->reopen_calls(), 1);  // asked once; the answer is final
+  const auto info = bus->info();
+  EXPECT_TRUE(info.link_failure.has_value());
+  EXPECT_EQ(info.link_reopens, 0u);
+  ASSERT_TRUE(info.last_reopen_error.has_value());
+  EXPECT_EQ(info.last_reopen_error->code(), Errc::unsupported);
+  EXPECT_FALSE(bus->transact(read_register()));
+}
+
+TEST(BusFaults, ReopenBackoffMustBePositiveAndOrdered) {
+  auto segment = segment_with_value();
+  for (auto [min, max] : {std::pair{0ms, 1000ms}, std::pair{50ms, 10ms}}) {
+    BusOptions options;
+    options.reopen_backoff_min = min;
+    options.reopen_backoff_max = max;
+    Bus bus(FakeSegment::make_link(segment), options);
+    auto started = bus.start();
+    ASSERT_FALSE(started);
+    EXPECT_NE(started.error().describe().find("reopen backoff"), std::string::npos);
+  }
+}
+
 TEST(BusFaults, SendFailureFailsTheTransactionsOfThatFrame) {
   auto segment = segment_with_value();
   auto bus = start_bus(segment);

@@ -142,6 +142,24 @@ class FakeSegment {
     dead_ = code;
     cv_.notify_all();
   }
+  // The link works again; reopen() succeeds from now on (when reopening is allowed).
+  void revive() {
+    std::lock_guard lock(mutex_);
+    dead_.reset();
+    cv_.notify_all();
+  }
+  // Whether the link can be reopened at all (off: reopen() answers Errc::unsupported, as
+  // in-process links do).
+  void allow_reopen(bool allowed) { reopen_allowed_.store(allowed); }
+  // Link::reopen(): fails while the link is dead.
+  Result<void> reopen() {
+    reopen_calls_.fetch_add(1);
+    if (!reopen_allowed_.load()) return Error(Errc::unsupported, "fake link cannot be reopened");
+    std::lock_guard lock(mutex_);
+    if (dead_) return Error(Errc::io_error, "fake segment: still down");
+    return ok();
+  }
+  int reopen_calls() const { return reopen_calls_.load(); }
   void set_marker(int marker) { marker_.store(marker); }
 
   // ---- inspection
@@ -529,6 +547,8 @@ class FakeSegment {
   bool held_ = false;
   bool interrupted_ = false;
   std::optional<Errc> dead_;
+  std::atomic<bool> reopen_allowed_{false};
+  std::atomic<int> reopen_calls_{0};
   std::atomic<int> marker_{0};
   std::array<int, 256> undelivered_{};
   std::size_t index_reuse_violations_ = 0;
@@ -551,6 +571,10 @@ class FakeLink final : public link::Link {
   }
   void interrupt() override { segment_->interrupt(); }
   void close() override { closed_.store(true); }
+  Result<void> reopen() override {
+    if (closed_.load()) return Error(Errc::closed, "fake link closed");
+    return segment_->reopen();
+  }
   std::string name() const override { return "fake:segment"; }
   link::LinkStats stats() const override { return segment_->link_stats(); }
   std::size_t max_frame_size() const override { return segment_->max_frame_size(); }

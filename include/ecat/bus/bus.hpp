@@ -81,6 +81,13 @@ struct BusOptions {
   std::chrono::nanoseconds late_reply_quarantine{0};
   // Runs first thing on the bus thread (name it, set SCHED_FIFO, pin it to a CPU, ...).
   std::function<void()> on_thread_start;
+  // After the link fails (closed, or repeated send/receive errors) the bus completes everything
+  // in flight with the failure, fails new work at once, and tries Link::reopen(): first after
+  // reopen_backoff_min, then at doubling intervals up to reopen_backoff_max (the reference
+  // design retries every second), until the link comes back, says it cannot be reopened
+  // (Errc::unsupported or Errc::closed) or the bus stops. Both must be positive, min <= max.
+  std::chrono::nanoseconds reopen_backoff_min = std::chrono::milliseconds(10);
+  std::chrono::nanoseconds reopen_backoff_max = std::chrono::seconds(1);
 };
 
 struct BusStats {
@@ -114,9 +121,17 @@ struct BusStats {
 struct BusInfo {
   std::string link_name;
   bool running = false;
-  // Set once the link failed for good (closed, or repeated send/receive errors): every further
-  // request fails with this error as its cause.
+  // Set while the link is failed (closed, or repeated send/receive errors): every request fails
+  // with this error as its cause until the link is reopened (see BusOptions::reopen_backoff_min).
   std::optional<Error> link_failure;
+  std::uint64_t link_failures = 0;  // times the link failed
+  std::uint64_t link_reopens = 0;   // times it was reopened after failing
+  std::uint64_t reopen_attempts = 0;
+  // False once the link said it cannot be reopened (Errc::unsupported, or closed): a failure is
+  // then for good.
+  bool link_reopenable = true;
+  // Why the last reopen attempt failed (until the link is reopened).
+  std::optional<Error> last_reopen_error;
   std::chrono::nanoseconds frame_timeout{};
   std::size_t max_frame_size = 0;    // largest frame the bus builds
   std::size_t realtime_queued = 0;   // realtime transactions waiting to be sent

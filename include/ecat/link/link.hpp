@@ -70,6 +70,16 @@ class Link {
   // Releases the underlying resource; later send/receive calls fail with Errc::closed.
   virtual void close() = 0;
 
+  // Brings a failed link back: a cable plugged in again, an interface that went down and came
+  // up. Opens the underlying resource anew with the options the link was opened with. Called
+  // only by the thread that sends and receives, never while a send() or receive() runs (the bus
+  // calls it from its own thread while the link is failed). Fails with Errc::closed after
+  // close(), Errc::unsupported for links that cannot be reopened (the default: in-process links
+  // have nothing to reopen), or the error of the attempt (for example the interface still down).
+  virtual Result<void> reopen() {
+    return Error(Errc::unsupported, "link " + name() + " cannot be reopened");
+  }
+
   // "eth0", "udp:127.0.0.1:34980", "memory:a", ... for messages and status.
   virtual std::string name() const = 0;
 

@@ -50,6 +50,9 @@ class RawLink final : public Link {
   Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override;
   void interrupt() override;
   void close() override;
+  // A new socket on the same interface, set up as open() does (the interface may have been
+  // recreated with another index; it must be up again).
+  Result<void> reopen() override;
   std::string name() const override;
   LinkStats stats() const override;
   // The smaller of wire::kMaxFrameSize and the interface MTU.

@@ -66,6 +66,8 @@ class UdpLink final : public Link {
   Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override;
   void interrupt() override;
   void close() override;
+  // A new socket with the same options (a server on the port it had).
+  Result<void> reopen() override;
   // "udp:127.0.0.1:34980" (client: the peer) or "udp-server:[::]:34980" (server: the local end).
   std::string name() const override;
   LinkStats stats() const override;

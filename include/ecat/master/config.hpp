@@ -139,6 +139,11 @@ struct MasterConfig {
   std::chrono::nanoseconds awaiting_preop_timeout = std::chrono::seconds(30);
   std::chrono::nanoseconds retry_interval = std::chrono::seconds(1);
   std::chrono::nanoseconds slave_retry_interval = std::chrono::milliseconds(200);
+  // A link that fails (an interface down, a cable pulled from the NIC) is reopened by the bus
+  // with a bounded backoff; the session heals on its own once it is back. If it is not back
+  // within this window (or cannot be reopened at all, or the bus stops), the master ends the
+  // session: idle, with last_failure "link_lost" (or "bus_stopped").
+  std::chrono::nanoseconds link_recovery_window = std::chrono::seconds(30);
   AlOptions al;
   InitOptions init;
 };

@@ -36,14 +36,15 @@ enum class EventKind : std::uint8_t {
   activation_failed,  // name: the slave; value: AL status code (0: none); detail: the error
   dc_locked,          // value: max |difference| in ns at the change
   dc_lost,            // value: max |difference| in ns at the change
-  link_down,          // detail: why
+  link_down,          // detail: why (the link failed: it is reopened with a backoff)
   link_up,            // detail: the link
   sdo_failed,         // name: the slave; value: abort code (0: not an abort); detail
   mailbox_failed,     // name: the slave; detail
   frames_lost,        // value: total frames lost, at each threshold crossed (1, 10, 100, ...)
   timeouts,           // value: total transaction timeouts, at each threshold crossed
+  link_reopened,      // the failed link is back; value: reopen attempts so far; detail: the link
 };
-inline constexpr std::size_t kEventKindCount = 16;
+inline constexpr std::size_t kEventKindCount = 17;
 
 // "master.state", "slave.state", "domain.health", "dc.locked", ...: the event's stable name.
 std::string_view to_string(EventKind kind) noexcept;
