@@ -654,12 +654,25 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       rt.status() == bus::RealtimeStatus::ok || rt.status() == bus::RealtimeStatus::wkc_mismatch;
   const bool frmw_ok = replied && rt.wkc(0) > 0;
   std::optional<bool> lock_change;
+  std::optional<bool> health_change;
   {
     std::lock_guard lock(mutex_);
     ++status_.frmw_sent;
     if (!frmw_ok) {
       ++status_.frmw_failed;
+      ++status_.consecutive_failures;
+      if (!status_.failed && options_.failure_threshold > 0 &&
+          status_.consecutive_failures >= options_.failure_threshold) {
+        status_.failed = true;
+        ++status_.runtime_failures;
+        health_change = false;
+      }
     } else {
+      status_.consecutive_failures = 0;
+      if (status_.failed) {
+        status_.failed = false;
+        health_change = true;
+      }
       const std::uint64_t ref_time = wire::load_le64(rt.input(0).data());
       status_.reference_time = ref_time;
       const auto cycle = static_cast<std::uint64_t>(options_.sync0_cycle.count());
@@ -770,6 +783,7 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
     if (!*lock_change) lock_lost_.store(true, std::memory_order_release);
     if (lock_callback_) lock_callback_(*lock_change);
   }
+  if (health_change && health_callback_) health_callback_(*health_change);
 }
 
 DcStatus DcMaintainer::status() const {

@@ -350,6 +350,11 @@ struct Master::Impl : DomainObserver {
         if (auto sp = weak.lock()) on_dc_lock(sp, locked);
       });
     });
+    dc->set_health_callback([this, weak = s.weak_from_this()](bool healthy) {
+      loop.post([this, weak, healthy] {
+        if (auto sp = weak.lock()) on_dc_runtime(sp, healthy);
+      });
+    });
     if (auto added = s.cycler->add(*dc, Cycler::kPriorityDc); !added) {
       std::lock_guard lock(mutex);
       s.dc_error = added.error().context("starting the distributed-clock runtime");
@@ -382,11 +387,30 @@ struct Master::Impl : DomainObserver {
         raise_runtime_fault(kKey, why);
         return;
       case LockPolicy::fatal:
-        fail("dc_lock_lost", Error(Errc::stale, why));
-        teardown();
-        transition(MasterState::idle);
+        end_session(s, "dc_lock_lost", Error(Errc::stale, why), true);
         return;
     }
+  }
+
+  // The reference design's DC runtime failure: consecutive reference-time exchanges unanswered
+  // are a critical runtime fault (recovering, whatever the lock policy: without the FRMW the
+  // slaves' clocks drift apart); the retry loop restarts the runtime's lock tracking, and the
+  // first answered exchange clears the fault.
+  static constexpr const char* kDcRuntimeKey = "dc:runtime";
+  void on_dc_runtime(const std::shared_ptr<Session>& s, bool healthy) {
+    if (s->stopping || session != s || !s->dc) return;
+    if (healthy) {
+      events.publish(
+          make_event(EventKind::recovery_step, "dc", "distributed-clock runtime answered again"));
+      clear_runtime_fault(kDcRuntimeKey);
+      return;
+    }
+    const auto status = s->dc->status();
+    raise_runtime_fault(
+        kDcRuntimeKey,
+        fmt::format("distributed clocks: {} consecutive reference-time exchanges (FRMW 0x0910 "
+                    "to station {:#06x}) failed",
+                    status.consecutive_failures, status.reference_station));
   }
 
   // DcConfig::await_lock: activation drives the slaves up only once the clocks are locked.
@@ -625,11 +649,11 @@ struct Master::Impl : DomainObserver {
     if (!info.link_reopenable) {
       end_session(
           s, "link_lost",
-          cause.context(cause.code(),
-                        fmt::format("link {} failed and cannot be reopened{}", info.link_name,
-                                    info.last_reopen_error
-                                        ? " (" + info.last_reopen_error->describe() + ")"
-                                        : std::string())));
+          cause.context(
+              cause.code(),
+              fmt::format("link {} failed and cannot be reopened{}", info.link_name,
+                          info.last_reopen_error ? " (" + info.last_reopen_error->describe() + ")"
+                                                 : std::string())));
       return false;
     }
     if (now - *w.down_since >= s->config.link_recovery_window) {
@@ -649,15 +673,27 @@ struct Master::Impl : DomainObserver {
   static constexpr const char* kLinkFaultKey = "link";
 
   // A fatal subsystem exit: the session ends and the master goes idle with last_failure saying
-  // why. Without a link the slaves cannot be walked to INIT; their SyncManager watchdogs take
-  // them out of OP.
-  void end_session(const std::shared_ptr<Session>& s, std::string kind, const Error& error) {
+  // why. With the link still up the slaves are walked to INIT first (a failure after the ring
+  // is up leaves no slave in OP); without one they cannot be, and their SyncManager watchdogs
+  // take them out of OP.
+  void end_session(const std::shared_ptr<Session>& s, std::string kind, const Error& error,
+                   bool link_usable = false) {
     if (session != s || s->stopping) return;
     {
       std::lock_guard lock(mutex);
       ended_error = error;
     }
     fail(std::move(kind), error);
+    if (link_usable) {
+      exec::spawn(loop, walk_down_and_end(s));
+      return;
+    }
+    teardown();
+    transition(MasterState::idle);
+  }
+  exec::Task<void> walk_down_and_end(std::shared_ptr<Session> s) {
+    co_await leave_slaves_in_init(s);
+    if (session != s) co_return;  // stop() ended the session meanwhile
     teardown();
     transition(MasterState::idle);
   }
@@ -741,7 +777,18 @@ struct Master::Impl : DomainObserver {
       }
       if (faults) {
         // Domains that stopped at the miss threshold are restarted; a fault clears when its
-        // domain cycles validly again (on_cycle_recovered).
+        // domain cycles validly again (on_cycle_recovered). A failed DC runtime is restarted:
+        // its lock is counted afresh (the fault clears at its first answered exchange).
+        bool dc_failed;
+        {
+          std::lock_guard lock(mutex);
+          dc_failed = runtime_faults.count(kDcRuntimeKey) != 0;
+        }
+        if (dc_failed && s->dc) {
+          s->dc->reset_lock();
+          events.publish(make_event(EventKind::recovery_step, "dc",
+                                    "distributed-clock runtime restarted (lock counted afresh)"));
+        }
         start_cycling(*s);
         arm_retry(s);
         co_return;

@@ -198,6 +198,66 @@ TEST_F(MasterDcTest, ClockJumpLosesTheLockAndRecoveringHealsIt) {
   EXPECT_EQ(master_->status().illegal_transitions, 0u);
 }
 
+// The reference design's DC runtime failure: reference-time exchanges (FRMW 0x0910) that go
+// unanswered three times in a row are a critical runtime fault, whatever the lock policy; the
+// retry loop restarts the runtime and the first answered exchange heals the session.
+TEST_F(MasterDcTest, UnansweredReferenceTimeExchangesAreARuntimeFailureThatHeals) {
+  ASSERT_NO_FATAL_FAILURE(start(dc_config(LockPolicy::advisory)));
+  ASSERT_TRUE(master_->await_dc_locked(20s));
+  test::EventRecorder events(*master_);
+  // Every FRMW comes back with WKC 0 (nobody took part), nothing else is disturbed.
+  ASSERT_TRUE(server_->inject(sim::fault::command_wkc_offset(wire::Command::frmw, -1000)));
+  ASSERT_TRUE(eventually([&] { return master_->state() == MasterState::recovering; }))
+      << to_string(master_->state());
+  const auto faults = master_->status().runtime_faults;
+  ASSERT_EQ(faults.size(), 1u);
+  EXPECT_NE(faults.front().find("consecutive reference-time exchanges (FRMW 0x0910"),
+            std::string::npos)
+      << faults.front();
+  auto failed = master_->dc_status();
+  ASSERT_TRUE(failed);
+  EXPECT_TRUE(failed->failed);
+  EXPECT_EQ(failed->runtime_failures, 1u);
+  EXPECT_GE(failed->consecutive_failures, 3u);
+  // The retry loop restarts the runtime while the fault stands.
+  EXPECT_TRUE(events.wait_for([](const Event& e) {
+    return e.kind == EventKind::recovery_step &&
+           e.detail().find("runtime restarted") != std::string_view::npos;
+  }));
+  EXPECT_EQ(master_->state(), MasterState::recovering);
+
+  server_->clear_faults();
+  ASSERT_TRUE(eventually([&] { return master_->state() == MasterState::operational; }, 30s))
+      << to_string(master_->state());
+  auto healed = master_->dc_status();
+  ASSERT_TRUE(healed);
+  EXPECT_FALSE(healed->failed);
+  EXPECT_TRUE(master_->status().runtime_faults.empty());
+  EXPECT_TRUE(events.saw(EventKind::fault_cleared, "dc:runtime"));
+  EXPECT_EQ(master_->status().illegal_transitions, 0u);
+}
+
+// LockPolicy::fatal: a lost lock ends the session, the slaves walked back to INIT first.
+TEST_F(MasterDcTest, LockLostUnderTheFatalPolicyEndsTheSessionInIdle) {
+  ASSERT_NO_FATAL_FAILURE(start(dc_config(LockPolicy::fatal)));
+  ASSERT_TRUE(master_->await_dc_locked(20s));
+  server_->with_segment(
+      [](sim::Segment& segment, sim::FaultInjector&) { segment.esc(4).dc()->jump(50'000); });
+  ASSERT_TRUE(eventually([&] { return master_->state() == MasterState::idle; }))
+      << to_string(master_->state());
+  const auto failure = master_->last_failure();
+  ASSERT_TRUE(failure);
+  EXPECT_EQ(failure->kind, "dc_lock_lost");
+  EXPECT_NE(failure->error.describe().find("distributed clocks lost lock"), std::string::npos)
+      << failure->error.describe();
+  for (const auto& slave : server_->status().slaves) {
+    EXPECT_EQ(slave.al_state, wire::AlState::init) << slave.name;
+  }
+  auto stopped = master_->stop();
+  ASSERT_TRUE(stopped);
+  EXPECT_EQ(*stopped, StopOutcome::already_stopped);
+}
+
 // A reference clock that runs 95 ppm fast against the host: unsteered, the master's cycle
 // slides along the SYNC0 grid by 95 us every second.
 constexpr const char* kFastReferenceRing = R"(version: 1

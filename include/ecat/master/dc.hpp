@@ -182,6 +182,10 @@ struct DcRuntimeOptions {
   // The reference clock itself is never adjusted.
   bool follow_reference = false;
   std::chrono::nanoseconds phase_target{0};
+  // Consecutive reference-time exchanges (FRMW 0x0910) without an answer (lost, expired, WKC 0)
+  // that make the runtime failed (the reference design escalates at 3); the next answered one
+  // makes it healthy again. See DcMaintainer::set_health_callback.
+  std::uint32_t failure_threshold = 3;
 };
 
 struct DcSlaveStatus {
@@ -222,7 +226,10 @@ struct DcStatus {
   double reference_drift_ppm = 0.0;
   std::uint64_t frmw_sent = 0;
   std::uint64_t frmw_failed = 0;  // not ok (timeout, expired, wkc)
-  std::uint64_t overruns = 0;     // ticks skipped because the last exchange was pending
+  std::uint32_t consecutive_failures = 0;
+  bool failed = false;                 // consecutive_failures reached the failure threshold
+  std::uint64_t runtime_failures = 0;  // healthy -> failed
+  std::uint64_t overruns = 0;          // ticks skipped because the last exchange was pending
 };
 
 // Runs on the bus thread through a Cycler (add with Cycler::kPriorityDc). Every tick it sends
@@ -249,6 +256,12 @@ class DcMaintainer final : public CyclicParticipant {
   // before adding to the Cycler.
   void set_lock_callback(std::function<void(bool locked)> callback) {
     lock_callback_ = std::move(callback);
+  }
+  // Called on the bus thread when the runtime fails (failure_threshold consecutive FRMWs
+  // unanswered: healthy = false) and when an FRMW is answered again (true). Same rules as the
+  // lock callback.
+  void set_health_callback(std::function<void(bool healthy)> callback) {
+    health_callback_ = std::move(callback);
   }
   // Starts counting the lock afresh (e.g. after re-initialising a slave).
   void reset_lock();
@@ -292,6 +305,7 @@ class DcMaintainer final : public CyclicParticipant {
   std::atomic<bool> lock_lost_{false};
   std::atomic<bool> reset_requested_{false};
   std::function<void(bool)> lock_callback_;
+  std::function<void(bool)> health_callback_;
 
   mutable std::mutex mutex_;  // guards status_ (short sections, no allocation under it)
   DcStatus status_;
