@@ -10,6 +10,8 @@
 #include <string>
 #include <string_view>
 
+#include <nlohmann/json.hpp>
+
 #include <ecat/sim/control.hpp>
 #include <ecat/sim/device.hpp>
 #include <ecat/sim/server.hpp>
@@ -56,10 +58,13 @@ std::vector<std::uint8_t> probe_frame() {
   return {frame.begin(), frame.end()};
 }
 
+// One line, an object that leads with "ok", and valid JSON throughout (accept() also refuses text
+// that is not UTF-8, which an echoed name or error could otherwise carry).
 bool plausible_json_object(const std::string& reply) {
   return reply.size() >= 2 && reply.front() == '{' && reply.back() == '}' &&
          reply.find('\n') == std::string::npos &&
-         (reply.rfind("{\"ok\":true", 0) == 0 || reply.rfind("{\"ok\":false", 0) == 0);
+         (reply.rfind("{\"ok\":true", 0) == 0 || reply.rfind("{\"ok\":false", 0) == 0) &&
+         nlohmann::json::accept(reply);
 }
 
 }  // namespace

@@ -10,20 +10,20 @@
 #include <ecat/master/config.hpp>
 
 #include "core/read_file.hpp"
-#include "sim/spec_tree.hpp"
+#include "config/spec_tree.hpp"
 
 namespace ecat::master {
 namespace {
 
-using sim::detail::check_keys;
-using sim::detail::index_path;
-using sim::detail::join_path;
-using sim::detail::spec_error;
-using sim::detail::SpecContext;
-using sim::detail::SpecNode;
-using sim::detail::to_bool;
-using sim::detail::to_int;
-using sim::detail::to_text;
+using config::detail::check_keys;
+using config::detail::index_path;
+using config::detail::join_path;
+using config::detail::spec_error;
+using config::detail::SpecContext;
+using config::detail::SpecNode;
+using config::detail::to_bool;
+using config::detail::to_int;
+using config::detail::to_text;
 
 class Reader {
  public:
@@ -77,7 +77,8 @@ class Reader {
     if (auto r = check_keys(ctx_, node, path,
                             {"backend", "cycle_priority", "cycle_cpu", "base_station",
                              "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
-                             "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms"});
+                             "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
+                             "link_recovery_window_ms"});
         !r) {
       return r.error();
     }
@@ -112,6 +113,7 @@ class Reader {
         if (e.key == "scan_timeout_ms") config.scan.timeout = *d;
         if (e.key == "awaiting_preop_timeout_ms") config.awaiting_preop_timeout = *d;
         if (e.key == "retry_interval_ms") config.retry_interval = *d;
+        if (e.key == "link_recovery_window_ms") config.link_recovery_window = *d;
       }
     }
     return ok();
@@ -542,7 +544,7 @@ class Reader {
 
 Result<MasterConfig> parse_master_config(std::string_view yaml, std::string source) {
   SpecContext ctx{source};
-  auto root = sim::detail::parse_yaml(yaml, ctx);
+  auto root = config::detail::parse_yaml(yaml, ctx);
   if (!root) return root.error();
   return Reader(std::move(source)).read(*root);
 }

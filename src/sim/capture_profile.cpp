@@ -6,6 +6,7 @@
 #include <set>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include <ecat/capture/capture_file.hpp>
 #include <ecat/sim/application.hpp>
@@ -17,6 +18,7 @@
 #include <ecat/wire/registers.hpp>
 #include <ecat/wire/sii.hpp>
 
+#include "config/spec_tree.hpp"
 #include "sim/devices/applications.hpp"
 #include "sim/devices/profiles.hpp"
 
@@ -1235,31 +1237,6 @@ Result<std::unique_ptr<Segment>> build_capture_segment(const CaptureProfile& pro
 
 namespace {
 
-std::string json_string(std::string_view text) {
-  std::string out = "\"";
-  for (char c : text) {
-    const auto u = static_cast<unsigned char>(c);
-    switch (c) {
-      case '"':
-        out += "\\\"";
-        break;
-      case '\\':
-        out += "\\\\";
-        break;
-      case '\n':
-        out += "\\n";
-        break;
-      default:
-        if (u < 0x20 || u >= 0x7F) {
-          out += fmt::format("\\u{:04x}", u);
-        } else {
-          out += c;
-        }
-    }
-  }
-  return out + "\"";
-}
-
 std::string hex(wire::Bytes bytes) {
   std::string out;
   for (auto b : bytes)
@@ -1267,81 +1244,89 @@ std::string hex(wire::Bytes bytes) {
   return out;
 }
 
-std::string notes_json(const std::vector<ProfileNote>& notes, std::string_view indent) {
-  std::string out = "[";
-  for (std::size_t i = 0; i < notes.size(); ++i) {
-    out += fmt::format("{}\n{}  {{\"field\": {}, \"evidence\": \"{}\", \"reason\": {}}}",
-                       i ? "," : "", indent, json_string(notes[i].field),
-                       to_string(notes[i].evidence), json_string(notes[i].reason));
+// profile.json keeps the order a reader expects (source first, each slave's name before its
+// details), so the keys stay in the order written.
+using Json = nlohmann::ordered_json;
+
+Json notes_json(const std::vector<ProfileNote>& notes) {
+  Json out = Json::array();
+  for (const auto& note : notes) {
+    out.push_back(Json{
+        {"field", note.field}, {"evidence", to_string(note.evidence)}, {"reason", note.reason}});
   }
-  return out + (notes.empty() ? "]" : fmt::format("\n{}]", indent));
+  return out;
+}
+
+// Register values and identities as the hex text engineers read them in ESI files and manuals.
+template <class T>
+Json hex_or_null(const std::optional<T>& value, int width) {
+  if (!value) return nullptr;
+  return fmt::format("{:#0{}x}", *value, width);
+}
+
+Json slave_json(const CaptureSlaveProfile& s) {
+  const auto& hw = s.hardware;
+  std::size_t read = 0;
+  for (bool r : s.sii_word_read)
+    read += r ? 1 : 0;
+  Json identity = nullptr;
+  if (auto decoded = wire::decode_sii(s.sii)) {
+    const auto& id = decoded->image.identity;
+    identity = Json{{"vendor_id", fmt::format("{:#010x}", id.vendor_id)},
+                    {"product_code", fmt::format("{:#010x}", id.product_code)},
+                    {"revision", fmt::format("{:#010x}", id.revision)},
+                    {"serial", fmt::format("{:#010x}", id.serial)},
+                    {"name", wire::sii_string_to_utf8(decoded->image.device_name())}};
+  }
+  Json objects = Json::array();
+  for (const auto& [key, o] : s.objects) {
+    objects.push_back(Json{{"index", fmt::format("{:#06x}", o.index)},
+                           {"subindex", o.subindex},
+                           {"value", hex(o.value)},
+                           {"uploaded", o.uploaded},
+                           {"downloaded", o.downloaded},
+                           {"abort", hex_or_null(o.abort_code, 10)}});
+  }
+  Json registers = Json::object();
+  for (const auto& [address, value] : s.initial_registers) {
+    registers[fmt::format("{:#06x}", address)] = fmt::format("{:#04x}", value);
+  }
+  return Json{{"position", s.position},
+              {"name", s.name},
+              {"station", hex_or_null(s.station, 6)},
+              {"station_preset", s.station_preset},
+              {"initial_al_status", hex_or_null(s.initial_al_status, 6)},
+              {"identity", std::move(identity)},
+              {"esc",
+               {{"type", fmt::format("{:#04x}", hw.type)},
+                {"revision", fmt::format("{:#04x}", hw.revision)},
+                {"build", fmt::format("{:#06x}", hw.build)},
+                {"fmmus", hw.fmmu_count},
+                {"sync_managers", hw.sync_manager_count},
+                {"ram_kib", hw.ram_size_kib},
+                {"features", fmt::format("{:#06x}", hw.features.encode())},
+                {"dc", hw.dc_supported},
+                {"dc_system_time", s.dc_system_time},
+                {"sii_8_byte_reads", hw.sii_reads_8_bytes}}},
+              {"device_emulation", s.device_emulation},
+              {"mailbox", s.has_mailbox},
+              {"sii", {{"bytes", s.sii.size()}, {"words_read", read}}},
+              {"objects", std::move(objects)},
+              {"initial_registers", std::move(registers)},
+              {"notes", notes_json(s.notes)}};
 }
 
 }  // namespace
 
 std::string capture_profile_json(const CaptureProfile& profile) {
-  std::string out = "{\n";
-  out += fmt::format("  \"source\": {},\n", json_string(profile.source));
-  out += fmt::format("  \"slave_count\": {},\n", profile.slaves.size());
-  out += fmt::format("  \"notes\": {},\n", notes_json(profile.notes, "  "));
-  out += "  \"slaves\": [";
-  for (std::size_t i = 0; i < profile.slaves.size(); ++i) {
-    const auto& s = profile.slaves[i];
-    const auto& hw = s.hardware;
-    std::size_t read = 0;
-    for (bool r : s.sii_word_read)
-      read += r ? 1 : 0;
-    std::string identity = "null";
-    if (auto decoded = wire::decode_sii(s.sii)) {
-      const auto& id = decoded->image.identity;
-      identity = fmt::format(
-          "{{\"vendor_id\": \"{:#010x}\", \"product_code\": \"{:#010x}\", \"revision\": "
-          "\"{:#010x}\", \"serial\": \"{:#010x}\", \"name\": {}}}",
-          id.vendor_id, id.product_code, id.revision, id.serial,
-          json_string(wire::sii_string_to_utf8(decoded->image.device_name())));
-    }
-    out += fmt::format("{}\n    {{\n", i ? "," : "");
-    out += fmt::format("      \"position\": {},\n      \"name\": {},\n", s.position,
-                       json_string(s.name));
-    out += fmt::format("      \"station\": {},\n      \"station_preset\": {},\n",
-                       s.station ? fmt::format("\"{:#06x}\"", *s.station) : "null",
-                       s.station_preset ? "true" : "false");
-    out += fmt::format(
-        "      \"initial_al_status\": {},\n",
-        s.initial_al_status ? fmt::format("\"{:#06x}\"", *s.initial_al_status) : "null");
-    out += fmt::format("      \"identity\": {},\n", identity);
-    out += fmt::format(
-        "      \"esc\": {{\"type\": \"{:#04x}\", \"revision\": \"{:#04x}\", \"build\": "
-        "\"{:#06x}\", \"fmmus\": {}, \"sync_managers\": {}, \"ram_kib\": {}, \"features\": "
-        "\"{:#06x}\", \"dc\": {}, \"dc_system_time\": {}, \"sii_8_byte_reads\": {}}},\n",
-        hw.type, hw.revision, hw.build, hw.fmmu_count, hw.sync_manager_count, hw.ram_size_kib,
-        hw.features.encode(), hw.dc_supported ? "true" : "false",
-        s.dc_system_time ? "true" : "false", hw.sii_reads_8_bytes ? "true" : "false");
-    out += fmt::format("      \"device_emulation\": {},\n      \"mailbox\": {},\n",
-                       s.device_emulation ? "true" : "false", s.has_mailbox ? "true" : "false");
-    out +=
-        fmt::format("      \"sii\": {{\"bytes\": {}, \"words_read\": {}}},\n", s.sii.size(), read);
-    out += "      \"objects\": [";
-    std::size_t k = 0;
-    for (const auto& [key, o] : s.objects) {
-      out += fmt::format(
-          "{}\n        {{\"index\": \"{:#06x}\", \"subindex\": {}, \"value\": \"{}\", "
-          "\"uploaded\": {}, \"downloaded\": {}, \"abort\": {}}}",
-          k++ ? "," : "", o.index, o.subindex, hex(o.value), o.uploaded ? "true" : "false",
-          o.downloaded ? "true" : "false",
-          o.abort_code ? fmt::format("\"{:#010x}\"", *o.abort_code) : "null");
-    }
-    out += s.objects.empty() ? "],\n" : "\n      ],\n";
-    out += "      \"initial_registers\": {";
-    k = 0;
-    for (const auto& [a, v] : s.initial_registers) {
-      out += fmt::format("{}\"{:#06x}\": \"{:#04x}\"", k++ ? ", " : "", a, v);
-    }
-    out += "},\n";
-    out += fmt::format("      \"notes\": {}\n    }}", notes_json(s.notes, "      "));
-  }
-  out += profile.slaves.empty() ? "]\n}\n" : "\n  ]\n}\n";
-  return out;
+  Json slaves = Json::array();
+  for (const auto& s : profile.slaves)
+    slaves.push_back(slave_json(s));
+  const Json out{{"source", profile.source},
+                 {"slave_count", profile.slaves.size()},
+                 {"notes", notes_json(profile.notes)},
+                 {"slaves", std::move(slaves)}};
+  return config::detail::dump_json(out, 2) + "\n";
 }
 
 namespace {

@@ -3,10 +3,13 @@
 #include <set>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include <ecat/sim/capture_verify.hpp>
 #include <ecat/wire/mailbox.hpp>
 #include <ecat/wire/registers.hpp>
+
+#include "config/spec_tree.hpp"
 
 namespace ecat::sim {
 
@@ -430,22 +433,6 @@ std::string mismatch_line(const DatagramMismatch& m) {
                      wire::to_string(m.command), address_text(h), m.detail);
 }
 
-std::string json_string(std::string_view text) {
-  std::string out = "\"";
-  for (char c : text) {
-    const auto u = static_cast<unsigned char>(c);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (u < 0x20) {
-      out += fmt::format("\\u{:04x}", u);
-    } else {
-      out += c;
-    }
-  }
-  return out + "\"";
-}
-
 }  // namespace
 
 std::string format_verify_report(const VerifyReport& r) {
@@ -492,57 +479,57 @@ std::string format_verify_report(const VerifyReport& r) {
 }
 
 std::string verify_report_json(const VerifyReport& r) {
-  std::string out = "{\n";
-  out += fmt::format("  \"source\": {},\n", json_string(r.source));
-  out += fmt::format(
-      "  \"requests\": {},\n  \"recorded_replies\": {},\n"
-      "  \"unanswered_at_end\": {},\n",
-      r.requests, r.recorded_replies, r.unanswered_at_end);
-  out += fmt::format("  \"datagrams\": {},\n  \"wkc_compared\": {},\n  \"wkc_matched\": {},\n",
-                     r.datagrams, r.wkc_compared, r.wkc_matched);
-  out += fmt::format("  \"data_compared\": {},\n  \"data_matched\": {},\n", r.data_compared,
-                     r.data_matched);
-  out += fmt::format("  \"malformed_frames\": {},\n", r.malformed_frames);
-  out += fmt::format("  \"passed\": {},\n", r.passed() ? "true" : "false");
-  out += "  \"per_command\": {";
-  std::size_t k = 0;
+  // Ordered: the counts a reader looks for come first, in the order the text report shows them.
+  using Json = nlohmann::ordered_json;
+  Json per_command = Json::object();
   for (const auto& [command, t] : r.per_command) {
-    out += fmt::format(
-        "{}\n    \"{}\": {{\"datagrams\": {}, \"wkc_compared\": {}, \"wkc_matched\": {}, "
-        "\"data_compared\": {}, \"data_matched\": {}}}",
-        k++ ? "," : "", wire::to_string(command), t.datagrams, t.wkc_compared, t.wkc_matched,
-        t.data_compared, t.data_matched);
+    per_command[std::string(wire::to_string(command))] = Json{{"datagrams", t.datagrams},
+                                                              {"wkc_compared", t.wkc_compared},
+                                                              {"wkc_matched", t.wkc_matched},
+                                                              {"data_compared", t.data_compared},
+                                                              {"data_matched", t.data_matched}};
   }
-  out += r.per_command.empty() ? "},\n" : "\n  },\n";
-  out += "  \"exclusions\": {";
-  k = 0;
-  for (const auto& [rule, count] : r.exclusions) {
-    out += fmt::format("{}{}: {}", k++ ? ", " : "", json_string(rule), count);
-  }
-  out += "},\n  \"differences_left_out\": {";
-  k = 0;
-  for (const auto& [rule, count] : r.differences_left_out) {
-    out += fmt::format("{}{}: {}", k++ ? ", " : "", json_string(rule), count);
-  }
-  out += "},\n  \"mismatches\": [";
-  k = 0;
+  Json exclusions = Json::object();
+  for (const auto& [rule, count] : r.exclusions)
+    exclusions[rule] = count;
+  Json differences_left_out = Json::object();
+  for (const auto& [rule, count] : r.differences_left_out)
+    differences_left_out[rule] = count;
+  Json mismatches = Json::array();
   for (const auto& m : r.mismatches) {
     wire::DatagramHeader h;
     h.command = m.command;
     h.address = m.address;
-    out += fmt::format(
-        "{}\n    {{\"frame\": {}, \"reply_frame\": {}, \"datagram\": {}, \"command\": \"{}\", "
-        "\"address\": {}, \"expected_wkc\": {}, \"actual_wkc\": {}, \"wkc_differs\": {}, "
-        "\"data_differs\": {}, \"expected_data\": {}, \"actual_data\": {}, \"detail\": {}}}",
-        k++ ? "," : "", m.frame, m.reply_frame, m.datagram, wire::to_string(m.command),
-        json_string(address_text(h)), m.expected_wkc ? fmt::format("{}", *m.expected_wkc) : "null",
-        m.actual_wkc ? fmt::format("{}", *m.actual_wkc) : "null", m.wkc_differs ? "true" : "false",
-        m.data_differs ? "true" : "false", json_string(hex(m.expected_data, 4096)),
-        json_string(hex(m.actual_data, 4096)), json_string(m.detail));
+    mismatches.push_back(Json{{"frame", m.frame},
+                              {"reply_frame", m.reply_frame},
+                              {"datagram", m.datagram},
+                              {"command", wire::to_string(m.command)},
+                              {"address", address_text(h)},
+                              {"expected_wkc", m.expected_wkc ? Json(*m.expected_wkc) : Json()},
+                              {"actual_wkc", m.actual_wkc ? Json(*m.actual_wkc) : Json()},
+                              {"wkc_differs", m.wkc_differs},
+                              {"data_differs", m.data_differs},
+                              {"expected_data", hex(m.expected_data, 4096)},
+                              {"actual_data", hex(m.actual_data, 4096)},
+                              {"detail", m.detail}});
   }
-  out += r.mismatches.empty() ? "],\n" : "\n  ],\n";
-  out += fmt::format("  \"summary\": {}\n}}\n", json_string(r.summary_line()));
-  return out;
+  const Json out{{"source", r.source},
+                 {"requests", r.requests},
+                 {"recorded_replies", r.recorded_replies},
+                 {"unanswered_at_end", r.unanswered_at_end},
+                 {"datagrams", r.datagrams},
+                 {"wkc_compared", r.wkc_compared},
+                 {"wkc_matched", r.wkc_matched},
+                 {"data_compared", r.data_compared},
+                 {"data_matched", r.data_matched},
+                 {"malformed_frames", r.malformed_frames},
+                 {"passed", r.passed()},
+                 {"per_command", std::move(per_command)},
+                 {"exclusions", std::move(exclusions)},
+                 {"differences_left_out", std::move(differences_left_out)},
+                 {"mismatches", std::move(mismatches)},
+                 {"summary", r.summary_line()}};
+  return config::detail::dump_json(out, 2) + "\n";
 }
 
 }  // namespace ecat::sim

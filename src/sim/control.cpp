@@ -1,6 +1,8 @@
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -10,6 +12,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 #include <poll.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
@@ -19,16 +22,20 @@
 #include <ecat/sim/control.hpp>
 #include <ecat/sim/faults.hpp>
 
+#include "config/spec_tree.hpp"
 #include "sim/fault_spec.hpp"
-#include "sim/spec_tree.hpp"
 
 namespace ecat::sim {
 
 namespace {
 
-using detail::append_json_string;
-using detail::SpecContext;
-using detail::SpecNode;
+namespace tree = config::detail;
+using tree::SpecContext;
+using tree::SpecNode;
+// Replies keep their keys in the order written: "ok" first, then "id", as clients read them.
+using Json = nlohmann::ordered_json;
+// The request's "id" as it will be echoed; none when the request had none.
+using RequestId = std::optional<Json>;
 
 constexpr std::array<std::string_view, 13> kOps{
     "status",      "fault.inject", "fault.clear",  "fault.list",  "signals",
@@ -43,85 +50,113 @@ std::string hex_bytes(std::span<const std::uint8_t> bytes) {
   return out;
 }
 
-std::string number(double value) {
-  if (!std::isfinite(value)) return "null";
+// Whole values print as integers (a digital input reads 1, not 1.0); JSON has no NaN or infinity.
+Json number(double value) {
+  if (!std::isfinite(value)) return nullptr;
   if (value == std::floor(value) && std::fabs(value) < 1e15) {
-    return fmt::format("{}", static_cast<std::int64_t>(value));
+    return static_cast<std::int64_t>(value);
   }
-  return fmt::format("{}", value);
+  return value;
 }
 
-void append_string_array(std::string& out, const std::vector<std::string>& items) {
-  out += '[';
-  for (std::size_t i = 0; i < items.size(); ++i) {
-    if (i != 0) out += ',';
-    append_json_string(out, items[i]);
+Json faults_json(const FaultInfo& f) {
+  Json queued = Json::array();
+  for (const auto& q : f.queued) {
+    queued.push_back(Json{{"description", q.description}, {"remaining", q.remaining}});
   }
-  out += ']';
-}
-
-void append_faults(std::string& out, const FaultInfo& f) {
-  out += "{\"active\":";
-  append_string_array(out, f.active);
-  out += ",\"queued\":[";
-  for (std::size_t i = 0; i < f.queued.size(); ++i) {
-    if (i != 0) out += ',';
-    out += "{\"description\":";
-    append_json_string(out, f.queued[i].description);
-    out += fmt::format(",\"remaining\":{}}}", f.queued[i].remaining);
-  }
-  out += "],\"scheduled\":[";
-  for (std::size_t i = 0; i < f.scheduled.size(); ++i) {
-    const auto& s = f.scheduled[i];
-    if (i != 0) out += ',';
-    out += "{\"description\":";
-    append_json_string(out, s.description);
-    if (s.due_in_ns) out += fmt::format(",\"due_in_ns\":{}", *s.due_in_ns);
+  Json scheduled = Json::array();
+  for (const auto& s : f.scheduled) {
+    Json item{{"description", s.description}};
+    if (s.due_in_ns) item["due_in_ns"] = *s.due_in_ns;
     if (!s.waiting_on.empty()) {
-      out += ",\"waiting_on\":";
-      append_json_string(out, s.waiting_on);
-      out += fmt::format(",\"remaining\":{}", s.remaining);
+      item["waiting_on"] = s.waiting_on;
+      item["remaining"] = s.remaining;
     }
-    out += fmt::format(",\"step\":{}}}", s.step);
+    item["step"] = s.step;
+    scheduled.push_back(std::move(item));
   }
-  out += fmt::format("],\"drop_responses\":{},\"wkc_offset\":{}", f.drop_responses, f.wkc_offset);
-  out += ",\"command_wkc_offsets\":{";
-  bool first = true;
-  for (const auto& [command, delta] : f.command_wkc_offsets) {
-    if (!first) out += ',';
-    first = false;
-    append_json_string(out, command);
-    out += fmt::format(":{}", delta);
-  }
-  out += "},\"logical_wkc_offsets\":{";
-  first = true;
-  for (const auto& [slave, delta] : f.logical_wkc_offsets) {
-    if (!first) out += ',';
-    first = false;
-    append_json_string(out, slave);
-    out += fmt::format(":{}", delta);
-  }
-  out += "},\"disconnected\":";
-  append_string_array(out, f.disconnected);
-  out += ",\"links_down\":";
-  append_string_array(out, f.links_down);
-  out += '}';
-}
-
-std::string error_reply(std::string_view message, const std::string& id) {
-  std::string out = "{\"ok\":false,";
-  if (!id.empty()) out += "\"id\":" + id + ",";
-  out += "\"error\":";
-  append_json_string(out, message);
-  out += '}';
+  Json out{{"active", f.active},
+           {"queued", std::move(queued)},
+           {"scheduled", std::move(scheduled)},
+           {"drop_responses", f.drop_responses},
+           {"wkc_offset", f.wkc_offset}};
+  out["command_wkc_offsets"] = Json::object();
+  for (const auto& [command, delta] : f.command_wkc_offsets)
+    out["command_wkc_offsets"][command] = delta;
+  out["logical_wkc_offsets"] = Json::object();
+  for (const auto& [slave, delta] : f.logical_wkc_offsets)
+    out["logical_wkc_offsets"][slave] = delta;
+  out["disconnected"] = f.disconnected;
+  out["links_down"] = f.links_down;
   return out;
 }
 
-// {"ok":true[,"id":..]  — the caller appends fields and the closing brace.
-std::string ok_open(const std::string& id) {
-  std::string out = "{\"ok\":true";
-  if (!id.empty()) out += ",\"id\":" + id;
+// {"ok":true[,"id":..]}: the caller adds the op's fields.
+Json ok_reply(const RequestId& id) {
+  Json out{{"ok", true}};
+  if (id) out["id"] = *id;
   return out;
+}
+
+std::string error_reply(std::string_view message, const RequestId& id = std::nullopt) {
+  Json out{{"ok", false}};
+  if (id) out["id"] = *id;
+  out["error"] = std::string(message);
+  return tree::dump_json(out);
+}
+
+// Adds the status fields to `out` (after "ok" and "id").
+void add_status(Json& out, const SimStatus& st) {
+  out["time_ns"] = st.time_ns;
+  out["link"] = st.link;
+  Json slaves = Json::array();
+  for (const auto& s : st.slaves) {
+    slaves.push_back(
+        Json{{"index", s.index},
+             {"name", s.name},
+             {"profile", s.profile},
+             {"vendor_id", s.vendor_id},
+             {"product_code", s.product_code},
+             {"revision", s.revision},
+             {"station", s.station},
+             {"alias", s.alias},
+             {"al_state", wire::to_string(s.al_state)},
+             {"al_error", s.al_error},
+             {"al_status_code", s.al_status_code},
+             {"dc", s.dc},
+             {"links", Json::array({s.links[0], s.links[1], s.links[2], s.links[3]})}});
+  }
+  out["slaves"] = std::move(slaves);
+  const auto& c = st.counters;
+  out["counters"] = Json{{"frames", c.frames},
+                         {"replies", c.replies},
+                         {"lost", c.lost},
+                         {"malformed", c.malformed},
+                         {"delayed", c.delayed},
+                         {"send_errors", c.send_errors},
+                         {"receive_errors", c.receive_errors},
+                         {"idle_advances", c.idle_advances},
+                         {"datagrams", st.segment.datagrams},
+                         {"exchanges", st.fault_stats.exchanges},
+                         {"healthy_exchanges", st.fault_stats.healthy_exchanges},
+                         {"responses_dropped", st.fault_stats.responses_dropped},
+                         {"replies_altered", st.fault_stats.replies_altered}};
+  out["faults"] = faults_json(st.faults);
+}
+
+// The id echoed as the client wrote it: a string stays a string, a number a number.
+Json id_value(const SpecNode& node) {
+  if (node.is_null()) return nullptr;
+  if (node.quoted) return node.text;
+  if (node.text == "true") return true;
+  if (node.text == "false") return false;
+  const char* first = node.text.data();
+  const char* last = first + node.text.size();
+  const auto whole = [&](std::from_chars_result r) { return r.ec == std::errc() && r.ptr == last; };
+  if (std::int64_t i = 0; whole(std::from_chars(first, last, i))) return i;
+  if (std::uint64_t u = 0; whole(std::from_chars(first, last, u))) return u;
+  if (double d = 0; whole(std::from_chars(first, last, d)) && std::isfinite(d)) return d;
+  return node.text;  // not reached: the parser only lets JSON numbers through unquoted
 }
 
 class RequestReader {
@@ -129,27 +164,27 @@ class RequestReader {
   explicit RequestReader(const SpecNode& root) : root_(root) {}
 
   Result<std::string> text(std::string_view key) const {
-    auto node = detail::require(c_, root_, "", key);
+    auto node = tree::require(c_, root_, "", key);
     if (!node) return std::move(node).error();
-    return detail::to_text(c_, **node, key);
+    return tree::to_text(c_, **node, key);
   }
   Result<std::int64_t> integer(std::string_view key, std::int64_t min, std::int64_t max) const {
-    auto node = detail::require(c_, root_, "", key);
+    auto node = tree::require(c_, root_, "", key);
     if (!node) return std::move(node).error();
-    return detail::to_int(c_, **node, key, min, max);
+    return tree::to_int(c_, **node, key, min, max);
   }
   Result<double> real(std::string_view key) const {
-    auto node = detail::require(c_, root_, "", key);
+    auto node = tree::require(c_, root_, "", key);
     if (!node) return std::move(node).error();
-    return detail::to_double(c_, **node, key);
+    return tree::to_double(c_, **node, key);
   }
   Result<bool> boolean(std::string_view key) const {
-    auto node = detail::require(c_, root_, "", key);
+    auto node = tree::require(c_, root_, "", key);
     if (!node) return std::move(node).error();
-    return detail::to_bool(c_, **node, key);
+    return tree::to_bool(c_, **node, key);
   }
   Result<void> keys(std::initializer_list<std::string_view> known) const {
-    return detail::check_keys(c_, root_, "", known);
+    return tree::check_keys(c_, root_, "", known);
   }
   const SpecNode& root() const { return root_; }
   const SpecContext& context() const { return c_; }
@@ -160,58 +195,54 @@ class RequestReader {
 };
 
 std::string dispatch(SimServer& server, const RequestReader& r, const std::string& op,
-                     const std::string& id) {
+                     const RequestId& id) {
   const auto fail = [&](const Error& e) { return error_reply(e.message(), id); };
+  const auto reply = [](const Json& out) { return tree::dump_json(out); };
 #define ECAT_CHECK(expr)               \
   if (auto check_ = (expr); !check_) { \
     return fail(check_.error());       \
   }
   if (op == "ping") {
     ECAT_CHECK(r.keys({"op", "id"}));
-    return ok_open(id) + "}";
+    return reply(ok_reply(id));
   }
   if (op == "status") {
     ECAT_CHECK(r.keys({"op", "id"}));
-    std::string out = status_json(server.status());
-    // After "{\"ok\":true", where every other reply has its id.
-    if (!id.empty()) out.insert(std::string_view("{\"ok\":true").size(), ",\"id\":" + id);
-    return out;
+    Json out = ok_reply(id);
+    add_status(out, server.status());
+    return reply(out);
   }
   if (op == "profiles") {
     ECAT_CHECK(r.keys({"op", "id"}));
-    std::string out = ok_open(id) + ",\"profiles\":[";
-    const auto profiles = device_profiles();
-    for (std::size_t i = 0; i < profiles.size(); ++i) {
-      if (i != 0) out += ',';
-      out += "{\"name\":";
-      append_json_string(out, profiles[i].name);
-      out += ",\"description\":";
-      append_json_string(out, profiles[i].description);
-      out += '}';
+    Json profiles = Json::array();
+    for (const auto& p : device_profiles()) {
+      profiles.push_back(Json{{"name", p.name}, {"description", p.description}});
     }
-    return out + "]}";
+    Json out = ok_reply(id);
+    out["profiles"] = std::move(profiles);
+    return reply(out);
   }
   if (op == "fault.inject") {
     ECAT_CHECK(r.keys({"op", "id", "fault"}));
-    auto node = detail::require(r.context(), r.root(), "", "fault");
+    auto node = tree::require(r.context(), r.root(), "", "fault");
     if (!node) return fail(node.error());
     auto fault = detail::parse_fault_node(r.context(), **node, "fault");
     if (!fault) return fail(fault.error());
     ECAT_CHECK(server.inject(*fault));
-    std::string out = ok_open(id) + ",\"description\":";
-    append_json_string(out, describe(*fault));
-    return out + "}";
+    Json out = ok_reply(id);
+    out["description"] = describe(*fault);
+    return reply(out);
   }
   if (op == "fault.clear") {
     ECAT_CHECK(r.keys({"op", "id"}));
     server.clear_faults();
-    return ok_open(id) + "}";
+    return reply(ok_reply(id));
   }
   if (op == "fault.list") {
     ECAT_CHECK(r.keys({"op", "id"}));
-    std::string out = ok_open(id) + ",\"faults\":";
-    append_faults(out, server.fault_info());
-    return out + "}";
+    Json out = ok_reply(id);
+    out["faults"] = faults_json(server.fault_info());
+    return reply(out);
   }
   if (op == "signals") {
     ECAT_CHECK(r.keys({"op", "id", "slave"}));
@@ -219,21 +250,18 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
     if (!slave) return fail(slave.error());
     auto signals = server.signals(*slave);
     if (!signals) return fail(signals.error());
-    std::string out = ok_open(id) + ",\"signals\":[";
-    for (std::size_t i = 0; i < signals->size(); ++i) {
-      const auto& s = (*signals)[i];
-      if (i != 0) out += ',';
-      out += "{\"name\":";
-      append_json_string(out, s.name);
-      out += fmt::format(",\"direction\":\"{}\",\"type\":",
-                         s.direction == SignalDirection::input ? "input" : "output");
-      append_json_string(out, s.type);
-      out += ",\"unit\":";
-      append_json_string(out, s.unit);
+    Json list = Json::array();
+    for (const auto& s : *signals) {
       const auto value = server.signal(*slave, s.name);
-      out += ",\"value\":" + (value ? number(*value) : std::string("null")) + "}";
+      list.push_back(Json{{"name", s.name},
+                          {"direction", s.direction == SignalDirection::input ? "input" : "output"},
+                          {"type", s.type},
+                          {"unit", s.unit},
+                          {"value", value ? number(*value) : Json(nullptr)}});
     }
-    return out + "]}";
+    Json out = ok_reply(id);
+    out["signals"] = std::move(list);
+    return reply(out);
   }
   if (op == "signal.get" || op == "signal.set" || op == "signal.clear") {
     if (op == "signal.set") {
@@ -248,11 +276,13 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
     if (op == "signal.get") {
       auto value = server.signal(*slave, *signal);
       if (!value) return fail(value.error());
-      return ok_open(id) + ",\"value\":" + number(*value) + "}";
+      Json out = ok_reply(id);
+      out["value"] = number(*value);
+      return reply(out);
     }
     if (op == "signal.clear") {
       ECAT_CHECK(server.clear_input(*slave, *signal));
-      return ok_open(id) + "}";
+      return reply(ok_reply(id));
     }
     // Booleans are accepted for digital signals.
     double value = 0;
@@ -265,14 +295,14 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
       value = *number_value;
     }
     ECAT_CHECK(server.set_input(*slave, *signal, value));
-    return ok_open(id) + "}";
+    return reply(ok_reply(id));
   }
   if (op == "power_cycle") {
     ECAT_CHECK(r.keys({"op", "id", "slave"}));
     auto slave = r.text("slave");
     if (!slave) return fail(slave.error());
     ECAT_CHECK(server.power_cycle(*slave));
-    return ok_open(id) + "}";
+    return reply(ok_reply(id));
   }
   if (op == "link") {
     ECAT_CHECK(r.keys({"op", "id", "slave", "port", "up"}));
@@ -284,14 +314,14 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
                            id);
       }
       server.set_master_link(*up);
-      return ok_open(id) + "}";
+      return reply(ok_reply(id));
     }
     auto slave = r.text("slave");
     if (!slave) return fail(slave.error());
     auto port = r.integer("port", 0, 3);
     if (!port) return fail(port.error());
     ECAT_CHECK(server.set_link(*slave, static_cast<std::uint8_t>(*port), *up));
-    return ok_open(id) + "}";
+    return reply(ok_reply(id));
   }
   if (op == "memory.read") {
     ECAT_CHECK(r.keys({"op", "id", "slave", "address", "length"}));
@@ -304,7 +334,9 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
     auto bytes = server.read_memory(*slave, static_cast<std::uint32_t>(*address),
                                     static_cast<std::size_t>(*length));
     if (!bytes) return fail(bytes.error());
-    return ok_open(id) + ",\"bytes\":\"" + hex_bytes(*bytes) + "\"}";
+    Json out = ok_reply(id);
+    out["bytes"] = hex_bytes(*bytes);
+    return reply(out);
   }
 #undef ECAT_CHECK
   std::string known;
@@ -316,38 +348,9 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
 }  // namespace
 
 std::string status_json(const SimStatus& st) {
-  std::string out = "{\"ok\":true";
-  out += fmt::format(",\"time_ns\":{},\"link\":", st.time_ns);
-  append_json_string(out, st.link);
-  out += ",\"slaves\":[";
-  for (std::size_t i = 0; i < st.slaves.size(); ++i) {
-    const auto& s = st.slaves[i];
-    if (i != 0) out += ',';
-    out += fmt::format("{{\"index\":{},\"name\":", s.index);
-    append_json_string(out, s.name);
-    out += ",\"profile\":";
-    append_json_string(out, s.profile);
-    out += fmt::format(
-        ",\"vendor_id\":{},\"product_code\":{},\"revision\":{},\"station\":{},\"alias\":{},"
-        "\"al_state\":\"{}\",\"al_error\":{},\"al_status_code\":{},\"dc\":{},"
-        "\"links\":[{},{},{},{}]}}",
-        s.vendor_id, s.product_code, s.revision, s.station, s.alias, wire::to_string(s.al_state),
-        s.al_error, s.al_status_code, s.dc, s.links[0], s.links[1], s.links[2], s.links[3]);
-  }
-  const auto& c = st.counters;
-  out += fmt::format(
-      "],\"counters\":{{\"frames\":{},\"replies\":{},\"lost\":{},\"malformed\":{},"
-      "\"delayed\":{},\"send_errors\":{},\"receive_errors\":{},\"idle_advances\":{},"
-      "\"datagrams\":{},\"exchanges\":{},\"healthy_exchanges\":{},\"responses_dropped\":{},"
-      "\"replies_altered\":{}}}",
-      c.frames, c.replies, c.lost, c.malformed, c.delayed, c.send_errors, c.receive_errors,
-      c.idle_advances, st.segment.datagrams, st.fault_stats.exchanges,
-      st.fault_stats.healthy_exchanges, st.fault_stats.responses_dropped,
-      st.fault_stats.replies_altered);
-  out += ",\"faults\":";
-  append_faults(out, st.faults);
-  out += '}';
-  return out;
+  Json out{{"ok", true}};
+  add_status(out, st);
+  return tree::dump_json(out);
 }
 
 std::string handle_control_request(SimServer& server, std::string_view request) {
@@ -355,31 +358,25 @@ std::string handle_control_request(SimServer& server, std::string_view request) 
     request.remove_suffix(1);
   }
   if (request.size() > kMaxControlLine) {
-    return error_reply(fmt::format("request: longer than {} bytes", kMaxControlLine), "");
+    return error_reply(fmt::format("request: longer than {} bytes", kMaxControlLine));
   }
-  auto tree = detail::parse_json(request);
-  if (!tree) return error_reply(fmt::format("request: {}", tree.error().message()), "");
-  if (!tree->is_mapping()) {
+  auto parsed = tree::parse_json(request);
+  if (!parsed) return error_reply(fmt::format("request: {}", parsed.error().message()));
+  if (!parsed->is_mapping()) {
     return error_reply(
-        fmt::format("request: expected a JSON object, found {}", detail::type_name(*tree)), "");
+        fmt::format("request: expected a JSON object, found {}", tree::type_name(*parsed)));
   }
-  std::string id;
-  if (const SpecNode* id_node = tree->find("id")) {
+  RequestId id;
+  if (const SpecNode* id_node = parsed->find("id")) {
     if (!id_node->is_scalar() && !id_node->is_null()) {
-      return error_reply("id: expected a string or a number", "");
+      return error_reply("id: expected a string or a number");
     }
-    if (id_node->is_null()) {
-      id = "null";
-    } else if (id_node->quoted) {
-      id = detail::json_string(id_node->text);
-    } else {
-      id = id_node->text;  // a number or true/false, already valid JSON
-    }
+    id = id_value(*id_node);
   }
-  const SpecNode* op = tree->find("op");
+  const SpecNode* op = parsed->find("op");
   if (op == nullptr) return error_reply("op: missing (e.g. {\"op\":\"status\"})", id);
   if (!op->is_scalar()) return error_reply("op: expected a string", id);
-  return dispatch(server, RequestReader(*tree), op->text, id);
+  return dispatch(server, RequestReader(*parsed), op->text, id);
 }
 
 // ---- The socket -----------------------------------------------------------------------------
@@ -475,8 +472,8 @@ struct ControlServer::Impl {
     }
     c.input.erase(0, start);
     if (c.input.size() > kMaxControlLine) {
-      c.output += error_reply(
-          fmt::format("request: line longer than {} bytes; closing", kMaxControlLine), "");
+      c.output +=
+          error_reply(fmt::format("request: line longer than {} bytes; closing", kMaxControlLine));
       c.output += '\n';
       c.input.clear();
       c.closing = true;
@@ -506,7 +503,7 @@ struct ControlServer::Impl {
         if (fd >= 0) {
           if (clients.size() >= kMaxClients) {
             const std::string busy =
-                error_reply(fmt::format("too many control clients (at most {})", kMaxClients), "") +
+                error_reply(fmt::format("too many control clients (at most {})", kMaxClients)) +
                 "\n";
             (void)::send(fd, busy.data(), busy.size(), MSG_DONTWAIT | MSG_NOSIGNAL);
             ::close(fd);

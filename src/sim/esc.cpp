@@ -176,8 +176,17 @@ void Esc::reset_registers() {
 
 void Esc::power_cycle(std::int64_t now_ns) {
   now_ns_ = now_ns;
+  al_refusals_.fill(std::nullopt);
   reset_registers();
   application_->start(*this);
+}
+
+void Esc::set_al_refusal(wire::AlState state, std::optional<std::uint16_t> status_code) {
+  al_refusals_[static_cast<std::size_t>(state) & 0x0F] = status_code;
+}
+
+std::optional<std::uint16_t> Esc::al_refusal(wire::AlState state) const noexcept {
+  return al_refusals_[static_cast<std::size_t>(state) & 0x0F];
 }
 
 void Esc::advance(std::int64_t now_ns) {
@@ -648,6 +657,15 @@ void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const Pa
                   static_cast<std::uint16_t>(std::min<std::uint32_t>(last, dc_end - 1)), pass);
   }
   if (overlaps(first, last, reg::kAlControl, 2)) {
+    const std::uint16_t control = read_u16(reg::kAlControl);
+    const auto requested = wire::al_state_from_code(static_cast<std::uint8_t>(control & 0x0F));
+    if (requested && *requested != al_state()) {
+      if (const auto code = al_refusal(*requested)) {
+        // The firmware refuses the state (refuse_state): it stays where it is, error flagged.
+        pdi_set_al_status(al_state(), true, *code);
+        return;
+      }
+    }
     if ((memory_[reg::kEscConfiguration] & kEscConfigDeviceEmulation) != 0) {
       // Device emulation: the ESC itself copies AL control into AL status, error acknowledge bit
       // included (BWR 0x0120 = 0x0011 reads back as AL status 0x0011 from EK1100, EL2828 and

@@ -4,14 +4,15 @@
 #include <limits>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include <ecat/sim/dc_unit.hpp>
 #include <ecat/sim/faults.hpp>
 #include <ecat/sim/standard_application.hpp>
 #include <ecat/wire/registers.hpp>
 
+#include "config/spec_tree.hpp"
 #include "sim/fault_spec.hpp"
-#include "sim/spec_tree.hpp"
 
 namespace ecat::sim {
 
@@ -43,6 +44,8 @@ constexpr std::array<FaultKindInfo, kFaultKindCount> kKinds{{
     {FaultKind::power_cycle, "power_cycle", "SLAVE", "power cycle the slave"},
     {FaultKind::latch_al_error, "latch_al_error", "SLAVE CODE",
      "set the AL error bit with status CODE"},
+    {FaultKind::refuse_state, "refuse_state", "SLAVE STATE CODE",
+     "refuse requests for AL STATE with status CODE (the slave stays where it is)"},
     {FaultKind::mailbox_abort, "mailbox_abort", "SLAVE INDEX:SUB CODE [STAGE]",
      "abort SDO transfers of INDEX:SUB with CODE at STAGE (request)"},
     {FaultKind::mailbox_protocol_fault, "mailbox_protocol_fault",
@@ -81,6 +84,34 @@ std::optional<ProtocolFaultKind> protocol_kind_from_string(std::string_view name
 std::optional<MailboxStage> stage_from_string(std::string_view name) {
   for (auto s : kStages) {
     if (to_string(s) == name) return s;
+  }
+  return std::nullopt;
+}
+
+// AL states as ring files and control requests spell them (refuse_state).
+constexpr std::array<std::pair<wire::AlState, std::string_view>, 5> kAlStateNames{{
+    {wire::AlState::init, "init"},
+    {wire::AlState::preop, "preop"},
+    {wire::AlState::bootstrap, "bootstrap"},
+    {wire::AlState::safeop, "safeop"},
+    {wire::AlState::op, "op"},
+}};
+
+std::string_view al_state_name(wire::AlState state) {
+  for (const auto& [s, name] : kAlStateNames) {
+    if (s == state) return name;
+  }
+  return "?";
+}
+
+// Case-insensitive; "boot" (the ESC's own abbreviation) names bootstrap too.
+std::optional<wire::AlState> al_state_from_name(std::string_view name) {
+  std::string lower(name);
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  if (lower == "boot") return wire::AlState::bootstrap;
+  for (const auto& [s, text] : kAlStateNames) {
+    if (text == lower) return s;
   }
   return std::nullopt;
 }
@@ -206,6 +237,7 @@ bool needs_slave(FaultKind kind) {
     case FaultKind::retreat_to_safeop:
     case FaultKind::power_cycle:
     case FaultKind::latch_al_error:
+    case FaultKind::refuse_state:
     case FaultKind::mailbox_abort:
     case FaultKind::mailbox_protocol_fault:
     case FaultKind::dc_jump:
@@ -253,6 +285,7 @@ FaultClass fault_class(FaultKind kind) noexcept {
     case FaultKind::retreat_to_safeop:
     case FaultKind::power_cycle:
     case FaultKind::latch_al_error:
+    case FaultKind::refuse_state:
     case FaultKind::mailbox_abort:
     case FaultKind::mailbox_protocol_fault:
     case FaultKind::dc_jump:
@@ -353,6 +386,12 @@ Fault power_cycle(std::string slave) {
 }
 Fault latch_al_error(std::string slave, std::uint16_t code) {
   auto f = make(FaultKind::latch_al_error, std::move(slave));
+  f.effect.code = code;
+  return f;
+}
+Fault refuse_state(std::string slave, wire::AlState state, std::uint16_t code) {
+  auto f = make(FaultKind::refuse_state, std::move(slave));
+  f.effect.state = state;
   f.effect.code = code;
   return f;
 }
@@ -480,6 +519,9 @@ std::string describe(const FaultEffect& e) {
       return fmt::format("power cycle {}", e.slave);
     case FaultKind::latch_al_error:
       return fmt::format("latch AL error 0x{:04X} on {}", e.code, e.slave);
+    case FaultKind::refuse_state:
+      return fmt::format("refuse {} on {} with AL status 0x{:04X}", wire::to_string(e.state),
+                         e.slave, e.code);
     case FaultKind::mailbox_abort:
       return fmt::format("mailbox abort 0x{:08X} on {} 0x{:04X}:{:02X} at {}{}", e.code, e.slave,
                          e.index, e.subindex, to_string(e.stage),
@@ -572,6 +614,13 @@ Result<void> validate_effect(const FaultEffect& e) {
     case FaultKind::latch_al_error:
       if (e.code > 0xFFFF) return bad(fmt::format("AL status code 0x{:X} exceeds 16 bits", e.code));
       break;
+    case FaultKind::refuse_state:
+      if (e.code > 0xFFFF) return bad(fmt::format("AL status code 0x{:X} exceeds 16 bits", e.code));
+      if (e.code == 0) return bad("a refusal needs an AL status code (not 0)");
+      if (!wire::al_state_from_code(static_cast<std::uint8_t>(e.state))) {
+        return bad(fmt::format("AL state 0x{:X} does not exist", static_cast<unsigned>(e.state)));
+      }
+      break;
     case FaultKind::mailbox_protocol_fault:
       if (!protocol_stage_valid(e.protocol.kind, e.stage)) {
         return bad(fmt::format("{} cannot apply at stage {}", to_string(e.protocol.kind),
@@ -661,124 +710,130 @@ namespace detail {
 
 namespace {
 
-void append_hex(std::string& out, std::string_view key, std::uint64_t value, int width) {
-  out += fmt::format(",\"{}\":\"0x{:0{}X}\"", key, value, width);
+using Json = nlohmann::ordered_json;  // key order is part of the form (tests compare text)
+
+std::string hex(std::uint64_t value, int width) {
+  return fmt::format("0x{:0{}X}", value, width);
 }
 
-void append_milestone_json(std::string& out, const Milestone& m) {
-  out += "{\"milestone\":";
-  append_json_string(out, to_string(m.kind));
-  if (m.kind != Milestone::Kind::healthy_exchanges) {
-    out += ",\"slave\":";
-    append_json_string(out, m.slave);
-  }
-  if (m.kind == Milestone::Kind::mailbox_step) {
-    out += ",\"step\":";
-    append_json_string(out, to_string(m.step));
-  }
-  out += fmt::format(",\"count\":{}}}", m.count);
+// Milliseconds as a whole number when they are one (250), else the exact fraction (1.5).
+Json ms_value(std::chrono::nanoseconds d) {
+  if (d.count() % 1'000'000 == 0) return d.count() / 1'000'000;
+  return static_cast<double>(d.count()) / 1e6;
 }
 
-std::string ms_text(std::chrono::nanoseconds d) {
-  return fmt::format("{:g}", static_cast<double>(d.count()) / 1e6);
+Json milestone_json(const Milestone& m) {
+  Json j;
+  j["milestone"] = to_string(m.kind);
+  if (m.kind != Milestone::Kind::healthy_exchanges) j["slave"] = m.slave;
+  if (m.kind == Milestone::Kind::mailbox_step) j["step"] = to_string(m.step);
+  j["count"] = m.count;
+  return j;
 }
 
-void append_effect_json(std::string& out, const Fault& f) {
+Json effect_json(const Fault& f) {
   const FaultEffect& e = f.effect;
-  out += "{\"kind\":";
-  append_json_string(out, to_string(e.kind));
-  if (needs_slave(e.kind)) {
-    out += ",\"slave\":";
-    append_json_string(out, e.slave);
-  }
+  Json j;
+  j["kind"] = to_string(e.kind);
+  if (needs_slave(e.kind)) j["slave"] = e.slave;
   switch (e.kind) {
     case FaultKind::wkc_offset:
     case FaultKind::logical_wkc_offset:
-      out += fmt::format(",\"delta\":{}", e.delta);
+      j["delta"] = e.delta;
       break;
     case FaultKind::command_wkc_offset:
-      out += fmt::format(",\"command\":\"{}\",\"delta\":{}", wire::to_string(e.command), e.delta);
+      j["command"] = wire::to_string(e.command);
+      j["delta"] = e.delta;
       break;
     case FaultKind::truncate_reply:
-      out += fmt::format(",\"bytes\":{}", e.bytes);
+      j["bytes"] = e.bytes;
       break;
     case FaultKind::unsupported_type:
-      out += fmt::format(",\"type\":{}", e.frame_type);
+      j["type"] = e.frame_type;
       break;
     case FaultKind::corrupt_byte:
-      out += fmt::format(",\"offset\":{},\"mask\":\"0x{:02X}\"", e.offset, e.mask);
+      j["offset"] = e.offset;
+      j["mask"] = hex(e.mask, 2);
       break;
     case FaultKind::delay_replies:
-      out += fmt::format(",\"ms\":{}", ms_text(std::chrono::nanoseconds(e.ns)));
+      j["ms"] = ms_value(std::chrono::nanoseconds(e.ns));
       break;
     case FaultKind::latch_al_error:
-      append_hex(out, "code", e.code, 4);
+      j["code"] = hex(e.code, 4);
+      break;
+    case FaultKind::refuse_state:
+      j["state"] = al_state_name(e.state);
+      j["code"] = hex(e.code, 4);
       break;
     case FaultKind::mailbox_abort:
     case FaultKind::mailbox_protocol_fault:
-      append_hex(out, "index", e.index, 4);
-      out += fmt::format(",\"subindex\":{}", e.subindex);
-      out += fmt::format(",\"stage\":\"{}\"", to_string(e.stage));
+      j["index"] = hex(e.index, 4);
+      j["subindex"] = e.subindex;
+      j["stage"] = to_string(e.stage);
       if (e.kind == FaultKind::mailbox_abort) {
-        append_hex(out, "code", e.code, 8);
+        j["code"] = hex(e.code, 8);
       } else {
-        out += fmt::format(",\"protocol\":\"{}\"", to_string(e.protocol.kind));
-        if (protocol_has_value(e.protocol.kind)) {
-          out += fmt::format(",\"value\":{}", e.protocol.value);
-        }
+        j["protocol"] = to_string(e.protocol.kind);
+        if (protocol_has_value(e.protocol.kind)) j["value"] = e.protocol.value;
       }
-      if (e.once) out += fmt::format(",\"once\":{}", *e.once);
+      if (e.once) j["once"] = *e.once;
       break;
     case FaultKind::dc_jump:
-      out += fmt::format(",\"ns\":{}", e.ns);
+      j["ns"] = e.ns;
       break;
     case FaultKind::link_down:
     case FaultKind::link_up:
-      out += fmt::format(",\"port\":{}", e.port);
+      j["port"] = e.port;
       break;
     default:
       break;
   }
-  if (f.exchanges != 0) out += fmt::format(",\"next\":{}", f.exchanges);
-  out += '}';
+  if (f.exchanges != 0) j["next"] = f.exchanges;
+  return j;
+}
+
+Json fault_json(const Fault& f) {
+  switch (f.form) {
+    case Fault::Form::effect:
+      return effect_json(f);
+    case Fault::Form::after_delay:
+    case Fault::Form::after_milestone: {
+      Json j;
+      if (f.form == Fault::Form::after_delay) {
+        j["after_ms"] = ms_value(f.delay);
+      } else {
+        j["after_milestone"] = milestone_json(f.milestone);
+      }
+      j["fault"] = f.steps.empty() ? Json::object() : fault_json(f.steps[0]);
+      return j;
+    }
+    case Fault::Form::script: {
+      Json steps = Json::array();
+      for (const auto& step : f.steps)
+        steps.push_back(fault_json(step));
+      Json j;
+      j["script"] = std::move(steps);
+      return j;
+    }
+    case Fault::Form::wait: {
+      Json j;
+      j["wait_ms"] = ms_value(f.delay);
+      return j;
+    }
+    case Fault::Form::wait_for: {
+      Json j;
+      j["wait_for"] = milestone_json(f.milestone);
+      return j;
+    }
+  }
+  return Json::object();
 }
 
 }  // namespace
 
 void append_fault_json(std::string& out, const Fault& f) {
-  switch (f.form) {
-    case Fault::Form::effect:
-      append_effect_json(out, f);
-      return;
-    case Fault::Form::after_delay:
-      out += fmt::format("{{\"after_ms\":{},\"fault\":", ms_text(f.delay));
-      if (!f.steps.empty()) append_fault_json(out, f.steps[0]);
-      out += '}';
-      return;
-    case Fault::Form::after_milestone:
-      out += "{\"after_milestone\":";
-      append_milestone_json(out, f.milestone);
-      out += ",\"fault\":";
-      if (!f.steps.empty()) append_fault_json(out, f.steps[0]);
-      out += '}';
-      return;
-    case Fault::Form::script:
-      out += "{\"script\":[";
-      for (std::size_t i = 0; i < f.steps.size(); ++i) {
-        if (i != 0) out += ',';
-        append_fault_json(out, f.steps[i]);
-      }
-      out += "]}";
-      return;
-    case Fault::Form::wait:
-      out += fmt::format("{{\"wait_ms\":{}}}", ms_text(f.delay));
-      return;
-    case Fault::Form::wait_for:
-      out += "{\"wait_for\":";
-      append_milestone_json(out, f.milestone);
-      out += '}';
-      return;
-  }
+  // Slave names come from ring files: invalid UTF-8 becomes U+FFFD rather than an exception.
+  out += fault_json(f).dump(-1, ' ', false, Json::error_handler_t::replace);
 }
 
 namespace {
@@ -969,6 +1024,22 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
     }
     case FaultKind::latch_al_error: {
       ECAT_TRY(code, int_key<std::uint32_t>(c, node, path, "code", 0, 0xFFFF));
+      e.code = *code;
+      break;
+    }
+    case FaultKind::refuse_state: {
+      ECAT_TRY(state_node, require(c, node, path, "state"));
+      const std::string p = join_path(path, "state");
+      ECAT_TRY(text, to_text(c, **state_node, p));
+      const auto state = al_state_from_name(*text);
+      if (!state) {
+        return spec_error(c, **state_node, p,
+                          fmt::format("unknown AL state '{}' (known: init, preop, bootstrap, "
+                                      "safeop, op)",
+                                      *text));
+      }
+      e.state = *state;
+      ECAT_TRY(code, int_key<std::uint32_t>(c, node, path, "code", 1, 0xFFFF));
       e.code = *code;
       break;
     }
@@ -1529,6 +1600,14 @@ struct FaultInjector::Impl {
         latched[slave] = code;
         break;
       }
+      case FaultKind::refuse_state: {
+        segment.esc(slave).set_al_refusal(e.state, static_cast<std::uint16_t>(e.code));
+        const auto key = std::make_pair(slave, e.state);
+        if (std::find(refusals.begin(), refusals.end(), key) == refusals.end()) {
+          refusals.push_back(key);
+        }
+        break;
+      }
       case FaultKind::mailbox_abort: {
         auto rule = mailbox_rule<SdoAbortRule>(e, e.once.value_or(false));
         rule.code = e.code;
@@ -1756,6 +1835,7 @@ struct FaultInjector::Impl {
   std::vector<std::uint64_t> poll_counts;
   std::vector<std::array<std::uint64_t, kMailboxStageCount>> step_counts;
   std::vector<std::optional<std::uint16_t>> latched;
+  std::vector<std::pair<std::size_t, wire::AlState>> refusals;  // refuse_state rules set
   std::vector<std::pair<std::size_t, std::uint8_t>> links_down;
   bool master_down = false;
   std::vector<std::uint8_t> previous_reply;
@@ -1801,6 +1881,9 @@ void FaultInjector::clear() {
     }
     s.latched[i].reset();
   }
+  for (const auto& [slave, state] : s.refusals)
+    s.segment.esc(slave).set_al_refusal(state, std::nullopt);
+  s.refusals.clear();
   for (const auto& [slave, port] : s.links_down)
     s.segment.set_link(slave, port, true);
   s.links_down.clear();
@@ -1850,6 +1933,17 @@ FaultInfo FaultInjector::info(std::int64_t now_ns) const {
     if (s.latched[i] && esc.al_error() && esc.al_status_code() == *s.latched[i]) {
       info.active.push_back(
           fmt::format("latch AL error 0x{:04X} on {}", *s.latched[i], s.segment.name(i)));
+    }
+  }
+  for (const auto& [slave, state] : s.refusals) {
+    // A power cycle lifted it meanwhile when the ESC no longer has it.
+    if (const auto code = s.segment.esc(slave).al_refusal(state)) {
+      FaultEffect e;
+      e.kind = FaultKind::refuse_state;
+      e.slave = s.segment.name(slave);
+      e.state = state;
+      e.code = *code;
+      info.active.push_back(describe(e));
     }
   }
   for (const auto& [slave, port] : s.links_down) {

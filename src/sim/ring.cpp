@@ -8,116 +8,26 @@
 #include <map>
 
 #include <fmt/format.h>
-#include <yaml-cpp/depthguard.h>
-#include <yaml-cpp/yaml.h>
 
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/wiring.hpp>
 
+#include "config/spec_tree.hpp"
 #include "core/read_file.hpp"
 #include "sim/fault_spec.hpp"
-#include "sim/spec_tree.hpp"
 
 namespace ecat::sim {
 
 namespace {
 
-using detail::spec_error;
-using detail::SpecContext;
-using detail::SpecNode;
+namespace tree = config::detail;
+using tree::spec_error;
+using tree::SpecContext;
+using tree::SpecNode;
 
 constexpr std::array<std::string_view, 6> kMasterSections{"master",  "link", "slaves",
                                                           "domains", "dc",   "targets"};
 constexpr std::size_t kMaxSlaves = 4096;
-constexpr std::size_t kMaxNodes = 200'000;  // after alias expansion: stops "billion laughs"
-constexpr int kMaxDepth = 48;
-
-// ---- YAML -> SpecNode -------------------------------------------------------------------------
-
-class YamlConverter {
- public:
-  explicit YamlConverter(const SpecContext& context) : context_(context) {}
-
-  Result<SpecNode> convert(const YAML::Node& node, int depth, int parent_line) {
-    if (++nodes_ > kMaxNodes) {
-      return Error(Errc::out_of_range, fmt::format("{}: more than {} YAML nodes (aliases included)",
-                                                   context_.source, kMaxNodes));
-    }
-    SpecNode out;
-    const YAML::Mark mark = node.Mark();
-    out.line = mark.is_null() ? parent_line : mark.line + 1;
-    if (depth > kMaxDepth) {
-      return spec_error(context_, out, "", fmt::format("nested deeper than {} levels", kMaxDepth));
-    }
-    switch (node.Type()) {
-      case YAML::NodeType::Undefined:
-      case YAML::NodeType::Null:
-        out.type = SpecNode::Type::null;
-        return out;
-      case YAML::NodeType::Scalar:
-        out.type = SpecNode::Type::scalar;
-        out.text = node.Scalar();
-        out.quoted = node.Tag() == "!";
-        return out;
-      case YAML::NodeType::Sequence:
-        out.type = SpecNode::Type::sequence;
-        for (const auto& item : node) {
-          auto child = convert(item, depth + 1, out.line);
-          if (!child) return child;
-          out.items.push_back(std::move(*child));
-        }
-        return out;
-      case YAML::NodeType::Map:
-        out.type = SpecNode::Type::mapping;
-        for (const auto& entry : node) {
-          if (!entry.first.IsScalar()) {
-            SpecNode where;
-            where.line = entry.first.Mark().is_null() ? out.line : entry.first.Mark().line + 1;
-            return spec_error(context_, where, "", "a key must be a plain scalar");
-          }
-          std::string key = entry.first.Scalar();
-          auto child = convert(entry.second, depth + 1, out.line);
-          if (!child) return child;
-          if (out.find(key) != nullptr) {
-            return spec_error(context_, *child, key, "duplicate key");
-          }
-          out.entries.emplace_back(std::move(key), std::move(*child));
-        }
-        return out;
-    }
-    return out;
-  }
-
- private:
-  const SpecContext& context_;
-  std::size_t nodes_ = 0;
-};
-
-}  // namespace
-
-Result<SpecNode> detail::parse_yaml(std::string_view text, const SpecContext& context) {
-  try {
-    const YAML::Node root = YAML::Load(std::string(text));
-    YamlConverter converter(context);
-    return converter.convert(root, 0, 0);
-  } catch (const YAML::DeepRecursion& e) {
-    // yaml-cpp's own guard, hit before ours can count (its message is only "bad file").
-    SpecNode where;
-    where.line = e.mark.is_null() ? 0 : e.mark.line + 1;
-    return spec_error(context, where, "", fmt::format("nested deeper than {} levels", kMaxDepth),
-                      Errc::malformed);
-  } catch (const YAML::Exception& e) {
-    SpecNode where;
-    where.line = e.mark.is_null() ? 0 : e.mark.line + 1;
-    return spec_error(context, where, "", fmt::format("YAML syntax error: {}", e.msg),
-                      Errc::malformed);
-  } catch (const std::exception& e) {
-    return Error(Errc::malformed,
-                 fmt::format("{}: cannot read YAML: {}", context.source, e.what()));
-  }
-}
-
-namespace {
 
 // ---- Ring sections ----------------------------------------------------------------------------
 
@@ -166,14 +76,14 @@ class RingParser {
     if (!root.is_mapping()) {
       return spec_error(
           c_, root, "",
-          fmt::format("expected a mapping of sections, found {}", detail::type_name(root)));
+          fmt::format("expected a mapping of sections, found {}", tree::type_name(root)));
     }
     const SpecNode* simulator = nullptr;
     for (const auto& [key, value] : root.entries) {
       if (key == "simulator") {
         simulator = &value;
       } else if (key == "version") {
-        auto v = detail::to_int(c_, value, "version", 1, 1);
+        auto v = tree::to_int(c_, value, "version", 1, 1);
         if (!v) return std::move(v).error();
       } else if (std::find(kMasterSections.begin(), kMasterSections.end(), key) !=
                  kMasterSections.end()) {
@@ -199,8 +109,8 @@ class RingParser {
  private:
   Result<void> parse_simulator(const SpecNode& node, Ring& ring) {
     const std::string path = "simulator";
-    if (auto r = detail::check_keys(c_, node, path, {"slaves", "wiring", "faults"}); !r) return r;
-    auto slaves = detail::require(c_, node, path, "slaves");
+    if (auto r = tree::check_keys(c_, node, path, {"slaves", "wiring", "faults"}); !r) return r;
+    auto slaves = tree::require(c_, node, path, "slaves");
     if (!slaves) return std::move(slaves).error();
     const SpecNode& list = **slaves;
     const std::string slaves_path = "simulator.slaves";
@@ -208,7 +118,7 @@ class RingParser {
       return spec_error(c_, list, slaves_path, "expected a non-empty list of slaves");
     }
     for (std::size_t i = 0; i < list.items.size(); ++i) {
-      if (auto r = parse_slave(list.items[i], detail::index_path(slaves_path, i), ring); !r) {
+      if (auto r = parse_slave(list.items[i], tree::index_path(slaves_path, i), ring); !r) {
         return r;
       }
     }
@@ -219,7 +129,7 @@ class RingParser {
           return spec_error(c_, *wiring, wiring_path, "expected a list of {from, to}");
         }
         for (std::size_t i = 0; i < wiring->items.size(); ++i) {
-          if (auto r = parse_wire(wiring->items[i], detail::index_path(wiring_path, i), ring); !r) {
+          if (auto r = parse_wire(wiring->items[i], tree::index_path(wiring_path, i), ring); !r) {
             return r;
           }
         }
@@ -232,7 +142,7 @@ class RingParser {
           return spec_error(c_, *faults, faults_path, "expected a list of faults");
         }
         for (std::size_t i = 0; i < faults->items.size(); ++i) {
-          const std::string p = detail::index_path(faults_path, i);
+          const std::string p = tree::index_path(faults_path, i);
           auto f = detail::parse_fault_node(c_, faults->items[i], p);
           if (!f) return std::move(f).error();
           if (auto r = check_fault_slaves(*f, faults->items[i], p, ring); !r) return r;
@@ -278,18 +188,18 @@ class RingParser {
 
   Result<void> parse_slave(const SpecNode& node, const std::string& path, Ring& ring) {
     if (auto r =
-            detail::check_keys(c_, node, path,
-                               {"name", "profile", "file", "options", "clock", "esc", "start",
-                                "objects", "parent", "port", "cable_delay_ns", "timing", "count"});
+            tree::check_keys(c_, node, path,
+                             {"name", "profile", "file", "options", "clock", "esc", "start",
+                              "objects", "parent", "port", "cable_delay_ns", "timing", "count"});
         !r) {
       return r;
     }
     RingSlave slave;
     slave.line = node.line;
-    auto name_node = detail::require(c_, node, path, "name");
+    auto name_node = tree::require(c_, node, path, "name");
     if (!name_node) return std::move(name_node).error();
-    const std::string name_path = detail::join_path(path, "name");
-    auto name = detail::to_text(c_, **name_node, name_path);
+    const std::string name_path = tree::join_path(path, "name");
+    auto name = tree::to_text(c_, **name_node, name_path);
     if (!name) return std::move(name).error();
     if (!valid_name(*name)) {
       return spec_error(c_, **name_node, name_path,
@@ -297,10 +207,10 @@ class RingParser {
                                     "starting with a letter or '_', at most 64)",
                                     *name));
     }
-    auto profile_node = detail::require(c_, node, path, "profile");
+    auto profile_node = tree::require(c_, node, path, "profile");
     if (!profile_node) return std::move(profile_node).error();
-    const std::string profile_path = detail::join_path(path, "profile");
-    auto profile = detail::to_text(c_, **profile_node, profile_path);
+    const std::string profile_path = tree::join_path(path, "profile");
+    auto profile = tree::to_text(c_, **profile_node, profile_path);
     if (!profile) return std::move(profile).error();
     if (!profile_known(*profile)) {
       return spec_error(c_, **profile_node, profile_path,
@@ -309,9 +219,9 @@ class RingParser {
     }
     slave.device.profile = *profile;
     if (const SpecNode* file = node.find("file")) {
-      auto text = detail::to_text(c_, *file, detail::join_path(path, "file"));
+      auto text = tree::to_text(c_, *file, tree::join_path(path, "file"));
       if (!text) return std::move(text).error();
-      if (text->empty()) return spec_error(c_, *file, detail::join_path(path, "file"), "empty");
+      if (text->empty()) return spec_error(c_, *file, tree::join_path(path, "file"), "empty");
       auto resolved = file_path(*text);
       if (!resolved) return std::move(resolved).error();
       slave.device.file = *resolved;
@@ -321,33 +231,33 @@ class RingParser {
                                     *profile, *profile == "eeprom" ? "SII image" : "ESI XML"));
     }
     if (const SpecNode* options = node.find("options")) {
-      const std::string options_path = detail::join_path(path, "options");
+      const std::string options_path = tree::join_path(path, "options");
       if (!options->is_mapping()) {
         return spec_error(c_, *options, options_path,
                           fmt::format("expected a mapping of option: value, found {}",
-                                      detail::type_name(*options)));
+                                      tree::type_name(*options)));
       }
       for (const auto& [key, value] : options->entries) {
-        auto text = detail::to_text(c_, value, detail::join_path(options_path, key));
+        auto text = tree::to_text(c_, value, tree::join_path(options_path, key));
         if (!text) return std::move(text).error();
         slave.device.options[key] = *text;
       }
     }
     if (const SpecNode* clock = node.find("clock")) {
-      if (auto r = parse_clock(*clock, detail::join_path(path, "clock"), slave.device.clock); !r) {
+      if (auto r = parse_clock(*clock, tree::join_path(path, "clock"), slave.device.clock); !r) {
         return r;
       }
     }
     if (const SpecNode* esc = node.find("esc")) {
-      if (auto r = parse_esc(*esc, detail::join_path(path, "esc"), slave.device.esc); !r) return r;
+      if (auto r = parse_esc(*esc, tree::join_path(path, "esc"), slave.device.esc); !r) return r;
     }
     if (const SpecNode* start = node.find("start")) {
-      if (auto r = parse_start(*start, detail::join_path(path, "start"), slave.device.start); !r) {
+      if (auto r = parse_start(*start, tree::join_path(path, "start"), slave.device.start); !r) {
         return r;
       }
     }
     if (const SpecNode* objects = node.find("objects")) {
-      const std::string op = detail::join_path(path, "objects");
+      const std::string op = tree::join_path(path, "objects");
       if (*profile != "eeprom") {
         return spec_error(
             c_, *objects, op,
@@ -356,36 +266,34 @@ class RingParser {
       if (!objects->is_sequence()) {
         return spec_error(
             c_, *objects, op,
-            fmt::format("expected a list of objects, found {}", detail::type_name(*objects)));
+            fmt::format("expected a list of objects, found {}", tree::type_name(*objects)));
       }
       for (std::size_t i = 0; i < objects->items.size(); ++i) {
-        auto o = parse_object(objects->items[i], detail::index_path(op, i));
+        auto o = parse_object(objects->items[i], tree::index_path(op, i));
         if (!o) return std::move(o).error();
         slave.device.objects.push_back(std::move(*o));
       }
     }
     if (const SpecNode* timing = node.find("timing")) {
-      const std::string tp = detail::join_path(path, "timing");
+      const std::string tp = tree::join_path(path, "timing");
       if (auto r =
-              detail::check_keys(c_, *timing, tp, {"processing_delay_ns", "forwarding_delay_ns"});
+              tree::check_keys(c_, *timing, tp, {"processing_delay_ns", "forwarding_delay_ns"});
           !r) {
         return r;
       }
       if (const SpecNode* v = timing->find("processing_delay_ns")) {
-        auto ns =
-            detail::to_int(c_, *v, detail::join_path(tp, "processing_delay_ns"), 0, 1'000'000);
+        auto ns = tree::to_int(c_, *v, tree::join_path(tp, "processing_delay_ns"), 0, 1'000'000);
         if (!ns) return std::move(ns).error();
         slave.timing.processing_delay_ns = *ns;
       }
       if (const SpecNode* v = timing->find("forwarding_delay_ns")) {
-        auto ns =
-            detail::to_int(c_, *v, detail::join_path(tp, "forwarding_delay_ns"), 0, 1'000'000);
+        auto ns = tree::to_int(c_, *v, tree::join_path(tp, "forwarding_delay_ns"), 0, 1'000'000);
         if (!ns) return std::move(ns).error();
         slave.timing.forwarding_delay_ns = *ns;
       }
     }
     if (const SpecNode* delay = node.find("cable_delay_ns")) {
-      auto ns = detail::to_int(c_, *delay, detail::join_path(path, "cable_delay_ns"), 0, 1'000'000);
+      auto ns = tree::to_int(c_, *delay, tree::join_path(path, "cable_delay_ns"), 0, 1'000'000);
       if (!ns) return std::move(ns).error();
       slave.cable_delay_ns = *ns;
     }
@@ -395,8 +303,8 @@ class RingParser {
                         "the first slave is cabled to the master: it has no parent or port");
     }
     if (const SpecNode* parent = node.find("parent")) {
-      const std::string pp = detail::join_path(path, "parent");
-      auto text = detail::to_text(c_, *parent, pp);
+      const std::string pp = tree::join_path(path, "parent");
+      auto text = tree::to_text(c_, *parent, pp);
       if (!text) return std::move(text).error();
       if (auto r = check_slave_name(*text, *parent, pp, ring); !r) {
         return spec_error(c_, *parent, pp,
@@ -408,13 +316,13 @@ class RingParser {
       slave.parent = *text;
     }
     if (const SpecNode* port = node.find("port")) {
-      auto p = detail::to_int(c_, *port, detail::join_path(path, "port"), 1, 3);
+      auto p = tree::to_int(c_, *port, tree::join_path(path, "port"), 1, 3);
       if (!p) return std::move(p).error();
       slave.port = static_cast<std::uint8_t>(*p);
     }
     std::int64_t count = 1;
     if (const SpecNode* count_node = node.find("count")) {
-      auto n = detail::to_int(c_, *count_node, detail::join_path(path, "count"), 1, 1024);
+      auto n = tree::to_int(c_, *count_node, tree::join_path(path, "count"), 1, 1024);
       if (!n) return std::move(n).error();
       count = *n;
     }
@@ -461,17 +369,16 @@ class RingParser {
                             std::int64_t min, std::int64_t max, std::optional<T>& out) {
     const SpecNode* v = node.find(key);
     if (v == nullptr) return ok();
-    auto n = detail::to_int(c_, *v, detail::join_path(path, key), min, max);
+    auto n = tree::to_int(c_, *v, tree::join_path(path, key), min, max);
     if (!n) return std::move(n).error();
     out = static_cast<T>(*n);
     return ok();
   }
 
   Result<void> parse_esc(const SpecNode& node, const std::string& path, EscPreset& esc) {
-    if (auto r =
-            detail::check_keys(c_, node, path,
-                               {"type", "revision", "build", "fmmus", "sync_managers", "ram_kib",
-                                "ports", "features", "sii_busy_ns", "sii_read_bytes"});
+    if (auto r = tree::check_keys(c_, node, path,
+                                  {"type", "revision", "build", "fmmus", "sync_managers", "ram_kib",
+                                   "ports", "features", "sii_busy_ns", "sii_read_bytes"});
         !r) {
       return r;
     }
@@ -489,7 +396,7 @@ class RingParser {
       if (!r) return r;
     }
     if (esc.sii_read_bytes && *esc.sii_read_bytes != 4 && *esc.sii_read_bytes != 8) {
-      const std::string p = detail::join_path(path, "sii_read_bytes");
+      const std::string p = tree::join_path(path, "sii_read_bytes");
       return spec_error(c_, *node.find("sii_read_bytes"), p,
                         fmt::format("{} bytes: an SII interface reads 4 or 8", *esc.sii_read_bytes),
                         Errc::out_of_range);
@@ -499,14 +406,14 @@ class RingParser {
 
   Result<ObjectPreset> parse_object(const SpecNode& node, const std::string& path) {
     if (auto r =
-            detail::check_keys(c_, node, path, {"index", "subindex", "value", "writable", "abort"});
+            tree::check_keys(c_, node, path, {"index", "subindex", "value", "writable", "abort"});
         !r) {
       return std::move(r).error();
     }
     ObjectPreset o;
-    auto index = detail::require(c_, node, path, "index");
+    auto index = tree::require(c_, node, path, "index");
     if (!index) return std::move(index).error();
-    auto i = detail::to_int(c_, **index, detail::join_path(path, "index"), 0, 0xFFFF);
+    auto i = tree::to_int(c_, **index, tree::join_path(path, "index"), 0, 0xFFFF);
     if (!i) return std::move(i).error();
     o.index = static_cast<std::uint16_t>(*i);
     std::optional<std::uint8_t> sub;
@@ -514,15 +421,15 @@ class RingParser {
       return std::move(r).error();
     o.subindex = sub.value_or(0);
     if (const SpecNode* value = node.find("value")) {
-      const std::string vp = detail::join_path(path, "value");
-      auto text = detail::to_text(c_, *value, vp);
+      const std::string vp = tree::join_path(path, "value");
+      auto text = tree::to_text(c_, *value, vp);
       if (!text) return std::move(text).error();
       auto bytes = hex_bytes(*text);
       if (!bytes) return spec_error(c_, *value, vp, bytes.error().message());
       o.value = std::move(*bytes);
     }
     if (const SpecNode* writable = node.find("writable")) {
-      auto b = detail::to_bool(c_, *writable, detail::join_path(path, "writable"));
+      auto b = tree::to_bool(c_, *writable, tree::join_path(path, "writable"));
       if (!b) return std::move(b).error();
       o.writable = *b;
     }
@@ -564,13 +471,13 @@ class RingParser {
   }
 
   Result<void> parse_start(const SpecNode& node, const std::string& path, StartState& start) {
-    if (auto r = detail::check_keys(c_, node, path, {"station", "al_status"}); !r) return r;
+    if (auto r = tree::check_keys(c_, node, path, {"station", "al_status"}); !r) return r;
     if (auto r = optional_int(node, path, "station", 0, 0xFFFF, start.station); !r) return r;
     if (auto r = optional_int(node, path, "al_status", 0, 0xFFFF, start.al_status); !r) return r;
     if (start.al_status) {
       const auto state = static_cast<std::uint8_t>(*start.al_status & 0x0F);
       if (state != 1 && state != 2 && state != 3 && state != 4 && state != 8) {
-        return spec_error(c_, *node.find("al_status"), detail::join_path(path, "al_status"),
+        return spec_error(c_, *node.find("al_status"), tree::join_path(path, "al_status"),
                           fmt::format("0x{:04X} holds no AL state (INIT 1, PREOP 2, BOOT 3, "
                                       "SAFEOP 4, OP 8; + 0x10 for the error flag)",
                                       *start.al_status),
@@ -581,14 +488,14 @@ class RingParser {
   }
 
   Result<void> parse_clock(const SpecNode& node, const std::string& path, DcClockModel& clock) {
-    if (auto r = detail::check_keys(c_, node, path,
-                                    {"drift_ppm", "offset_ns", "jitter_ns", "jitter_seed"});
+    if (auto r = tree::check_keys(c_, node, path,
+                                  {"drift_ppm", "offset_ns", "jitter_ns", "jitter_seed"});
         !r) {
       return r;
     }
     if (const SpecNode* v = node.find("drift_ppm")) {
-      const std::string p = detail::join_path(path, "drift_ppm");
-      auto ppm = detail::to_double(c_, *v, p);
+      const std::string p = tree::join_path(path, "drift_ppm");
+      auto ppm = tree::to_double(c_, *v, p);
       if (!ppm) return std::move(ppm).error();
       if (std::fabs(*ppm) > 1000.0) {
         return spec_error(c_, *v, p, fmt::format("{} ppm is out of range (-1000 to 1000)", v->text),
@@ -597,19 +504,18 @@ class RingParser {
       clock.drift_ppm = *ppm;
     }
     if (const SpecNode* v = node.find("offset_ns")) {
-      auto ns =
-          detail::to_int(c_, *v, detail::join_path(path, "offset_ns"), 0, std::int64_t{1} << 62);
+      auto ns = tree::to_int(c_, *v, tree::join_path(path, "offset_ns"), 0, std::int64_t{1} << 62);
       if (!ns) return std::move(ns).error();
       clock.start_offset_ns = *ns;
     }
     if (const SpecNode* v = node.find("jitter_ns")) {
-      auto ns = detail::to_int(c_, *v, detail::join_path(path, "jitter_ns"), 0, 1'000'000);
+      auto ns = tree::to_int(c_, *v, tree::join_path(path, "jitter_ns"), 0, 1'000'000);
       if (!ns) return std::move(ns).error();
       clock.jitter_ns = *ns;
     }
     if (const SpecNode* v = node.find("jitter_seed")) {
-      auto seed = detail::to_int(c_, *v, detail::join_path(path, "jitter_seed"), 0,
-                                 std::numeric_limits<std::int64_t>::max());
+      auto seed = tree::to_int(c_, *v, tree::join_path(path, "jitter_seed"), 0,
+                               std::numeric_limits<std::int64_t>::max());
       if (!seed) return std::move(seed).error();
       clock.jitter_seed = static_cast<std::uint64_t>(*seed);
     }
@@ -618,7 +524,7 @@ class RingParser {
 
   Result<std::pair<std::string, std::string>> endpoint(const SpecNode& node,
                                                        const std::string& path, const Ring& ring) {
-    auto text = detail::to_text(c_, node, path);
+    auto text = tree::to_text(c_, node, path);
     if (!text) return std::move(text).error();
     const auto dot = text->find('.');
     if (dot == std::string::npos || dot == 0 || dot + 1 == text->size()) {
@@ -631,18 +537,18 @@ class RingParser {
   }
 
   Result<void> parse_wire(const SpecNode& node, const std::string& path, Ring& ring) {
-    if (auto r = detail::check_keys(c_, node, path, {"from", "to"}); !r) return r;
-    auto from_node = detail::require(c_, node, path, "from");
+    if (auto r = tree::check_keys(c_, node, path, {"from", "to"}); !r) return r;
+    auto from_node = tree::require(c_, node, path, "from");
     if (!from_node) return std::move(from_node).error();
-    auto to_node = detail::require(c_, node, path, "to");
+    auto to_node = tree::require(c_, node, path, "to");
     if (!to_node) return std::move(to_node).error();
-    auto from = endpoint(**from_node, detail::join_path(path, "from"), ring);
+    auto from = endpoint(**from_node, tree::join_path(path, "from"), ring);
     if (!from) return std::move(from).error();
-    auto to = endpoint(**to_node, detail::join_path(path, "to"), ring);
+    auto to = endpoint(**to_node, tree::join_path(path, "to"), ring);
     if (!to) return std::move(to).error();
     for (const auto& w : ring.wiring) {
       if (w.to_slave == to->first && w.to_signal == to->second) {
-        return spec_error(c_, **to_node, detail::join_path(path, "to"),
+        return spec_error(c_, **to_node, tree::join_path(path, "to"),
                           fmt::format("{}.{} is already driven by {}.{} (line {})", to->first,
                                       to->second, w.from_slave, w.from_signal, w.line));
       }
@@ -675,7 +581,7 @@ Result<Ring> parse_ring(std::string_view text, std::string source, std::string b
     return Error(Errc::out_of_range, fmt::format("{}: larger than {}", context.source,
                                                  describe_size(max_file_bytes(FileKind::ring))));
   }
-  auto root = detail::parse_yaml(text, context);
+  auto root = tree::parse_yaml(text, context);
   if (!root) return std::move(root).error();
   return RingParser(context, std::move(base_dir)).parse(*root);
 }

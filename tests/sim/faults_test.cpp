@@ -357,6 +357,41 @@ TEST_F(FaultsTest, LatchedAlErrorKeepsStateUntilClear) {
   EXPECT_EQ(segment.esc(0).al_state(), wire::AlState::op);
 }
 
+// A slave whose firmware refuses a state: the request leaves it where it was with the error bit
+// and the code; other states are still taken; clear() lifts the refusal, a power cycle too.
+TEST_F(FaultsTest, RefusedStateKeepsTheSlaveWhereItWasUntilClear) {
+  request_state(0x1002, wire::AlState::preop);
+  inject(fault::refuse_state("b", wire::AlState::safeop, 0x001D));
+  EXPECT_THAT(injector->info(now).active, ElementsAre("refuse SAFEOP on b with AL status 0x001D"));
+  request_state(0x1002, wire::AlState::safeop);
+  auto r = send({{Command::fprd, fp(0x1002, reg::kAlStatus), {0, 0, 0, 0, 0, 0}}});
+  EXPECT_EQ(r.data.at(0)[0], 0x12);  // PREOP + error
+  EXPECT_EQ(wire::load_le16(r.data.at(0).data() + 4), 0x001D);
+  // Acknowledged and asked again: refused again (the firmware still refuses).
+  send({{Command::fpwr, fp(0x1002, reg::kAlControl),
+         le16(wire::encode_al_control(wire::AlState::safeop, true))}});
+  EXPECT_EQ(segment.esc(1).al_state(), wire::AlState::preop);
+  EXPECT_TRUE(segment.esc(1).al_error());
+  EXPECT_EQ(segment.esc(1).al_status_code(), 0x001D);
+  // Other slaves and other states are not affected.
+  to_op(0x1001);
+  request_state(0x1002, wire::AlState::init);
+  EXPECT_EQ(segment.esc(1).al_state(), wire::AlState::init);
+  injector->clear();
+  EXPECT_THAT(injector->info(now).active, ElementsAre());
+  send({{Command::fpwr, fp(0x1002, reg::kAlControl),
+         le16(wire::encode_al_control(wire::AlState::init, true))}});
+  EXPECT_FALSE(segment.esc(1).al_error());
+  to_op(0x1002);
+  // Lifted by a power cycle as well (the firmware restarts).
+  inject(fault::refuse_state("c", wire::AlState::preop, 0x0016));
+  request_state(0x1003, wire::AlState::preop);
+  EXPECT_EQ(segment.esc(2).al_state(), wire::AlState::init);
+  inject(fault::power_cycle("c"));
+  EXPECT_FALSE(segment.esc(2).al_refusal(wire::AlState::preop).has_value());
+  EXPECT_THAT(injector->info(now).active, ElementsAre());
+}
+
 TEST_F(FaultsTest, DcJumpStepsTheLocalClock) {
   DcUnit* dc = segment.esc(0).dc();
   ASSERT_NE(dc, nullptr);
@@ -590,6 +625,7 @@ std::vector<Fault> every_kind() {
       fault::retreat_to_safeop("io"),
       fault::power_cycle("io"),
       fault::latch_al_error("io", 0x001B),
+      fault::refuse_state("io", wire::AlState::safeop, 0x001D),
       fault::mailbox_abort("m", 0x2002, 3, 0x06020000, MailboxStage::upload_segment),
       fault::mailbox_protocol_fault("m", 0x2000, 1, MailboxStage::download_segment,
                                     {ProtocolFaultKind::segment_command, 0x20}),
@@ -624,6 +660,15 @@ TEST(FaultForms, JsonRoundTripsEveryKindAndForm) {
   EXPECT_EQ(to_json(fault::mailbox_abort("mbx", 0x2000, 1, 0x06010002)),
             R"({"kind":"mailbox_abort","slave":"mbx","index":"0x2000","subindex":1,)"
             R"("stage":"request","code":"0x06010002"})");
+  EXPECT_EQ(to_json(fault::refuse_state("outputs", wire::AlState::op, 0x001B)),
+            R"({"kind":"refuse_state","slave":"outputs","state":"op","code":"0x001B"})");
+  // Delays: whole milliseconds as integers, fractions exactly.
+  EXPECT_EQ(to_json(fault::after(fault::delay_replies(1500us), 250ms)),
+            R"({"after_ms":250,"fault":{"kind":"delay_replies","ms":1.5}})");
+  EXPECT_EQ(to_json(fault::script({fault::wait(1234567ns), fault::power_cycle("a")})),
+            R"({"script":[{"wait_ms":1.234567},{"kind":"power_cycle","slave":"a"}]})");
+  // Names are escaped (the control channel's clients parse this).
+  EXPECT_EQ(to_json(fault::disconnect("a\"b")), R"({"kind":"disconnect","slave":"a\"b"})");
 }
 
 TEST(FaultForms, JsonErrorsNameTheKeyPath) {
@@ -684,6 +729,16 @@ TEST(FaultForms, CommandLineWords) {
   f = parse({"mailbox_abort", "m", "0x2000", "1"});
   ASSERT_FALSE(f.ok());
   EXPECT_THAT(f.error().message(), HasSubstr("'0x2000' is not INDEX:SUB"));
+  f = parse({"refuse_state", "outputs", "SAFEOP", "0x001D"});
+  ASSERT_TRUE(f.ok()) << f.error().describe();
+  EXPECT_EQ(f->effect.state, wire::AlState::safeop);
+  EXPECT_EQ(describe(*f), "refuse SAFEOP on outputs with AL status 0x001D");
+  f = parse({"refuse_state", "outputs", "running", "0x001D"});
+  ASSERT_FALSE(f.ok());
+  EXPECT_THAT(f.error().message(), HasSubstr("refuse_state.state: unknown AL state 'running'"));
+  f = parse({"refuse_state", "outputs", "op", "0"});
+  ASSERT_FALSE(f.ok());
+  EXPECT_THAT(f.error().message(), HasSubstr("refuse_state.code: 0 is out of range (1 to 65535)"));
   f = parse({"latch_al_error", "a", "0x10000"});
   ASSERT_FALSE(f.ok());
   EXPECT_EQ(f.error().message(),
@@ -849,6 +904,31 @@ TEST(ProfileFaults, RetreatTakesADigitalOutputTerminalOutOfOp) {
   ASSERT_TRUE(injector.inject(fault::latch_al_error("outputs", 0x001B), master.now()).ok());
   EXPECT_EQ(master.al_status(0).code, 0x001B);
   EXPECT_EQ(master.al_status(0).state, wire::AlState::safeop);
+}
+
+// A terminal whose ESC mirrors AL control into AL status (device emulation) refuses too: the
+// refusal acts before the firmware and the mirror.
+TEST(ProfileFaults, RefusedStateHoldsADigitalOutputTerminalInSafeop) {
+  if (!has_profile("EL2809")) GTEST_SKIP() << "the EL2809 profile is not available yet";
+  Segment segment;
+  test::add_device(segment, "outputs", test::profile("EL2809"));
+  test::SimMaster master(segment);
+  master.assign_stations();
+  master.bring_to_preop(0);
+  master.configure_process_data(0);
+  FaultInjector injector(segment);
+  ASSERT_TRUE(
+      injector.inject(fault::refuse_state("outputs", wire::AlState::op, 0x001B), master.now())
+          .ok());
+  ASSERT_EQ(master.request(0, wire::AlState::safeop).state, wire::AlState::safeop);
+  master.lrw();
+  const auto refused = master.request(0, wire::AlState::op);
+  EXPECT_EQ(refused.state, wire::AlState::safeop);
+  EXPECT_TRUE(refused.error);
+  EXPECT_EQ(refused.code, 0x001B);
+  injector.clear();
+  master.lrw();
+  EXPECT_EQ(master.request(0, wire::AlState::op, true).state, wire::AlState::op);
 }
 
 }  // namespace

@@ -467,7 +467,23 @@ TEST(ControlRequests, BadRequestsNameWhatWasWrong) {
     EXPECT_EQ(r["ok"], false) << request;
     return r.contains("error") ? r["error"].get<std::string>() : std::string();
   };
-  EXPECT_THAT(error("not json"), StartsWith("request: invalid JSON at byte 0"));
+  // JSON errors name the byte (from 0) where the text stopped being valid, and why.
+  EXPECT_EQ(error("not json"),
+            "request: invalid JSON at byte 1: syntax error while parsing value - invalid "
+            "literal; last read: 'no'");
+  EXPECT_THAT(error(R"({"op":"ping")"), StartsWith("request: invalid JSON at byte 12 (the end): "));
+  EXPECT_THAT(error(R"({"op":"ping"} x)"),
+              StartsWith("request: invalid JSON at byte 14: syntax error while parsing value"));
+  EXPECT_EQ(error(R"({"op":"ping", "id":1, "op":"status"})"),
+            "request: invalid JSON at byte 22: duplicate key 'op'");
+  EXPECT_THAT(error(R"({"op":"ping","id":1e400})"),
+              StartsWith("request: invalid JSON at byte 22: number overflow parsing '1e400'"));
+  EXPECT_THAT(error("{\"op\":\"ping\",\"id\":\"\x01\"}"),
+              StartsWith("request: invalid JSON at byte 19: syntax error while parsing value - "
+                         "invalid string: control character U+0001"));
+  // Integers and fractions stay apart: a port is an integer, 1.0 is not.
+  EXPECT_EQ(error(R"({"op":"link","slave":"s0","port":1.0,"up":false})"),
+            "port: '1.0' is not an integer (decimal or 0x hex)");
   EXPECT_EQ(error("[1,2]"), "request: expected a JSON object, found a list");
   EXPECT_EQ(error("{}"), R"(op: missing (e.g. {"op":"status"}))");
   EXPECT_THAT(error(R"({"op":"explode"})"),
@@ -490,11 +506,36 @@ TEST(ControlRequests, BadRequestsNameWhatWasWrong) {
   EXPECT_EQ(error(R"({"op":"status","id":[1]})"), "id: expected a string or a number");
   EXPECT_THAT(error(std::string(kMaxControlLine + 10, '{')),
               StartsWith("request: longer than 65536 bytes"));
-  EXPECT_THAT(error(std::string(200, '[') + std::string(200, ']')),
-              HasSubstr("nested deeper than 32 levels"));
+  // The 33rd bracket is refused where it opens, before anything deeper is built.
+  EXPECT_EQ(error(std::string(200, '[') + std::string(200, ']')),
+            "request: invalid JSON at byte 32: nested deeper than 32 levels");
+  EXPECT_EQ(error(R"({"op":"ping","id":)" + std::string(50'000, '[')),
+            "request: invalid JSON at byte 49: nested deeper than 32 levels");
+  EXPECT_EQ(error(R"({"op":"ping","id":)" + std::string(31, '[') + std::string(31, ']') + "}"),
+            "id: expected a string or a number");  // 32 levels are still read
   // A string with bytes that are not UTF-8 still yields a parsable reply.
   json r = call(server, "{\"op\":\"signal.get\",\"slave\":\"\xff\xfe\",\"signal\":\"x\"}");
   EXPECT_EQ(r["ok"], false);
+  EXPECT_THAT(r["error"].get<std::string>(),
+              StartsWith("request: invalid JSON at byte 28: syntax error while parsing value - "
+                         "invalid string: ill-formed UTF-8 byte"));
+}
+
+TEST(ControlRequests, TheIdIsEchoedAsWritten) {
+  SimServer server(generic_segment(1));
+  EXPECT_EQ(handle_control_request(server, R"({"op":"ping","id":7})"), R"({"ok":true,"id":7})");
+  EXPECT_EQ(handle_control_request(server, R"({"id":"a\"b","op":"ping"})"),
+            R"({"ok":true,"id":"a\"b"})");
+  EXPECT_EQ(handle_control_request(server, R"({"op":"ping","id":null})"),
+            R"({"ok":true,"id":null})");
+  EXPECT_EQ(handle_control_request(server, R"({"op":"ping","id":-2.5})"),
+            R"({"ok":true,"id":-2.5})");
+  EXPECT_EQ(handle_control_request(server, R"({"op":"ping","id":18446744073709551615})"),
+            R"({"ok":true,"id":18446744073709551615})");
+  EXPECT_EQ(handle_control_request(server, R"({"op":"nope","id":true})"),
+            R"x({"ok":false,"id":true,"error":"op: unknown op 'nope' (known: status, )x"
+            R"x(fault.inject, fault.clear, fault.list, signals, signal.get, signal.set, )x"
+            R"x(signal.clear, power_cycle, link, memory.read, profiles, ping)"})x");
 }
 
 class ControlSocket : public ::testing::Test {

@@ -142,7 +142,11 @@ int run_session(const Options& options) {
     master.subscribe_events(
         [json = options.json, started_at](const ecat::master::Event& e, std::uint64_t missed) {
           if (json) {
-            if (missed > 0) fmt::print("{{\"event\":\"events.missed\",\"count\":{}}}\n", missed);
+            if (missed > 0) {
+              // Ordered: "event" leads, as in every line event_json writes.
+              const nlohmann::ordered_json line{{"event", "events.missed"}, {"count", missed}};
+              fmt::print("{}\n", line.dump());
+            }
             fmt::print("{}\n", ecat::master::event_json(e));
           } else {
             if (missed > 0) fmt::print("({} events missed)\n", missed);
@@ -183,7 +187,10 @@ int run_session(const Options& options) {
   }
   if (options.json) {
     // With --events the output is JSON Lines throughout: the status is one line too.
-    fmt::print("{}\n", options.events ? status_json(master).dump() : status_json(master).dump(2));
+    // Names come from ring files and EEPROMs: a byte that is not UTF-8 prints as U+FFFD rather than
+    // making dump() throw.
+    fmt::print("{}\n", status_json(master).dump(options.events ? -1 : 2, ' ', false,
+                                                json::error_handler_t::replace));
   } else {
     fmt::print("\nafter {:.1f} s:\n", options.duration_s);
     print_domains(master);
@@ -241,7 +248,7 @@ int list_slaves(const Options& options) {
       auto slave = master.slave(s.name);
       if (slave) list.push_back(ecat::tool::slave_json((*slave)->info()));
     }
-    fmt::print("{}\n", list.dump(2));
+    fmt::print("{}\n", list.dump(2, ' ', false, json::error_handler_t::replace));
   } else {
     print_slaves(master, true);
   }

@@ -474,7 +474,10 @@ int run(const Options& options) {
     return 1;
   }
   if (options.json) {
-    fmt::print("{}\n", to_json(options, bytes.size(), *decoded).dump(2));
+    // The file name is the user's bytes: one that is not UTF-8 prints with U+FFFD rather than
+    // making dump() throw.
+    fmt::print("{}\n", to_json(options, bytes.size(), *decoded)
+                           .dump(2, ' ', false, json::error_handler_t::replace));
   } else {
     print_text(options, bytes.size(), *decoded);
   }

@@ -126,6 +126,13 @@ class Esc {
   // registers without DC do not: accesses to them leave the working counter alone).
   bool register_implemented(std::uint32_t address) const noexcept;
 
+  // A firmware that refuses `state` (fault injection, refuse_state): AL control requesting it
+  // (from any other state) leaves the AL state as it is and sets the error indicator with
+  // `status_code`; the application never sees the request. nullopt lifts the refusal. A power
+  // cycle lifts every refusal (the firmware restarts).
+  void set_al_refusal(wire::AlState state, std::optional<std::uint16_t> status_code);
+  std::optional<std::uint16_t> al_refusal(wire::AlState state) const noexcept;
+
   // ---- The PDI side: what the device's firmware (Application) uses --------------------------
   void pdi_set_al_status(wire::AlState state, bool error, std::uint16_t status_code);
   // Copies a reply into a mailbox SM that the master reads (direction read). Fails when the SM is
@@ -189,6 +196,7 @@ class Esc {
   std::int64_t sii_busy_until_ns_ = 0;
   bool dc_system_time_ = false;
   std::vector<std::uint8_t> last_mailbox_reply_;
+  std::array<std::optional<std::uint16_t>, 16> al_refusals_{};  // by AL state code (4 bits)
 };
 
 // Byte ranges of the register area (0x0000..0x0FFF) the master may write; everything else is

@@ -31,6 +31,7 @@
 #include <ecat/result.hpp>
 #include <ecat/sim/coe_server.hpp>
 #include <ecat/sim/segment.hpp>
+#include <ecat/wire/al.hpp>
 #include <ecat/wire/frame.hpp>
 
 namespace ecat::sim {
@@ -55,6 +56,7 @@ enum class FaultKind : std::uint8_t {
   retreat_to_safeop,       // OP -> SAFEOP without error (a no-op below OP)
   power_cycle,             // registers reset, station 0, INIT, SMs/FMMUs off, mailbox rules gone
   latch_al_error,          // keep the state, set the AL error bit and status `code`
+  refuse_state,            // standing: requests for AL `state` refused with status `code`
   mailbox_abort,           // SDO abort `code` for (index, subindex) at `stage`
   mailbox_protocol_fault,  // corrupt the mailbox response for (index, subindex) at `stage`
   dc_jump,                 // the slave's DC local clock steps by `ns`
@@ -64,7 +66,7 @@ enum class FaultKind : std::uint8_t {
   master_link_down,  // the master's own cable to the first slave
   master_link_up,
 };
-constexpr std::size_t kFaultKindCount = 23;
+constexpr std::size_t kFaultKindCount = 24;
 
 enum class FaultClass : std::uint8_t { exchange, reply, slave, segment };
 
@@ -82,8 +84,9 @@ struct FaultEffect {
   // wkc_offset, command_wkc_offset, logical_wkc_offset.
   std::int64_t delta = 0;
   wire::Command command = wire::Command::nop;  // command_wkc_offset
-  // latch_al_error (AL status code) and mailbox_abort (SDO abort code).
+  // latch_al_error, refuse_state (AL status code) and mailbox_abort (SDO abort code).
   std::uint32_t code = 0;
+  wire::AlState state = wire::AlState::op;  // refuse_state: the AL state the slave refuses
   // mailbox_abort, mailbox_protocol_fault.
   std::uint16_t index = 0;
   std::uint8_t subindex = 0;
@@ -154,6 +157,10 @@ Fault delay_replies(std::chrono::nanoseconds delay);
 Fault retreat_to_safeop(std::string slave);
 Fault power_cycle(std::string slave);
 Fault latch_al_error(std::string slave, std::uint16_t code);
+// The slave's firmware refuses `state`: a request for it (from any other state) leaves the slave
+// where it was with the AL error bit and `code` (e.g. 0x001D invalid output configuration), as a
+// real device whose application refuses a transition. Standing until clear() or a power cycle.
+Fault refuse_state(std::string slave, wire::AlState state, std::uint16_t code);
 Fault mailbox_abort(std::string slave, std::uint16_t index, std::uint8_t subindex,
                     std::uint32_t code, MailboxStage stage = MailboxStage::request);
 Fault mailbox_protocol_fault(std::string slave, std::uint16_t index, std::uint8_t subindex,
@@ -264,7 +271,8 @@ class FaultInjector final : public SegmentHooks {
   // unknown slave, a slave without a mailbox / DC unit / such a port, or a structural error.
   Result<void> inject(const Fault& fault, std::int64_t now_ns);
   // Removes every exchange and reply fault, queued and scheduled fault and script, every mailbox
-  // rule, latched AL errors this injector set, and brings links it took down back up. Does not
+  // rule and AL state refusal, latched AL errors this injector set, and brings links it took down
+  // back up. Does not
   // undo power cycles, retreats or clock jumps (they happened).
   void clear();
 

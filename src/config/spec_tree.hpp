@@ -1,8 +1,10 @@
-// A small document tree shared by the ring file (YAML) and the control channel (JSON), so that
-// both speak one fault vocabulary and report errors the same way: "ring.yaml:12: slaves[3].port:
-// ..." for files, "fault.slave: ..." for one-line requests.
+// A small document tree shared by ring files (YAML: the simulator's sections and the master's),
+// and the simulator's control requests (JSON), so that all of them report errors the same way:
+// "ring.yaml:12: slaves[3].port: ..." for files, "fault.slave: ..." for one-line requests.
 //
-// Private to src/sim: the public API never exposes yaml-cpp or this tree.
+// It lives in the config layer because both the master (src/master/config_yaml.cpp) and the
+// simulator (src/sim) read it, and neither may include the other. Private to the library: the
+// public API never exposes yaml-cpp, nlohmann-json or this tree.
 #pragma once
 
 #include <cstddef>
@@ -14,9 +16,11 @@
 #include <utility>
 #include <vector>
 
+#include <nlohmann/json_fwd.hpp>
+
 #include <ecat/result.hpp>
 
-namespace ecat::sim::detail {
+namespace ecat::config::detail {
 
 struct SpecEntry;
 
@@ -74,15 +78,23 @@ std::string join_path(std::string_view path, std::string_view key);
 std::string index_path(std::string_view path, std::size_t index);
 
 // Parses YAML (yaml-cpp) into the tree, bounding size, depth and alias expansion; syntax errors
-// carry the line. (Defined in ring.cpp, next to the bounds it shares with the ring reader.)
+// carry the line.
 Result<SpecNode> parse_yaml(std::string_view text, const SpecContext& context);
 
-// Parses one JSON value (RFC 8259; the whole text must be one value with optional whitespace).
-// Depth and size are bounded, so hostile input costs little.
+// Parses one JSON value (RFC 8259, by nlohmann-json; the whole text must be one value with
+// optional whitespace). Nesting deeper than `max_depth` containers and duplicate keys are refused;
+// errors say "invalid JSON at byte N: ..." (N counted from 0). Integers keep their digits and
+// fractions their text as written, so to_int/to_double tell them apart.
 Result<SpecNode> parse_json(std::string_view text, std::size_t max_depth = 32);
 
-// Writes `text` as a JSON string literal (with quotes).
+// JSON text of `value`, compact (indent < 0) or pretty. Never throws: strings that are not valid
+// UTF-8 (names from files, echoed input) have each bad sequence replaced by U+FFFD instead of
+// making the whole reply unparsable.
+std::string dump_json(const nlohmann::json& value, int indent = -1);
+std::string dump_json(const nlohmann::ordered_json& value, int indent = -1);
+
+// Writes `text` as a JSON string literal (with quotes), as dump_json does.
 void append_json_string(std::string& out, std::string_view text);
 std::string json_string(std::string_view text);
 
-}  // namespace ecat::sim::detail
+}  // namespace ecat::config::detail
