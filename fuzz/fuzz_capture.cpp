@@ -1,6 +1,8 @@
-// Capture files from anywhere: the pcap/pcapng reader, EtherCAT extraction, request/reply
-// pairing, profile rebuilding and the replay against the rebuilt segment must turn any bytes into
-// values or error values, never a crash, hang or undefined behaviour.
+// Capture files from anywhere: the pcap/pcapng reader (CaptureFile::from_bytes: libpcap reading
+// the bytes through fmemopen, the same path as CaptureFile::open on a file), EtherCAT extraction,
+// request/reply pairing, profile rebuilding and the replay against the rebuilt segment must turn
+// any bytes into values or error values, never a crash, hang or undefined behaviour. libpcap is
+// the system's (not coverage-instrumented): the guidance comes from our code after it.
 #include <cstddef>
 #include <cstdint>
 #include <vector>

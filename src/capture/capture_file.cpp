@@ -1,10 +1,22 @@
+// Captures through libpcap: one reader (pcap_fopen_offline_with_tstamp_precision on a FILE we
+// opened ourselves, or on an fmemopen'd buffer for bytes in memory) and one writer (pcap_dump on a
+// nanosecond "dead" handle, into a file or an open_memstream buffer).
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
-#include <fstream>
-#include <iterator>
+#include <new>
 
+#include <fcntl.h>
 #include <fmt/format.h>
+#include <pcap/pcap.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <ecat/capture/capture_file.hpp>
+#include <ecat/log.hpp>
 
 #include "core/read_file.hpp"
 
@@ -14,20 +26,10 @@ namespace {
 
 using wire::Bytes;
 
-constexpr std::uint32_t kPcapMagicMicro = 0xA1B2C3D4;
-constexpr std::uint32_t kPcapMagicNano = 0xA1B23C4D;
-constexpr std::size_t kPcapHeaderSize = 24;
-constexpr std::size_t kPcapRecordHeaderSize = 16;
 constexpr std::uint32_t kPcapngSectionHeader = 0x0A0D0D0A;
-constexpr std::uint32_t kPcapngByteOrderMagic = 0x1A2B3C4D;
-constexpr std::uint32_t kPcapngInterfaceDescription = 1;
-constexpr std::uint32_t kPcapngObsoletePacket = 2;
-constexpr std::uint32_t kPcapngSimplePacket = 3;
-constexpr std::uint32_t kPcapngEnhancedPacket = 6;
-constexpr std::uint16_t kOptionEnd = 0;
-constexpr std::uint16_t kOptionTimestampResolution = 9;
-constexpr std::uint16_t kOptionTimestampOffset = 14;
-constexpr std::uint32_t kMaxPacketBytes = 1u << 24;
+// The snapshot length written into our files: libpcap's own maximum (MAXIMUM_SNAPLEN), which
+// its readers accept for every link type we write.
+constexpr int kWriteSnapLength = 262144;
 
 constexpr std::uint16_t kEtherTypeIpv4 = 0x0800;
 constexpr std::uint8_t kIpProtocolUdp = 17;
@@ -37,17 +39,15 @@ constexpr std::size_t kSllHeader = 16;
 constexpr std::size_t kSll2Header = 20;
 constexpr std::uint16_t kSllOutgoing = 4;
 
-std::uint32_t load_be32(const std::uint8_t* p) noexcept {
-  return (static_cast<std::uint32_t>(p[0]) << 24) | (static_cast<std::uint32_t>(p[1]) << 16) |
-         (static_cast<std::uint32_t>(p[2]) << 8) | p[3];
+// libpcap's words for a file that ends inside a header or record.
+bool says_truncated(std::string_view message) noexcept {
+  return message.find("truncated") != std::string_view::npos;
 }
 
-std::uint64_t load_be64(const std::uint8_t* p) noexcept {
-  return (static_cast<std::uint64_t>(load_be32(p)) << 32) | load_be32(p + 4);
-}
-
-std::uint32_t swap32(std::uint32_t v) noexcept {
-  return (v >> 24) | ((v >> 8) & 0xFF00u) | ((v << 8) & 0xFF0000u) | (v << 24);
+Errc read_error_code(std::string_view message) noexcept {
+  if (says_truncated(message)) return Errc::truncated;
+  if (message.find("error reading dump file") != std::string_view::npos) return Errc::io_error;
+  return Errc::malformed;
 }
 
 std::optional<EtherCatPacket> from_udp_ipv4(Bytes ip, EtherCatPacket packet) noexcept {
@@ -112,302 +112,216 @@ bool link_type_supported(int link_type) noexcept {
 // ---------------------------------------------------------------------------------------------
 // Reading
 
+struct CaptureFile::Impl {
+  std::vector<std::uint8_t> bytes;  // from_bytes: the buffer libpcap reads through fmemopen
+  FILE* stream = nullptr;           // until libpcap owns it
+  pcap_t* handle = nullptr;         // owns `stream` once opened (pcap_close closes it)
+
+  Impl() = default;
+  Impl(const Impl&) = delete;
+  Impl& operator=(const Impl&) = delete;
+  ~Impl() {
+    if (handle != nullptr) {
+      pcap_close(handle);
+    } else if (stream != nullptr) {
+      std::fclose(stream);
+    }
+  }
+};
+
+CaptureFile::CaptureFile(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+CaptureFile::CaptureFile(CaptureFile&&) noexcept = default;
+CaptureFile& CaptureFile::operator=(CaptureFile&&) noexcept = default;
+CaptureFile::~CaptureFile() = default;
+
 Result<CaptureFile> CaptureFile::open(const std::string& path) {
-  auto bytes = read_binary_file(path, FileKind::capture);
-  if (!bytes) return std::move(bytes).error();
-  return from_bytes(std::move(*bytes), path);
+  // libpcap reads whatever it is given: a directory, a device or an endless pipe is refused
+  // before it starts, with the project's named errors (and the 1 GiB cap on captures).
+  if (auto regular = check_regular_file(path, FileKind::capture); !regular) {
+    return regular.error();
+  }
+  // Opened without blocking (a FIFO swapped in since the check must not hang the open) and
+  // checked again on the descriptor that is read.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+  if (fd < 0) {
+    const int error = errno;
+    return Error(Errc::io_error,
+                 fmt::format("cannot open capture '{}': {}", path, std::strerror(error)));
+  }
+  struct stat info {};
+  if (::fstat(fd, &info) != 0 || !S_ISREG(info.st_mode) ||
+      static_cast<std::uint64_t>(info.st_size) > max_file_bytes(FileKind::capture)) {
+    ::close(fd);
+    return Error(Errc::invalid_argument,
+                 fmt::format("capture '{}' changed while it was opened: no longer a regular "
+                             "file of at most {}",
+                             path, describe_size(max_file_bytes(FileKind::capture))));
+  }
+  ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) & ~O_NONBLOCK);
+  auto impl = std::make_unique<Impl>();
+  impl->stream = ::fdopen(fd, "rb");
+  if (impl->stream == nullptr) {
+    const int error = errno;
+    ::close(fd);
+    return Error(Errc::io_error,
+                 fmt::format("cannot read capture '{}': {}", path, std::strerror(error)));
+  }
+  return start(std::move(impl), path);
 }
 
 Result<CaptureFile> CaptureFile::from_bytes(std::vector<std::uint8_t> bytes, std::string name) {
-  CaptureFile file;
-  file.bytes_ = std::move(bytes);
+  if (bytes.empty()) {
+    // fmemopen refuses an empty buffer: say what libpcap would.
+    return Error(Errc::truncated,
+                 fmt::format("capture '{}' is empty: not a pcap or pcapng file", name));
+  }
+  auto impl = std::make_unique<Impl>();
+  impl->bytes = std::move(bytes);
+  impl->stream = ::fmemopen(impl->bytes.data(), impl->bytes.size(), "rb");
+  if (impl->stream == nullptr) {
+    const int error = errno;
+    return Error(Errc::io_error, fmt::format("capture '{}': cannot read it from memory: {}", name,
+                                             std::strerror(error)));
+  }
+  return start(std::move(impl), std::move(name));
+}
+
+Result<CaptureFile> CaptureFile::start(std::unique_ptr<Impl> impl, std::string name) {
+  // The format, for callers that say which it is (libpcap reads both the same way).
+  std::array<std::uint8_t, 4> magic{};
+  const std::size_t got = std::fread(magic.data(), 1, magic.size(), impl->stream);
+  const bool pcapng = got == magic.size() && wire::load_le32(magic.data()) == kPcapngSectionHeader;
+  std::rewind(impl->stream);
+
+  std::array<char, PCAP_ERRBUF_SIZE> error{};
+  impl->handle = pcap_fopen_offline_with_tstamp_precision(impl->stream, PCAP_TSTAMP_PRECISION_NANO,
+                                                          error.data());
+  if (impl->handle == nullptr) {
+    // libpcap leaves the stream to us when it fails (Impl closes it).
+    const std::string_view why(error.data());
+    ECAT_LOG(LogLevel::debug, "capture",
+             fmt::format("libpcap refused capture '{}': {}", name, why));
+    if (why.find("unknown file format") != std::string_view::npos) {
+      return Error(Errc::malformed,
+                   fmt::format("capture '{}' is neither pcap nor pcapng (libpcap: {})", name, why));
+    }
+    return Error(read_error_code(why),
+                 fmt::format("capture '{}' is not a readable pcap or pcapng file: {}", name, why));
+  }
+  impl->stream = nullptr;  // pcap_close closes it now
+  CaptureFile file(std::move(impl));
   file.name_ = std::move(name);
-  if (auto ok = file.read_file_header(); !ok) return ok.error();
+  file.format_ = pcapng ? CaptureFormat::pcapng : CaptureFormat::pcap;
+  file.link_type_ = pcap_datalink(file.impl_->handle);
+  ECAT_LOG(LogLevel::debug, "capture",
+           fmt::format("reading capture '{}' ({}, link type {})", file.name_,
+                       pcapng ? "pcapng" : "pcap", file.link_type_));
   return file;
 }
 
-Error CaptureFile::damaged(std::size_t offset, const std::string& what) const {
-  return Error(Errc::malformed,
-               fmt::format("capture '{}': {} at byte offset {}", name_, what, offset));
-}
-
-std::uint16_t CaptureFile::u16(std::size_t offset) const noexcept {
-  return big_endian_ ? wire::load_be16(&bytes_[offset]) : wire::load_le16(&bytes_[offset]);
-}
-
-std::uint32_t CaptureFile::u32(std::size_t offset) const noexcept {
-  return big_endian_ ? load_be32(&bytes_[offset]) : wire::load_le32(&bytes_[offset]);
-}
-
-Result<void> CaptureFile::read_file_header() {
-  if (bytes_.size() < 4) {
-    return Error(Errc::truncated, fmt::format("capture '{}' is {} bytes long: too short for a "
-                                              "pcap or pcapng header",
-                                              name_, bytes_.size()));
-  }
-  const std::uint32_t magic = wire::load_le32(bytes_.data());
-  if (magic == kPcapngSectionHeader) {
-    format_ = CaptureFormat::pcapng;
-    return {};  // the section header is read as the first block
-  }
-  for (bool big : {false, true}) {
-    const std::uint32_t m = big ? swap32(magic) : magic;
-    if (m != kPcapMagicMicro && m != kPcapMagicNano) continue;
-    format_ = CaptureFormat::pcap;
-    big_endian_ = big;
-    nanoseconds_ = m == kPcapMagicNano;
-    if (bytes_.size() < kPcapHeaderSize) {
-      return Error(Errc::truncated,
-                   fmt::format("capture '{}': pcap file header needs {} bytes, the file has {}",
-                               name_, kPcapHeaderSize, bytes_.size()));
-    }
-    pcap_link_type_ = static_cast<int>(u32(20) & 0x0FFFFFFF);
-    offset_ = kPcapHeaderSize;
-    return {};
-  }
-  return Error(Errc::malformed,
-               fmt::format("capture '{}' is neither pcap nor pcapng (first 4 bytes {:08X})", name_,
-                           load_be32(bytes_.data())));
-}
-
 Result<std::optional<Packet>> CaptureFile::next() {
-  return format_ == CaptureFormat::pcap ? next_pcap() : next_pcapng();
-}
-
-Result<std::optional<Packet>> CaptureFile::next_pcap() {
-  if (offset_ == bytes_.size()) return std::optional<Packet>{};
-  if (bytes_.size() - offset_ < kPcapRecordHeaderSize) {
-    return Error(Errc::truncated, fmt::format("capture '{}': packet {} record header is cut off "
-                                              "at byte offset {}",
-                                              name_, count_ + 1, offset_));
+  if (!impl_ || impl_->handle == nullptr) {
+    return Error(Errc::invalid_argument, fmt::format("capture '{}' is not open", name_));
   }
-  const std::uint32_t seconds = u32(offset_);
-  const std::uint32_t fraction = u32(offset_ + 4);
-  const std::uint32_t captured = u32(offset_ + 8);
-  const std::uint32_t original = u32(offset_ + 12);
-  const std::size_t data = offset_ + kPcapRecordHeaderSize;
-  if (captured > kMaxPacketBytes || captured > bytes_.size() - data) {
-    return Error(Errc::truncated,
-                 fmt::format("capture '{}': packet {} claims {} captured bytes at byte offset {}, "
-                             "{} remain",
-                             name_, count_ + 1, captured, offset_, bytes_.size() - data));
+  pcap_pkthdr* header = nullptr;
+  const u_char* data = nullptr;
+  const int status = pcap_next_ex(impl_->handle, &header, &data);
+  if (status == PCAP_ERROR_BREAK) return std::optional<Packet>{};  // the end of the file
+  if (status != 1) {
+    const std::string_view why(pcap_geterr(impl_->handle));
+    return Error(read_error_code(why),
+                 fmt::format("capture '{}': cannot read packet {}: {}", name_, count_ + 1, why));
   }
   Packet packet;
   packet.number = ++count_;
-  packet.timestamp_ns = static_cast<std::int64_t>(seconds) * 1'000'000'000 +
-                        static_cast<std::int64_t>(fraction) * (nanoseconds_ ? 1 : 1000);
-  packet.link_type = pcap_link_type_;
-  packet.data = Bytes(&bytes_[data], captured);
-  packet.original_length = original;
-  offset_ = data + captured;
+  // Opened with nanosecond precision, so tv_usec holds nanoseconds. Unsigned arithmetic: a
+  // damaged pcapng time far beyond 2262 wraps instead of overflowing.
+  packet.timestamp_ns =
+      static_cast<std::int64_t>(static_cast<std::uint64_t>(header->ts.tv_sec) * 1'000'000'000u +
+                                static_cast<std::uint64_t>(header->ts.tv_usec));
+  packet.link_type = link_type_;
+  packet.data = wire::Bytes(data, header->caplen);
+  packet.original_length = header->len;
   return std::optional<Packet>(packet);
-}
-
-std::int64_t CaptureFile::pcapng_time_ns(const Interface& interface,
-                                         std::uint64_t ticks) const noexcept {
-  std::uint64_t ns = 0;
-  if (!interface.binary) {
-    if (interface.resolution <= 9) {
-      std::uint64_t scale = 1;
-      for (int i = interface.resolution; i < 9; ++i)
-        scale *= 10;
-      ns = ticks * scale;
-    } else {
-      std::uint64_t scale = 1;
-      for (int i = 9; i < interface.resolution && i < 28; ++i)
-        scale *= 10;
-      ns = ticks / scale;
-    }
-  } else {
-    // ticks / 2^r seconds: the whole seconds and the remainder separately, so nothing overflows
-    // (finer than 2^-32 s is below a nanosecond: those bits are dropped first).
-    int r = interface.resolution;
-    if (r > 32) {
-      ticks >>= (r - 32);
-      r = 32;
-    }
-    const std::uint64_t whole = ticks >> r;
-    const std::uint64_t rest = ticks & ((std::uint64_t{1} << r) - 1);
-    ns = whole * 1'000'000'000u + ((rest * 1'000'000'000u) >> r);
-  }
-  // Modular arithmetic: absurd offsets in a damaged file wrap instead of overflowing.
-  return static_cast<std::int64_t>(ns +
-                                   static_cast<std::uint64_t>(interface.offset_s) * 1'000'000'000u);
-}
-
-Result<void> CaptureFile::read_section_header(std::size_t offset, std::size_t length) {
-  // block type(4) length(4) byte-order magic(4) major(2) minor(2) section length(8)
-  if (length < 28) return damaged(offset, fmt::format("section header block of {} bytes", length));
-  const std::uint32_t magic = wire::load_le32(&bytes_[offset + 8]);
-  if (magic == kPcapngByteOrderMagic) {
-    big_endian_ = false;
-  } else if (swap32(magic) == kPcapngByteOrderMagic) {
-    big_endian_ = true;
-  } else {
-    return damaged(offset + 8, fmt::format("section header byte-order magic {:08X}", magic));
-  }
-  interfaces_.clear();
-  return {};
-}
-
-Result<void> CaptureFile::read_interface(std::size_t offset, std::size_t length) {
-  // block type(4) length(4) link type(2) reserved(2) snap length(4) options ... length(4)
-  if (length < 20) {
-    return damaged(offset, fmt::format("interface description block of {} bytes", length));
-  }
-  Interface interface;
-  interface.link_type = u16(offset + 8);
-  std::size_t pos = offset + 16;
-  const std::size_t end = offset + length - 4;
-  while (pos + 4 <= end) {
-    const std::uint16_t code = u16(pos);
-    const std::uint16_t size = u16(pos + 2);
-    if (code == kOptionEnd) break;
-    const std::size_t padded = (static_cast<std::size_t>(size) + 3u) & ~std::size_t{3};
-    if (padded > end - pos - 4) {
-      return damaged(pos,
-                     fmt::format("interface option {} of {} bytes overruns its block", code, size));
-    }
-    if (code == kOptionTimestampResolution && size >= 1) {
-      const std::uint8_t v = bytes_[pos + 4];
-      interface.binary = (v & 0x80) != 0;
-      interface.resolution = static_cast<std::uint8_t>(v & 0x7F);
-      if ((interface.binary && interface.resolution > 63) ||
-          (!interface.binary && interface.resolution > 27)) {
-        return damaged(pos, fmt::format("timestamp resolution option {:#04x}", v));
-      }
-    } else if (code == kOptionTimestampOffset && size >= 8) {
-      const std::uint64_t v =
-          big_endian_ ? load_be64(&bytes_[pos + 4]) : wire::load_le64(&bytes_[pos + 4]);
-      interface.offset_s = static_cast<std::int64_t>(v);
-    }
-    pos += 4 + padded;
-  }
-  interfaces_.push_back(interface);
-  return {};
-}
-
-Result<std::optional<Packet>> CaptureFile::next_pcapng() {
-  while (offset_ < bytes_.size()) {
-    const std::size_t block = offset_;
-    if (bytes_.size() - block < 12) {
-      return Error(Errc::truncated, fmt::format("capture '{}': block header cut off at byte "
-                                                "offset {}",
-                                                name_, block));
-    }
-    const std::uint32_t raw_type = wire::load_le32(&bytes_[block]);
-    if (raw_type == kPcapngSectionHeader) {
-      // The byte order of the section decides how its own length is read.
-      const std::uint32_t magic = wire::load_le32(&bytes_[block + 8]);
-      big_endian_ = magic != kPcapngByteOrderMagic;
-    }
-    const std::uint32_t type = raw_type == kPcapngSectionHeader ? raw_type : u32(block);
-    const std::uint32_t length = u32(block + 4);
-    if (length < 12 || length % 4 != 0 || length > bytes_.size() - block) {
-      return Error(length > bytes_.size() - block ? Errc::truncated : Errc::malformed,
-                   fmt::format("capture '{}': block of type {:#x} at byte offset {} has length "
-                               "{} ({} bytes remain)",
-                               name_, type, block, length, bytes_.size() - block));
-    }
-    if (u32(block + length - 4) != length) {
-      return damaged(block + length - 4,
-                     fmt::format("block of type {:#x}: trailing length {} differs from {}", type,
-                                 u32(block + length - 4), length));
-    }
-    offset_ = block + length;
-    switch (type) {
-      case kPcapngSectionHeader:
-        if (auto ok = read_section_header(block, length); !ok) return ok.error();
-        break;
-      case kPcapngInterfaceDescription:
-        if (auto ok = read_interface(block, length); !ok) return ok.error();
-        break;
-      case kPcapngEnhancedPacket:
-      case kPcapngObsoletePacket: {
-        // EPB: interface(4) ts high(4) ts low(4) captured(4) original(4) data
-        // OPB: interface(2) drops(2) ts high(4) ts low(4) captured(4) original(4) data
-        if (length < 32) return damaged(block, fmt::format("packet block of {} bytes", length));
-        const std::uint32_t interface_id =
-            type == kPcapngEnhancedPacket ? u32(block + 8) : u16(block + 8);
-        if (interface_id >= interfaces_.size()) {
-          return damaged(block + 8,
-                         fmt::format("packet {} names interface {}, but {} are described",
-                                     count_ + 1, interface_id, interfaces_.size()));
-        }
-        const std::uint64_t ticks =
-            (static_cast<std::uint64_t>(u32(block + 12)) << 32) | u32(block + 16);
-        const std::uint32_t captured = u32(block + 20);
-        if (captured > length - 32) {
-          return damaged(block + 20, fmt::format("packet {} claims {} captured bytes in a block "
-                                                 "of {}",
-                                                 count_ + 1, captured, length));
-        }
-        Packet packet;
-        packet.number = ++count_;
-        packet.timestamp_ns = pcapng_time_ns(interfaces_[interface_id], ticks);
-        packet.link_type = interfaces_[interface_id].link_type;
-        packet.data = Bytes(&bytes_[block + 28], captured);
-        packet.original_length = u32(block + 24);
-        return std::optional<Packet>(packet);
-      }
-      case kPcapngSimplePacket: {
-        // original length(4) data; the captured part is what the block holds.
-        if (interfaces_.empty()) {
-          return damaged(block, "simple packet block before any interface description");
-        }
-        if (length < 16)
-          return damaged(block, fmt::format("simple packet block of {} bytes", length));
-        const std::uint32_t original = u32(block + 8);
-        const std::size_t held = std::min<std::size_t>(original, length - 16);
-        Packet packet;
-        packet.number = ++count_;
-        packet.timestamp_ns = 0;  // simple packets carry no time
-        packet.link_type = interfaces_[0].link_type;
-        packet.data = Bytes(&bytes_[block + 12], held);
-        packet.original_length = original;
-        return std::optional<Packet>(packet);
-      }
-      default:
-        break;  // statistics, name resolution, custom blocks ...
-    }
-  }
-  return std::optional<Packet>{};
 }
 
 // ---------------------------------------------------------------------------------------------
 // Writing
 
-std::vector<std::uint8_t> encode_pcap(std::span<const OutputPacket> packets, int link_type) {
-  std::size_t size = kPcapHeaderSize;
-  for (const auto& p : packets)
-    size += kPcapRecordHeaderSize + p.data.size();
-  std::vector<std::uint8_t> out(size);
-  wire::store_le32(&out[0], kPcapMagicNano);
-  wire::store_le16(&out[4], 2);
-  wire::store_le16(&out[6], 4);
-  wire::store_le32(&out[16], 65535);
-  wire::store_le32(&out[20], static_cast<std::uint32_t>(link_type));
-  std::size_t pos = kPcapHeaderSize;
+namespace {
+
+struct DeadCloser {
+  void operator()(pcap_t* handle) const noexcept { pcap_close(handle); }
+};
+using DeadHandle = std::unique_ptr<pcap_t, DeadCloser>;
+
+DeadHandle dead_handle(int link_type) {
+  return DeadHandle(pcap_open_dead_with_tstamp_precision(link_type, kWriteSnapLength,
+                                                         PCAP_TSTAMP_PRECISION_NANO));
+}
+
+// Writes the packets through `dumper`; false when the stream failed.
+bool dump_all(pcap_dumper_t* dumper, std::span<const OutputPacket> packets) {
   for (const auto& p : packets) {
-    const std::int64_t t = p.timestamp_ns < 0 ? 0 : p.timestamp_ns;
-    wire::store_le32(&out[pos], static_cast<std::uint32_t>(t / 1'000'000'000));
-    wire::store_le32(&out[pos + 4], static_cast<std::uint32_t>(t % 1'000'000'000));
-    wire::store_le32(&out[pos + 8], static_cast<std::uint32_t>(p.data.size()));
-    wire::store_le32(&out[pos + 12], static_cast<std::uint32_t>(p.data.size()));
-    if (!p.data.empty()) std::memcpy(&out[pos + 16], p.data.data(), p.data.size());
-    pos += kPcapRecordHeaderSize + p.data.size();
+    const std::int64_t t = std::max<std::int64_t>(p.timestamp_ns, 0);
+    pcap_pkthdr header{};
+    header.ts.tv_sec = static_cast<time_t>(t / 1'000'000'000);
+    header.ts.tv_usec = static_cast<suseconds_t>(t % 1'000'000'000);  // nanoseconds
+    header.len = static_cast<bpf_u_int32>(p.data.size());
+    header.caplen = static_cast<bpf_u_int32>(
+        std::min<std::size_t>(p.data.size(), static_cast<std::size_t>(kWriteSnapLength)));
+    pcap_dump(reinterpret_cast<u_char*>(dumper), &header, p.data.data());
   }
+  return pcap_dump_flush(dumper) == 0;
+}
+
+}  // namespace
+
+std::vector<std::uint8_t> encode_pcap(std::span<const OutputPacket> packets, int link_type) {
+  const DeadHandle dead = dead_handle(link_type);
+  char* buffer = nullptr;
+  std::size_t size = 0;
+  FILE* stream = dead ? ::open_memstream(&buffer, &size) : nullptr;
+  if (stream == nullptr) throw std::bad_alloc();
+  pcap_dumper_t* dumper = pcap_dump_fopen(dead.get(), stream);
+  if (dumper == nullptr) {
+    std::fclose(stream);
+    std::free(buffer);
+    throw std::bad_alloc();
+  }
+  const bool ok = dump_all(dumper, packets);
+  pcap_dump_close(dumper);  // closes the stream: buffer and size are final
+  std::vector<std::uint8_t> out;
+  if (ok && buffer != nullptr) out.assign(buffer, buffer + size);
+  std::free(buffer);
+  if (!ok) throw std::bad_alloc();  // a memory stream fails only for want of memory
   return out;
 }
 
 Result<void> write_pcap(const std::string& path, std::span<const OutputPacket> packets,
                         int link_type) {
-  const auto bytes = encode_pcap(packets, link_type);
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) return Error(Errc::io_error, fmt::format("cannot create capture '{}'", path));
-  out.write(reinterpret_cast<const char*>(bytes.data()),
-            static_cast<std::streamsize>(bytes.size()));
-  if (!out) return Error(Errc::io_error, fmt::format("cannot write capture '{}'", path));
+  const DeadHandle dead = dead_handle(link_type);
+  if (!dead) return Error(Errc::io_error, fmt::format("cannot create capture '{}'", path));
+  // Opened here rather than by pcap_dump_open, which would take "-" to mean standard output.
+  FILE* stream = std::fopen(path.c_str(), "wbe");
+  if (stream == nullptr) {
+    const int error = errno;
+    return Error(Errc::io_error,
+                 fmt::format("cannot create capture '{}': {}", path, std::strerror(error)));
+  }
+  pcap_dumper_t* dumper = pcap_dump_fopen(dead.get(), stream);
+  if (dumper == nullptr) {
+    const std::string why = pcap_geterr(dead.get());
+    std::fclose(stream);
+    return Error(Errc::io_error, fmt::format("cannot write capture '{}': {}", path, why));
+  }
+  const bool ok = dump_all(dumper, packets);
+  pcap_dump_close(dumper);
+  if (!ok) {
+    const int error = errno;
+    return Error(Errc::io_error,
+                 fmt::format("cannot write capture '{}': {}", path, std::strerror(error)));
+  }
   return {};
 }
 

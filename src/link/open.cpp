@@ -7,6 +7,7 @@
 #include <ecat/link/open.hpp>
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
+#include <ecat/log.hpp>
 
 namespace ecat::link {
 
@@ -67,14 +68,16 @@ Result<std::unique_ptr<Link>> open_udp(std::string_view spec, std::string_view r
     port = *parsed;
   }
   if (host.empty()) return bad_spec(spec, "the host is empty");
+  ECAT_LOG(LogLevel::debug, "link",
+           fmt::format("opening EtherCAT-over-UDP link to {} port {}", host, port));
   auto link = UdpLink::connect(std::string(host), port);
   if (!link) return std::move(link).error();
+  ECAT_LOG(LogLevel::info, "link",
+           fmt::format("opened EtherCAT-over-UDP link to {} port {}", host, port));
   return std::unique_ptr<Link>(std::move(*link));
 }
 
-}  // namespace
-
-Result<std::unique_ptr<Link>> open_link(std::string_view spec) {
+Result<std::unique_ptr<Link>> open_spec(std::string_view spec) {
   const auto colon = spec.find(':');
   if (colon == std::string_view::npos) return bad_spec(spec, "no kind prefix");
   const std::string_view kind = spec.substr(0, colon);
@@ -83,8 +86,10 @@ Result<std::unique_ptr<Link>> open_link(std::string_view spec) {
     if (rest.empty()) return bad_spec(spec, "no interface after 'raw:'");
     RawLinkOptions options;
     options.interface = std::string(rest);
+    ECAT_LOG(LogLevel::debug, "link", fmt::format("opening raw Ethernet link on {}", rest));
     auto link = RawLink::open(std::move(options));
     if (!link) return std::move(link).error();
+    ECAT_LOG(LogLevel::info, "link", fmt::format("opened raw Ethernet link on {}", rest));
     return std::unique_ptr<Link>(std::move(*link));
   }
   if (kind == "udp") return open_udp(spec, rest);
@@ -98,6 +103,14 @@ Result<std::unique_ptr<Link>> open_link(std::string_view spec) {
                              spec));
   }
   return bad_spec(spec, fmt::format("unknown kind '{}'", kind));
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Link>> open_link(std::string_view spec) {
+  auto link = open_spec(spec);
+  if (!link) ECAT_LOG(LogLevel::warn, "link", link.error().describe());
+  return link;
 }
 
 }  // namespace ecat::link

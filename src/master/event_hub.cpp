@@ -4,11 +4,78 @@
 #include <bit>
 #include <chrono>
 
+#include <fmt/format.h>
 #include <pthread.h>
+
+#include <ecat/log.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/states.hpp>
 
 namespace ecat::master {
 
 namespace {
+
+// The library log's view of an event: state changes at info (losses at warn), faults and
+// failures at warn, the link failing at error, counters at debug.
+LogLevel log_level_of(const Event& e) noexcept {
+  switch (e.kind) {
+    case EventKind::master_state:
+      return e.to == static_cast<std::uint8_t>(MasterState::recovering) ||
+                     e.to == static_cast<std::uint8_t>(MasterState::activation_blocked)
+                 ? LogLevel::warn
+                 : LogLevel::info;
+    case EventKind::slave_state:
+      return e.to == static_cast<std::uint8_t>(SlaveState::down) ? LogLevel::warn : LogLevel::info;
+    case EventKind::domain_state:
+      return e.to == static_cast<std::uint8_t>(DomainState::stopped) ? LogLevel::warn
+                                                                     : LogLevel::info;
+    case EventKind::domain_health:
+      return e.to != 0 ? LogLevel::info : LogLevel::warn;
+    case EventKind::fault_raised:
+    case EventKind::activation_failed:
+    case EventKind::dc_lost:
+    case EventKind::sdo_failed:
+    case EventKind::mailbox_failed:
+      return LogLevel::warn;
+    case EventKind::fault_cleared:
+    case EventKind::recovery_step:
+    case EventKind::dc_locked:
+    case EventKind::link_up:
+    case EventKind::link_reopened:
+      return LogLevel::info;
+    case EventKind::link_down:
+      return LogLevel::error;
+    case EventKind::frames_lost:
+    case EventKind::timeouts:
+      return LogLevel::debug;
+  }
+  return LogLevel::info;
+}
+
+std::string_view log_subsystem_of(EventKind kind) noexcept {
+  switch (kind) {
+    case EventKind::slave_state:
+    case EventKind::sdo_failed:
+    case EventKind::mailbox_failed:
+    case EventKind::activation_failed:
+      return "slave";
+    case EventKind::domain_state:
+    case EventKind::domain_health:
+      return "domain";
+    case EventKind::dc_locked:
+    case EventKind::dc_lost:
+      return "dc";
+    case EventKind::link_down:
+    case EventKind::link_up:
+    case EventKind::link_reopened:
+      return "link";
+    case EventKind::frames_lost:
+    case EventKind::timeouts:
+      return "bus";
+    default:
+      return "master";
+  }
+}
 
 std::int64_t steady_now_ns() noexcept {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -189,7 +256,25 @@ void EventHub::deliver(Event& event) {
   }
   for (const auto& q : queues)
     q->push(event, dropped);
+  log_event(event, dropped);
   delivered_.fetch_add(1, std::memory_order_release);
+}
+
+// Dispatcher thread: every event goes to the library log too, whether anyone subscribed or not
+// (the dispatcher drains the queue either way), so the cycle thread never formats or logs.
+void EventHub::log_event(const Event& event, std::uint64_t dropped) {
+  if (dropped != logged_dropped_ && log_enabled(LogLevel::warn)) {
+    log(LogLevel::warn, "master",
+        fmt::format("event queue full: {} events dropped", dropped - logged_dropped_));
+  }
+  logged_dropped_ = dropped;
+  const LogLevel level = log_level_of(event);
+  if (!log_enabled(level)) return;
+  try {
+    log(level, log_subsystem_of(event.kind), describe(event));
+  } catch (...) {
+    // Out of memory describing the event: the log loses it, the subscribers had it.
+  }
 }
 
 EventSubscriptionId EventHub::subscribe(EventCallback callback) {

@@ -1,6 +1,7 @@
 // The master's event hub: a bounded lock-free queue that any thread publishes into without
 // waiting or allocating, and one dispatcher thread that hands each event to the subscribers
-// (callbacks and pull queues). See include/ecat/master/events.hpp for the public side.
+// (callbacks and pull queues) and to the library log (include/ecat/log.hpp). See
+// include/ecat/master/events.hpp for the public side.
 #pragma once
 
 #include <atomic>
@@ -82,6 +83,7 @@ class EventHub {
   bool pop(Event& out) noexcept;
   void run();
   void deliver(Event& event);
+  void log_event(const Event& event, std::uint64_t dropped);
 
   std::vector<Cell> cells_;
   std::size_t mask_ = 0;
@@ -99,6 +101,7 @@ class EventHub {
   EventSubscriptionId next_id_ = 1;
   std::mutex delivering_;  // held by the dispatcher while it delivers one event
   std::uint64_t sequence_ = 0;
+  std::uint64_t logged_dropped_ = 0;  // dispatcher only: the drop count last logged
 
   std::mutex flushed_mutex_;
   std::condition_variable flushed_;

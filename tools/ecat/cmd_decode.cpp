@@ -15,16 +15,18 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include <ecat/capture/capture_file.hpp>
 #include <ecat/wire/frame.hpp>
 #include <ecat/wire/mailbox_summary.hpp>
 #include <ecat/wire/registers.hpp>
 
-#include "capture_reader.hpp"
 #include "command.hpp"
 
 namespace ecat::tool {
 namespace {
 
+using capture::EtherCatPacket;
+using capture::extract_ethercat;
 using nlohmann::ordered_json;
 using wire::Addressing;
 using wire::Bytes;
@@ -196,9 +198,17 @@ class Decoder {
   explicit Decoder(const Options& options) : options_(options) {}
 
   int run() {
-    auto reader = CaptureReader::open(options_.file);
+    // The library's reader (libpcap underneath): the same one `ecat sim verify` uses.
+    auto reader = capture::CaptureFile::open(options_.file);
     if (!reader) {
       std::fprintf(stderr, "ecat decode: %s\n", reader.error().describe().c_str());
+      return 2;
+    }
+    if (!capture::link_type_supported(reader->link_type())) {
+      std::fprintf(stderr,
+                   "ecat decode: capture '%s': link type %d is not supported (Ethernet, Linux "
+                   "cooked SLL and SLL2 are)\n",
+                   options_.file.c_str(), reader->link_type());
       return 2;
     }
     std::optional<Error> read_error;
@@ -220,7 +230,7 @@ class Decoder {
   }
 
  private:
-  void handle(int link_type, const CapturedPacket& packet) {
+  void handle(int link_type, const capture::Packet& packet) {
     ++frames_;
     auto ethercat = extract_ethercat(link_type, packet.data);
     if (!ethercat) return;

@@ -1,14 +1,16 @@
-// Packet captures without libpcap: reading pcap and pcapng files (both byte orders, microsecond
-// and nanosecond pcap, every pcapng timestamp resolution and offset), writing nanosecond pcap
-// files, and finding the EtherCAT frame a captured packet carries — raw EtherCAT (EtherType
-// 0x88A4, optionally VLAN-tagged) or EtherCAT over UDP/IPv4 (port 0x88A4 on either side), on
-// Ethernet and Linux cooked (SLL, SLL2) link types.
+// Packet captures, read and written through libpcap: pcap and pcapng files (both byte orders,
+// microsecond and nanosecond pcap, every pcapng timestamp resolution, times delivered in
+// nanoseconds), and finding the EtherCAT frame a captured packet carries — raw EtherCAT
+// (EtherType 0x88A4, optionally VLAN-tagged) or EtherCAT over UDP/IPv4 (port 0x88A4 on either
+// side), on Ethernet and Linux cooked (SLL, SLL2) link types.
 //
-// The simulator's capture tools (`ecat sim profile/verify`) and their tests read captures through
-// this; the `ecat decode` command keeps libpcap for reading and shares extract_ethercat().
+// This is the one reader of captures: `ecat decode`, the simulator's capture tools
+// (`ecat sim profile/verify`) and their tests all go through it. libpcap is private to the
+// library: no public header includes it.
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -38,61 +40,52 @@ struct Packet {
 
 enum class CaptureFormat : std::uint8_t { pcap, pcapng };
 
-// Reads a capture held in memory, packet by packet. Packets of link types extract_ethercat() does
-// not understand are still returned (their link_type says what they are).
+// Reads a capture packet by packet (libpcap underneath, nanosecond timestamps). Packets of link
+// types extract_ethercat() does not understand are still returned (link_type says what they
+// are). All packets of a file have the file's link type: libpcap refuses a pcapng file whose
+// interfaces differ in link type.
 class CaptureFile {
  public:
-  // Reads the whole file. Errors: io_error (cannot read), malformed/truncated (not a capture, or
-  // damaged: the message names the offset and the field).
+  // Opens the file. Errors: those of check_regular_file (absent, unreadable, not a regular file,
+  // larger than 1 GiB), malformed/truncated (not a capture, or a damaged header), each naming the
+  // file and libpcap's reason.
   static Result<CaptureFile> open(const std::string& path);
-  // The same for bytes already in memory; `name` is used in messages.
+  // The same for bytes already in memory (kept by the CaptureFile); `name` is used in messages.
   static Result<CaptureFile> from_bytes(std::vector<std::uint8_t> bytes,
                                         std::string name = "capture");
 
-  // The next packet, nullopt at the end, or an error naming the damaged record.
+  CaptureFile(CaptureFile&&) noexcept;
+  CaptureFile& operator=(CaptureFile&&) noexcept;
+  ~CaptureFile();
+
+  // The next packet, nullopt at the end, or an error naming the damaged record (truncated when
+  // the file ends inside it, malformed otherwise, io_error when the system failed to read).
   Result<std::optional<Packet>> next();
 
   CaptureFormat format() const noexcept { return format_; }
   const std::string& name() const noexcept { return name_; }
+  // The link-layer header type of the file's packets (kLinkType*, or any other LINKTYPE_ value).
+  int link_type() const noexcept { return link_type_; }
 
  private:
-  struct Interface {
-    int link_type = kLinkTypeEthernet;
-    // Timestamp units: value * 10^-exponent s (decimal) or value * 2^-exponent s (binary).
-    std::uint8_t resolution = 6;
-    bool binary = false;
-    std::int64_t offset_s = 0;
-  };
+  struct Impl;
+  explicit CaptureFile(std::unique_ptr<Impl> impl);
+  static Result<CaptureFile> start(std::unique_ptr<Impl> impl, std::string name);
 
-  CaptureFile() = default;
-  Result<void> read_file_header();
-  Result<std::optional<Packet>> next_pcap();
-  Result<std::optional<Packet>> next_pcapng();
-  Result<void> read_section_header(std::size_t offset, std::size_t length);
-  Result<void> read_interface(std::size_t offset, std::size_t length);
-  std::int64_t pcapng_time_ns(const Interface& interface, std::uint64_t ticks) const noexcept;
-  std::uint16_t u16(std::size_t offset) const noexcept;
-  std::uint32_t u32(std::size_t offset) const noexcept;
-  Error damaged(std::size_t offset, const std::string& what) const;
-
-  std::vector<std::uint8_t> bytes_;
+  std::unique_ptr<Impl> impl_;
   std::string name_;
   CaptureFormat format_ = CaptureFormat::pcap;
-  bool big_endian_ = false;
-  bool nanoseconds_ = false;  // pcap only
-  int pcap_link_type_ = kLinkTypeEthernet;
-  std::size_t offset_ = 0;
+  int link_type_ = kLinkTypeEthernet;
   std::uint64_t count_ = 0;
-  std::vector<Interface> interfaces_;  // pcapng: the current section's interfaces
 };
 
 // A packet to write.
 struct OutputPacket {
-  std::int64_t timestamp_ns = 0;
+  std::int64_t timestamp_ns = 0;  // before the epoch is written as 0
   wire::Bytes data;
 };
 
-// A nanosecond-resolution pcap file of `link_type` holding `packets`.
+// A nanosecond-resolution pcap file of `link_type` holding `packets`, as written by libpcap.
 std::vector<std::uint8_t> encode_pcap(std::span<const OutputPacket> packets,
                                       int link_type = kLinkTypeEthernet);
 Result<void> write_pcap(const std::string& path, std::span<const OutputPacket> packets,
