@@ -15,6 +15,7 @@
 #include <limits>
 #include <mutex>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -412,11 +413,14 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       check_transaction_deadlines(now);
       run_cycle(now);
       if (link_failed.load(std::memory_order_acquire)) {
-        handle_link_failure();
-        publish();
-        // Nothing can be sent; new work fails promptly until the link is back (or the bus
-        // stops).
+        // The first reopen attempt comes before the work in flight is failed, so that whoever
+        // watches the link (BusOptions::on_link_change) hears whether it can come back before
+        // any failed request's news.
         if (!try_reopen(Clock::now())) {
+          handle_link_failure();
+          publish();
+          // Nothing can be sent; new work fails promptly until the link is back (or the bus
+          // stops).
           wait_while_dead();
           continue;
         }
@@ -1157,9 +1161,22 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       link_failure = std::move(error);
     }
     link_failures.fetch_add(1, std::memory_order_relaxed);
-    reopen_backoff = options.reopen_backoff_min;
-    next_reopen_at = Clock::now() + reopen_backoff;
+    // The first attempt at once (a link that says it cannot be reopened is known at once), then
+    // the backoff. The failure is announced with the first attempt's outcome.
+    reopen_backoff = nanoseconds(0);
+    next_reopen_at = Clock::now();
+    failure_announced = false;
     link_failed.store(true, std::memory_order_release);
+  }
+  bool failure_announced = true;  // bus thread
+
+  void notify_link_change() {
+    if (!options.on_link_change) return;
+    try {
+      options.on_link_change();
+    } catch (...) {
+      stats.callback_exceptions.add();
+    }
   }
 
   // While the link is failed: one attempt to reopen it when its time has come. True when the
@@ -1168,6 +1185,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     if (!link_reopenable.load(std::memory_order_relaxed) || now < next_reopen_at) return false;
     reopen_attempts.fetch_add(1, std::memory_order_relaxed);
     auto reopened = link->reopen();
+    const bool announce = !std::exchange(failure_announced, true);
     if (!reopened) {
       const Errc code = reopened.error().code();
       {
@@ -1176,10 +1194,14 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       }
       if (code == Errc::unsupported || code == Errc::closed) {
         link_reopenable.store(false, std::memory_order_relaxed);
+        notify_link_change();
         return false;
       }
-      reopen_backoff = std::min(reopen_backoff * 2, options.reopen_backoff_max);
+      reopen_backoff = reopen_backoff == nanoseconds(0)
+                           ? options.reopen_backoff_min
+                           : std::min(reopen_backoff * 2, options.reopen_backoff_max);
       next_reopen_at = now + reopen_backoff;
+      if (announce) notify_link_change();
       return false;
     }
     {
@@ -1191,6 +1213,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     consecutive_receive_errors = 0;
     link_reopens.fetch_add(1, std::memory_order_relaxed);
     link_failed.store(false, std::memory_order_release);
+    notify_link_change();
     return true;
   }
 

@@ -3,6 +3,7 @@
 // model; the comments here say why the mechanics are as they are.
 
 #include <algorithm>
+#include <array>
 #include <cstring>
 #include <limits>
 #include <thread>
@@ -96,23 +97,44 @@ std::optional<CycleInvalid> unpack(std::uint64_t v) noexcept {
   return c;
 }
 
-enum class DomainEvent : std::uint8_t { start_cycling, stop_cycling, miss_threshold };
+using DomainEvent = DomainTrigger;
 
-// The state diagram of domain.hpp, and nothing else.
+// The state diagram of the seed (domain.hpp), and nothing else.
+constexpr std::array kDomainTransitions{
+    DomainTransition{DomainState::open, DomainState::cycling, DomainTrigger::start_cycling,
+                     "start_cycling and layout preparation succeed"},
+    DomainTransition{DomainState::cycling, DomainState::stopped, DomainTrigger::stop_cycling,
+                     "stop_cycling"},
+    DomainTransition{DomainState::cycling, DomainState::stopped, DomainTrigger::miss_threshold,
+                     "miss threshold is reached"},
+    DomainTransition{DomainState::stopped, DomainState::cycling, DomainTrigger::start_cycling,
+                     "start_cycling"},
+};
+
 constexpr std::optional<DomainState> transition(DomainState from, DomainEvent event) noexcept {
-  switch (event) {
-    case DomainEvent::start_cycling:
-      if (from == DomainState::open || from == DomainState::stopped) return DomainState::cycling;
-      return std::nullopt;
-    case DomainEvent::stop_cycling:
-    case DomainEvent::miss_threshold:
-      if (from == DomainState::cycling) return DomainState::stopped;
-      return std::nullopt;
+  for (const auto& t : kDomainTransitions) {
+    if (t.from == from && t.trigger == event) return t.to;
   }
   return std::nullopt;
 }
 
 }  // namespace
+
+std::string_view to_string(DomainTrigger trigger) noexcept {
+  switch (trigger) {
+    case DomainTrigger::start_cycling:
+      return "start_cycling";
+    case DomainTrigger::stop_cycling:
+      return "stop_cycling";
+    case DomainTrigger::miss_threshold:
+      return "miss_threshold";
+  }
+  return "unknown";
+}
+
+std::span<const DomainTransition> domain_transitions() noexcept {
+  return kDomainTransitions;
+}
 
 std::string_view to_string(DomainState state) noexcept {
   switch (state) {

@@ -545,6 +545,12 @@ struct Master::Impl : DomainObserver {
       }
     }
     if (blocked) {
+      if (current() == MasterState::operational && want != TargetState::op) {
+        // A deactivation that did not complete: the session settles at the level asked for and
+        // is blocked there (the diagram draws operational -> deactivated / preop_ready and their
+        // exits to activation_blocked; operational -> activation_blocked it does not).
+        transition(state_for(want));
+      }
       // From recovering the diagram has no edge to activation_blocked: recovery goes on.
       if (current() != MasterState::recovering) transition(MasterState::activation_blocked);
       arm_retry(s);
@@ -583,7 +589,6 @@ struct Master::Impl : DomainObserver {
     bool locked = false;
     std::uint64_t lost_mark = 1;
     std::uint64_t timeout_mark = 1;
-    LinkWatch link;
     while (!s->stopping && session == s) {
       co_await exec::sleep_for(loop, kWatchPeriod);
       if (s->stopping || session != s) break;
@@ -600,7 +605,7 @@ struct Master::Impl : DomainObserver {
       const auto stats = s->bus->stats();
       cross_marks(EventKind::frames_lost, stats.frames_lost, lost_mark);
       cross_marks(EventKind::timeouts, stats.transaction_timeouts, timeout_mark);
-      if (!watch_link(s, link)) co_return;
+      if (!watch_link(s)) co_return;
     }
   }
   static constexpr std::chrono::milliseconds kWatchPeriod{50};
@@ -610,15 +615,42 @@ struct Master::Impl : DomainObserver {
     std::uint64_t reopens = 0;
     std::optional<exec::Clock::time_point> down_since;
   };
+  LinkWatch link_watch;  // loop thread; the current session's
 
   // The link as the bus reports it. A failed link is reopened by the bus with a bounded backoff:
   // meanwhile the session is recovering (runtime fault "link"), and it heals by itself once the
   // link is back. A link not back within link_recovery_window, one that cannot be reopened at
   // all, or a bus that stopped under the session is a fatal subsystem exit: the session ends in
   // idle with last_failure saying why. False when the session ended here.
-  bool watch_link(const std::shared_ptr<Session>& s, LinkWatch& w) {
+  // Runs every watch period and at once when the bus reports a change (BusOptions::
+  // on_link_change). A fatal exit is checked first: a link that cannot come back ends the session
+  // straight from where it is, before the loss shows as a runtime fault.
+  bool watch_link(const std::shared_ptr<Session>& s) {
+    if (s->stopping || session != s) return false;
+    LinkWatch& w = link_watch;
     const auto info = s->bus->info();
     const auto now = exec::Clock::now();
+    if (!info.running) {
+      end_session(s, "bus_stopped",
+                  Error(Errc::closed, fmt::format("the bus on link {} stopped while the session "
+                                                  "ran",
+                                                  info.link_name)));
+      return false;
+    }
+    if (info.link_failure && !info.link_reopenable) {
+      const Error& cause = *info.link_failure;
+      if (info.link_failures != w.failures) {
+        events.publish(make_event(EventKind::link_down, {}, cause.describe()));
+      }
+      end_session(
+          s, "link_lost",
+          cause.context(
+              cause.code(),
+              fmt::format("link {} failed and cannot be reopened{}", info.link_name,
+                          info.last_reopen_error ? " (" + info.last_reopen_error->describe() + ")"
+                                                 : std::string())));
+      return false;
+    }
     if (info.link_failures != w.failures) {
       w.failures = info.link_failures;
       if (!w.down_since) w.down_since = now;
@@ -637,26 +669,9 @@ struct Master::Impl : DomainObserver {
       w.down_since.reset();
       clear_runtime_fault(kLinkFaultKey);
     }
-    if (!info.running) {
-      end_session(s, "bus_stopped",
-                  Error(Errc::closed, fmt::format("the bus on link {} stopped while the session "
-                                                  "ran",
-                                                  info.link_name)));
-      return false;
-    }
     if (!w.down_since || !info.link_failure) return true;
-    const Error& cause = *info.link_failure;
-    if (!info.link_reopenable) {
-      end_session(
-          s, "link_lost",
-          cause.context(
-              cause.code(),
-              fmt::format("link {} failed and cannot be reopened{}", info.link_name,
-                          info.last_reopen_error ? " (" + info.last_reopen_error->describe() + ")"
-                                                 : std::string())));
-      return false;
-    }
     if (now - *w.down_since >= s->config.link_recovery_window) {
+      const Error& cause = *info.link_failure;
       end_session(
           s, "link_lost",
           cause.context(cause.code(),
@@ -1112,6 +1127,13 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
             session->cycle_thread_report = std::move(report);
           };
         }
+        // Link news reaches the loop at once (the watch also polls, for the recovery window).
+        options.on_link_change = [&impl, weak = std::weak_ptr<Session>(s)] {
+          impl.loop.post([&impl, weak] {
+            if (auto sp = weak.lock()) (void)impl.watch_link(sp);
+          });
+        };
+        impl.link_watch = {};
         s->bus = std::make_unique<bus::Bus>(std::move(l), options);
         if (auto r = s->bus->start(); !r) co_return r.error().context("starting the bus");
         {

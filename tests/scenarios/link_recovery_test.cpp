@@ -14,54 +14,10 @@
 #include <gtest/gtest.h>
 
 #include "scenarios/scenario_support.hpp"
+#include "support/pullable_link.hpp"
 
 namespace ecat::scenarios {
 namespace {
-
-// The master's end of the link, with a cable that can be pulled: while pulled, send() and
-// receive() fail as a NIC without carrier does, and reopen() fails until the cable is back.
-class PullableLink final : public link::Link {
- public:
-  struct Cable {
-    std::atomic<bool> pulled{false};
-    std::atomic<bool> reopenable{true};
-    std::atomic<int> reopens{0};
-  };
-
-  PullableLink(std::unique_ptr<link::Link> inner, std::shared_ptr<Cable> cable)
-      : inner_(std::move(inner)), cable_(std::move(cable)) {}
-
-  Result<void> send(wire::Bytes frame) override {
-    if (cable_->pulled.load()) return Error(Errc::io_error, "pullable: the cable is pulled");
-    return inner_->send(frame);
-  }
-  Result<std::optional<link::ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
-    if (cable_->pulled.load()) {
-      // Replies that were on their way are lost with the cable.
-      while (true) {
-        auto stale = inner_->receive(std::chrono::nanoseconds(0));
-        if (!stale || !*stale) break;
-      }
-      return Error(Errc::io_error, "pullable: no carrier");
-    }
-    return inner_->receive(timeout);
-  }
-  void interrupt() override { inner_->interrupt(); }
-  void close() override { inner_->close(); }
-  Result<void> reopen() override {
-    cable_->reopens.fetch_add(1);
-    if (!cable_->reopenable.load()) return Error(Errc::unsupported, "pullable: cannot reopen");
-    if (cable_->pulled.load()) return Error(Errc::io_error, "pullable: still no carrier");
-    return ok();
-  }
-  std::string name() const override { return "pullable:" + inner_->name(); }
-  link::LinkStats stats() const override { return inner_->stats(); }
-  std::size_t max_frame_size() const override { return inner_->max_frame_size(); }
-
- private:
-  std::unique_ptr<link::Link> inner_;
-  std::shared_ptr<Cable> cable_;
-};
 
 // Every event's stable name (and detail), in order.
 class EventLog {
@@ -100,10 +56,10 @@ class EventLog {
   std::vector<std::string> details_;
 };
 
-RingSpec pullable_spec(std::shared_ptr<PullableLink::Cable> cable) {
+RingSpec pullable_spec(std::shared_ptr<test::PullableLink::Cable> cable) {
   RingSpec spec;
   spec.wrap_link = [cable](std::unique_ptr<link::Link> inner) -> std::unique_ptr<link::Link> {
-    return std::make_unique<PullableLink>(std::move(inner), cable);
+    return std::make_unique<test::PullableLink>(std::move(inner), cable);
   };
   return spec;
 }
@@ -118,7 +74,7 @@ void expect_back_in_op(ScenarioRing& ring) {
 }
 
 TEST(LinkRecovery, ACablePulledAndPluggedBackHealsTheSessionWithoutARestart) {
-  auto cable = std::make_shared<PullableLink::Cable>();
+  auto cable = std::make_shared<test::PullableLink::Cable>();
   auto ring = ScenarioRing::operational(pullable_spec(cable));
   ASSERT_TRUE(ring);
   EventLog events(*ring->master);
@@ -145,7 +101,7 @@ TEST(LinkRecovery, ACablePulledAndPluggedBackHealsTheSessionWithoutARestart) {
 }
 
 TEST(LinkRecovery, ALinkThatStaysDownEndsTheSessionInIdleWithLastFailure) {
-  auto cable = std::make_shared<PullableLink::Cable>();
+  auto cable = std::make_shared<test::PullableLink::Cable>();
   auto spec = pullable_spec(cable);
   spec.adjust = [](master::MasterConfig& c) { c.link_recovery_window = 500ms; };
   auto ring = ScenarioRing::operational(spec);
@@ -173,7 +129,7 @@ TEST(LinkRecovery, ALinkThatStaysDownEndsTheSessionInIdleWithLastFailure) {
 }
 
 TEST(LinkRecovery, ALinkThatCannotBeReopenedEndsTheSessionAtOnce) {
-  auto cable = std::make_shared<PullableLink::Cable>();
+  auto cable = std::make_shared<test::PullableLink::Cable>();
   cable->reopenable = false;
   auto spec = pullable_spec(cable);
   spec.adjust = [](master::MasterConfig& c) { c.link_recovery_window = 60s; };
@@ -192,7 +148,7 @@ TEST(LinkRecovery, ALinkThatCannotBeReopenedEndsTheSessionAtOnce) {
 }
 
 TEST(LinkRecovery, AFailureDuringStartupAlsoEndsInIdle) {
-  auto cable = std::make_shared<PullableLink::Cable>();
+  auto cable = std::make_shared<test::PullableLink::Cable>();
   cable->pulled = true;  // no carrier from the start
   auto spec = pullable_spec(cable);
   spec.adjust = [](master::MasterConfig& c) { c.link_recovery_window = 300ms; };

@@ -88,6 +88,9 @@ struct BusOptions {
   // (Errc::unsupported or Errc::closed) or the bus stops. Both must be positive, min <= max.
   std::chrono::nanoseconds reopen_backoff_min = std::chrono::milliseconds(10);
   std::chrono::nanoseconds reopen_backoff_max = std::chrono::seconds(1);
+  // Called on the bus thread when the link fails, when it is reopened, and when it turns out it
+  // cannot be reopened (info() tells which). Rare; must not block (post the news elsewhere).
+  std::function<void()> on_link_change;
 };
 
 struct BusStats {

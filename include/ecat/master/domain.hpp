@@ -91,6 +91,19 @@ using Clock = bus::Clock;
 enum class DomainState : std::uint8_t { open, cycling, stopped };
 std::string_view to_string(DomainState state) noexcept;
 
+// The domain's state diagram (../shared/seeds/domain.md), the only changes a Domain makes: each
+// edge with what causes it. stop_cycling and the miss threshold are two rows of cycling ->
+// stopped. Anything else asked for is refused and counted (DomainStats::refused_transitions).
+enum class DomainTrigger : std::uint8_t { start_cycling, stop_cycling, miss_threshold };
+std::string_view to_string(DomainTrigger trigger) noexcept;
+struct DomainTransition {
+  DomainState from;
+  DomainState to;
+  DomainTrigger trigger;
+  std::string_view label;  // the diagram's label
+};
+std::span<const DomainTransition> domain_transitions() noexcept;
+
 struct PdoKey {
   std::uint16_t slave = 0;        // configured station address
   std::uint8_t sync_manager = 0;  // SyncManager index
