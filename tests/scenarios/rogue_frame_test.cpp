@@ -247,17 +247,22 @@ TEST(RogueFrames, RingReachesOperationalDespiteForeignFramesDuringStartup) {
       Rng rng(seed);
       // A few malformed frames first, whatever the random draw does later: on a loaded machine
       // the noise may get few turns before the ring is up, and the segment must have seen some.
-      for (int i = 0; i < 3; ++i) {
+      // And one every few turns: frames sent before the kernel has activated the new veth
+      // pair's queues (its link watch runs late on a loaded machine) can be dropped unseen.
+      auto malformed = [&] {
         auto f = encode({harmless_read(rng)});
         f[0] = 0xFF;  // the length field claims more than the frame holds
         f[1] = static_cast<std::uint8_t>((f[1] & 0xF0) | 0x07);
         (void)to_segment->send(f);
         ++injected;
-      }
-      while (!stop) {
+      };
+      for (int i = 0; i < 3; ++i)
+        malformed();
+      for (std::uint64_t turn = 1; !stop; ++turn) {
         (void)to_segment->send(foreign_request(rng));
         (void)to_master->send(foreign_reply(rng));
         injected += 2;
+        if (turn % 8 == 0) malformed();
         std::this_thread::sleep_for(std::chrono::microseconds(300 + rng() % 700));
       }
     });
