@@ -1,13 +1,13 @@
-// The registry of built-in drivers lives with the drivers, so the master layer does not name them.
+#include <ecat/drivers/builtin.hpp>
 #include <ecat/drivers/drivers.hpp>
 
-namespace ecat::master {
+namespace ecat::drivers {
 
-DriverRegistry DriverRegistry::with_builtins() {
-  DriverRegistry registry;
-  for (auto& d : drivers::builtin_drivers())
+master::DriverRegistry builtin_registry() {
+  master::DriverRegistry registry;
+  for (auto& d : builtin_drivers())
     registry.add(std::move(d));
   return registry;
 }
 
-}  // namespace ecat::master
+}  // namespace ecat::drivers

@@ -5,6 +5,7 @@
 
 #include <fmt/format.h>
 
+#include <ecat/config/esi.hpp>
 #include <ecat/exec/transact.hpp>
 #include <ecat/master/dc.hpp>
 #include <ecat/wire/bytes.hpp>

@@ -51,7 +51,8 @@ struct Session : std::enable_shared_from_this<Session> {
   std::unique_ptr<DcMaintainer> dc;
   std::vector<std::unique_ptr<Domain>> domains;
   std::vector<std::unique_ptr<Slave>> slaves;
-  DriverRegistry drivers = DriverRegistry::with_builtins();
+  // The configuration's (MasterConfig::drivers), fixed for the session.
+  DriverRegistry drivers = config.drivers;
   std::uint16_t slave_count = 0;
   std::vector<wire::DlStatus> dl_status;
   std::atomic<bool> stopping{false};

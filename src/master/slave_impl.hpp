@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include <ecat/config/esi.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/master/dc.hpp>
 #include <ecat/master/sii_reader.hpp>

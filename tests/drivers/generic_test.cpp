@@ -6,13 +6,17 @@
 
 #include <ecat/drivers/drivers.hpp>
 #include <ecat/master/driver.hpp>
+#include <ecat/master/master.hpp>
 #include <ecat/sim/device.hpp>
 #include <ecat/wire/sii.hpp>
 
+#include "master/master_test_support.hpp"
 #include "support/shared_data.hpp"
 
 namespace ecat::master {
 namespace {
+
+using namespace std::chrono_literals;
 
 PdoLayout layout_of(std::span<const std::uint8_t> eeprom) {
   auto decoded = wire::decode_sii(eeprom);
@@ -232,7 +236,7 @@ class UserDriver final : public Driver {
 };
 
 TEST(DriverRegistry, BuiltinsByIdentityGenericFallbackUserOverride) {
-  DriverRegistry registry = DriverRegistry::with_builtins();
+  DriverRegistry registry = drivers::builtin_registry();
   EXPECT_EQ(registry.find(wire::SiiIdentity{2, 0x07113052, 0x00120000, 0})->name(), "EL1809");
   EXPECT_EQ(registry.find(wire::SiiIdentity{2, 0x0AF93052, 0x00100000, 0})->name(), "EL2809");
   EXPECT_EQ(registry.find(wire::SiiIdentity{2, 0x0C823052, 0, 0})->name(), "EL3202");
@@ -248,6 +252,52 @@ TEST(DriverRegistry, BuiltinsByIdentityGenericFallbackUserOverride) {
   // The user's driver is only for revision 0x00120000.
   EXPECT_EQ(registry.find(wire::SiiIdentity{2, 0x07113052, 0x00130000, 0})->name(), "EL1809");
   EXPECT_EQ(DriverRegistry().find(wire::SiiIdentity{2, 0x07113052, 0, 0})->name(), "generic");
+}
+
+// Every revision of the EL1809, under another name: what an application's own driver looks like.
+class ApplicationInputs final : public Driver {
+ public:
+  std::string_view name() const noexcept override { return "application_inputs"; }
+  std::vector<DriverIdentity> identities() const override {
+    return {{0x00000002, 0x07113052, std::nullopt}};
+  }
+  Result<std::vector<Signal>> signal_model(const PdoLayout& layout,
+                                           const DriverConfig&) const override {
+    return generic_signal_model(layout);
+  }
+};
+
+// MasterConfig::drivers: the built-in drivers unless changed; an application's own driver is
+// added the same way and wins over the built-in one for the devices it claims.
+TEST(DriverRegistry, AMasterUsesTheDriversOfItsConfiguration) {
+  constexpr const char* kRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+)";
+  for (const bool own : {false, true}) {
+    SCOPED_TRACE(own ? "with the application's driver" : "built-ins");
+    auto server = test::make_sim_server(kRing);
+    ASSERT_TRUE(server);
+    auto link = server->serve_memory();
+    ASSERT_TRUE(link);
+    MasterConfig config;
+    config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 5s};
+    config.dc.reset();
+    if (own) config.drivers.add(std::make_shared<ApplicationInputs>());
+    Master master(config);
+    ASSERT_TRUE(master.start(std::move(*link)));
+    ASSERT_TRUE(master.await_running(10s));
+    auto inputs = master.slave("slave_1");
+    ASSERT_TRUE(inputs) << inputs.error().describe();
+    EXPECT_EQ((*inputs)->info().driver, own ? "application_inputs" : "EL1809");
+    auto outputs = master.slave("slave_2");
+    ASSERT_TRUE(outputs);
+    EXPECT_EQ((*outputs)->info().driver, "EL2809");
+    EXPECT_TRUE(master.stop());
+  }
 }
 
 }  // namespace

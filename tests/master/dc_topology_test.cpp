@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <ecat/config/esi.hpp>
 #include <ecat/master/dc.hpp>
 #include <ecat/wire/registers.hpp>
 #include <ecat/wire/sii.hpp>

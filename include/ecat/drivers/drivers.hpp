@@ -1,5 +1,5 @@
 // The built-in device drivers, and the CiA 402 (IEC 61800-7-201) state machine helpers the drive
-// driver is made of. master::DriverRegistry::with_builtins() registers all of them.
+// driver is made of. drivers::builtin_registry() (builtin.hpp) registers all of them.
 //
 //   EL1809  Beckhoff 16-channel digital input (0x00000002:0x07113052): channel_1..channel_16
 //   EL2809  Beckhoff 16-channel digital output (0x00000002:0x0AF93052): channel_1..channel_16
@@ -23,6 +23,7 @@
 #include <string_view>
 #include <vector>
 
+#include <ecat/drivers/builtin.hpp>
 #include <ecat/master/driver.hpp>
 
 namespace ecat::drivers {

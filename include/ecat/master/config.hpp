@@ -12,6 +12,7 @@
 #include <string_view>
 #include <vector>
 
+#include <ecat/drivers/builtin.hpp>
 #include <ecat/master/al_control.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/master/driver.hpp>
@@ -146,6 +147,10 @@ struct MasterConfig {
   std::chrono::nanoseconds link_recovery_window = std::chrono::seconds(30);
   AlOptions al;
   InitOptions init;
+  // The device drivers slaves are matched with (by identity, or by SlaveConfig::driver's name):
+  // the built-in ones to begin with; an application adds its own the same way
+  // (`config.drivers.add(std::make_shared<MyDriver>())`, later additions win).
+  DriverRegistry drivers = ecat::drivers::builtin_registry();
 };
 
 // Checks a configuration: unique slave names and domain ids, known domains in process-data

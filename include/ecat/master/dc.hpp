@@ -28,13 +28,18 @@
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/bus/realtime.hpp>
-#include <ecat/config/esi.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/cycler.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/sii.hpp>
+
+namespace ecat::config {
+// An ESI device description (<ecat/config/esi.hpp>): only pointed to here, so that the master's
+// public headers do not carry the ESI reader.
+struct EsiDevice;
+}  // namespace ecat::config
 
 namespace ecat::master {
 

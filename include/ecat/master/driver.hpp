@@ -233,10 +233,9 @@ std::shared_ptr<const Driver> generic_driver();
 
 class DriverRegistry {
  public:
-  // Only the generic driver.
+  // Only the generic driver. The built-in ones: drivers::builtin_registry()
+  // (<ecat/drivers/builtin.hpp>), what MasterConfig::drivers starts with.
   DriverRegistry() = default;
-  // The built-in drivers (src/drivers/: EL1809, EL2809, EL3202, EL4102, CiA 402 servo).
-  static DriverRegistry with_builtins();
 
   // Later additions take precedence over earlier ones (a user's driver over a built-in).
   void add(std::shared_ptr<const Driver> driver);
