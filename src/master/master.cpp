@@ -7,6 +7,7 @@
 
 #include <fmt/format.h>
 
+#include <ecat/exec/quiesce.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/exec/transact.hpp>
 #include <ecat/master/al_control.hpp>
@@ -14,16 +15,20 @@
 #include <ecat/master/startup.hpp>
 
 #include "cycle_thread.hpp"
+#include "dynamic_names.hpp"
 #include "session.hpp"
-#include "slave_impl.hpp"
+#include "slave_access.hpp"
 
 namespace ecat::master {
 
 using namespace std::chrono_literals;
+using detail::SlaveAccess;
 
 namespace {
 
 constexpr auto kCallTimeout = 5s;
+// The quiet window of the reference's quiesce before preop_ready and before activation.
+constexpr auto kQuietWindow = 2ms;
 
 std::chrono::milliseconds ms(std::chrono::nanoseconds d) {
   return std::chrono::duration_cast<std::chrono::milliseconds>(d);
@@ -112,7 +117,7 @@ struct Master::Impl : DomainObserver {
     if (config.slaves.empty()) {
       for (std::uint16_t pos = 0; pos < count; ++pos) {
         SlaveConfig c;
-        c.name = fmt::format("slave_{}", pos);
+        c.name = fmt::format("slave_{}", pos);  // positional; run_startup names couplers
         c.target = TargetState::preop;
         c.position = pos;
         out.push_back(std::move(c));
@@ -178,21 +183,18 @@ struct Master::Impl : DomainObserver {
                                                exec::Clock::time_point deadline) {
     std::optional<Error> last_error;
     while (!s->stopping) {
-      auto up = co_await slave.impl().bring_up(s);
-      {
-        // Readable while the session waits: a caller that gives up early can say why.
-        std::lock_guard lock(slave.impl().mutex);
-        slave.impl().startup_error =
-            up ? std::nullopt : std::optional<std::string>(up.error().describe());
-      }
+      auto up = co_await SlaveAccess::bring_up(slave, s);
+      // Readable while the session waits: a caller that gives up early can say why.
+      SlaveAccess::set_startup_error(
+          slave, up ? std::nullopt : std::optional<std::string>(up.error().describe()));
       if (up) {
-        slave.impl().start_health(s);
+        SlaveAccess::start_health(slave, s);
         co_return ok();
       }
       last_error = up.error();
       if (exec::Clock::now() + s->config.slave_retry_interval >= deadline) break;
       co_await exec::sleep_for(s->loop, s->config.slave_retry_interval);
-      slave.impl().note_retry_in_init();
+      SlaveAccess::note_retry_in_init(slave);
     }
     if (s->stopping) co_return Error(Errc::closed, "session stopped");
     co_return last_error->context(fmt::format("slave {} did not reach PREOP within {} ms",
@@ -257,6 +259,21 @@ struct Master::Impl : DomainObserver {
     if (s->stopping) co_return Error(Errc::closed, "stopped");
     if (s->config.dc) co_await init_dc(s);
     if (s->stopping) co_return Error(Errc::closed, "stopped");
+    // A dynamic session names a coupler `coupler` (its SII decides: dynamic_names.hpp), the
+    // others slave_<position>. Read now, with every slave in INIT and the EEPROM with ECAT (the
+    // reset block), for all slaves at once: the name is needed before the Slave is made.
+    if (s->config.slaves.empty()) {
+      std::vector<exec::Task<std::optional<bool>>> probes;
+      for (const auto& c : configs) {
+        probes.push_back(probe_coupler(
+            loop, bus, static_cast<std::uint16_t>(s->config.base_station + *c.position)));
+      }
+      const auto couplers = co_await exec::when_all(loop, std::move(probes));
+      const auto names = dynamic_slave_names(couplers);
+      for (std::size_t i = 0; i < configs.size(); ++i)
+        configs[i].name = names[i];
+      if (s->stopping) co_return Error(Errc::closed, "stopped");
+    }
 
     // Domains (open: slaves register their SyncManagers while reaching PREOP).
     std::uint32_t base = 0;
@@ -281,7 +298,7 @@ struct Master::Impl : DomainObserver {
     }
     bool any_active = false;
     for (const auto& slave : s->slaves) {
-      if (slave->impl().config.target != TargetState::preop) any_active = true;
+      if (SlaveAccess::target(*slave) != TargetState::preop) any_active = true;
     }
     // Held in PREOP from the start: no health polls until activation (the reference hands its
     // slaves no poll period then; scenarios 47 and 51).
@@ -296,8 +313,11 @@ struct Master::Impl : DomainObserver {
     for (auto& r : results) {
       if (!r) co_return r.error();
     }
-    // Quiesce: let late startup traffic drain before the first public exchange.
-    co_await exec::sleep_for(loop, 2ms);
+    // Quiesce (the reference's Bus.quiesce(2 ms)): no startup reply may still be on its way when
+    // the first public exchange or the first OP transition datagram goes out.
+    if (auto quiet = co_await exec::quiesce(loop, bus, kQuietWindow); !quiet) {
+      co_return quiet.error().context("activation: the bus is not ready");
+    }
 
     if (!any_active) {
       {
@@ -337,6 +357,16 @@ struct Master::Impl : DomainObserver {
   // The runtime participant: the reference time to every DC slave each DC cycle, differences
   // sampled, lock tracked. Created once per session, at the first activation.
   void start_dc(Session& s) {
+    if (s.dc && s.dc->cycler() == nullptr && s.cycler) {
+      // Taken out of the cycle by a rolled-back activation (activate_once): running again, its
+      // lock counted afresh.
+      s.dc->reset_lock();
+      if (auto added = s.cycler->add(*s.dc, Cycler::kPriorityDc); !added) {
+        std::lock_guard lock(mutex);
+        s.dc_error = added.error().context("restarting the distributed-clock runtime");
+      }
+      return;
+    }
     if (!s.dc_init || s.dc || !s.config.dc) return;
     DcRuntimeOptions options;
     options.period = s.config.dc->cycle;
@@ -481,14 +511,35 @@ struct Master::Impl : DomainObserver {
       want = desired;
     }
     if (want != TargetState::preop) {
+      // What this activation starts, so that an activation error can roll it back.
+      std::vector<Domain*> idle_domains;
+      for (auto& d : s->domains) {
+        if (d->state() != DomainState::cycling) idle_domains.push_back(d.get());
+      }
+      const bool dc_was_running = s->dc && s->dc->cycler() != nullptr;
       start_cycling(*s);
       // Activation restores health polling, also of slaves held in PREOP and of slaves whose
       // poll was configured while the session was held (scenarios 49-51).
       s->health_held = false;
       for (auto& slave : s->slaves)
-        slave->impl().start_health(s);
+        SlaveAccess::start_health(*slave, s);
       if (auto locked = co_await await_lock(s); !locked) {
         if (s->stopping || session != s) co_return;
+        // An activation error (the clocks did not lock or warm up in time) rolls back the
+        // runtime this activation started, as the reference does: the domains it started stop,
+        // a DC runtime it started stops. No slave has left PREOP yet. Unlike the reference
+        // (which ends a startup activation or answers activate() with the error and stays), the
+        // session is activation_blocked and tries again every retry_interval (ARCHITECTURE.md).
+        for (std::size_t i = 0; i < s->domains.size(); ++i) {
+          Domain& d = *s->domains[i];
+          const bool started_here =
+              std::find(idle_domains.begin(), idle_domains.end(), &d) != idle_domains.end();
+          if (started_here && d.state() == DomainState::cycling && d.stop_cycling()) {
+            publish_domain_state(i, d, DomainState::cycling, DomainState::stopped,
+                                 "activation rolled back");
+          }
+        }
+        if (!dc_was_running && s->dc && s->cycler) (void)s->cycler->remove(*s->dc);
         {
           std::lock_guard lock(mutex);
           activation_error = locked.error();
@@ -502,20 +553,20 @@ struct Master::Impl : DomainObserver {
     std::vector<Slave*> order;
     const bool recovering = current() == MasterState::recovering;
     for (auto& slave : s->slaves) {
-      const auto target = min_target(want, slave->impl().config.target);
-      if (slave->impl().awaiting_rebuild()) continue;
+      const auto target = min_target(want, SlaveAccess::target(*slave));
+      if (SlaveAccess::awaiting_rebuild(*slave)) continue;
       // While recovering, a retained PREOP failure of a slave without process data is a
       // slave-local fault its own retry loop heals: it does not hold the session in recovering.
       if (recovering && retained_slave_local(*slave)) continue;
       order.push_back(slave.get());
-      steps.push_back(slave->impl().go_to(target, s));
+      steps.push_back(SlaveAccess::go_to(*slave, target, s));
     }
     auto results = co_await exec::when_all(loop, std::move(steps));
     if (s->stopping || session != s) co_return;
     std::map<std::string, ActivationFailure> failures;
     for (std::size_t i = 0; i < results.size(); ++i) {
       if (results[i]) continue;
-      const auto target = min_target(want, order[i]->impl().config.target);
+      const auto target = min_target(want, SlaveAccess::target(*order[i]));
       failures.emplace(order[i]->name(),
                        ActivationFailure{order[i]->name(), target, results[i].error(),
                                          al_status_code(results[i].error())});
@@ -570,7 +621,7 @@ struct Master::Impl : DomainObserver {
     // preop_ready even when OP is desired).
     TargetState reached = TargetState::preop;
     for (auto& slave : s->slaves)
-      reached = std::max(reached, std::min(want, slave->impl().config.target));
+      reached = std::max(reached, std::min(want, SlaveAccess::target(*slave)));
     transition(state_for(reached));
   }
 
@@ -779,7 +830,7 @@ struct Master::Impl : DomainObserver {
     // Slaves with a retained configuration failure get it retried first.
     for (auto& slave : s->slaves) {
       if (slave->state() == SlaveState::preop) {
-        (void)co_await slave->impl().retry_configuration(s);
+        (void)co_await SlaveAccess::retry_configuration(*slave, s);
       }
     }
     if (s->stopping || session != s) co_return;
@@ -910,14 +961,11 @@ struct Master::Impl : DomainObserver {
   // with process data whose registration failed has no attachments either, yet it is not
   // slave-local: the session without its data is not operational (it stays blocked).
   static bool retained_slave_local(Slave& slave) {
-    std::lock_guard lock(slave.impl().mutex);
-    return slave.impl().configuration_error.has_value() && slave.impl().attachments.empty() &&
-           slave.impl().config.process_data.kind == ProcessDataRequest::Kind::none;
+    return SlaveAccess::retained_failure_without_process_data(slave);
   }
 
   static bool carries_process_data(Slave& slave) {
-    std::lock_guard lock(slave.impl().mutex);
-    return !slave.impl().attachments.empty();
+    return SlaveAccess::carries_process_data(slave);
   }
 
   void on_notice(const SlaveNotice& notice) {
@@ -961,25 +1009,25 @@ struct Master::Impl : DomainObserver {
     }
     const auto state_now = current();
     if (state_now == MasterState::preop_ready) want = TargetState::preop;
-    auto target = min_target(want, slave->impl().config.target);
+    auto target = min_target(want, SlaveAccess::target(*slave));
     // A PREOP configuration failure retained by a rebuild is retried first (go_to refuses
     // SAFEOP/OP while it stands); without this the slave would stay in PREOP for good.
     if (retry_configuration && slave->state() == SlaveState::preop &&
         target != wire::AlState::preop) {
-      auto retried = co_await slave->impl().retry_configuration(s);
+      auto retried = co_await SlaveAccess::retry_configuration(*slave, s);
       if (s->stopping || session != s) co_return;
       if (!retried) {
         arm_slave_retry(s);
         co_return;
       }
     }
-    auto done = co_await slave->impl().go_to(target, s);
+    auto done = co_await SlaveAccess::go_to(*slave, target, s);
     if (s->stopping || session != s) co_return;
     if (!done) {
       arm_slave_retry(s);
       co_return;
     }
-    slave->impl().clear_fault();
+    SlaveAccess::clear_fault(*slave);
     clear_runtime_fault(key);
   }
 
@@ -1000,9 +1048,9 @@ struct Master::Impl : DomainObserver {
         want = desired;
       }
       for (auto& slave : s->slaves) {
-        const auto target = min_target(want, slave->impl().config.target);
+        const auto target = min_target(want, SlaveAccess::target(*slave));
         const auto st = slave->state();
-        if (slave->impl().awaiting_rebuild()) continue;
+        if (SlaveAccess::awaiting_rebuild(*slave)) continue;
         if (al_state_of(st) != target) {
           exec::spawn(loop, restore_slave(s, slave.get(), "slave:" + slave->name(), true));
         }
@@ -1019,7 +1067,9 @@ struct Master::Impl : DomainObserver {
         for (auto& d : s->domains) {
           d->drain_changes([&](const InputChange& change) {
             for (auto& slave : s->slaves) {
-              if (slave->station() == change.key.slave) slave->impl().on_input_change(change);
+              if (slave->station() == change.key.slave) {
+                SlaveAccess::on_input_change(*slave, change);
+              }
             }
           });
         }
@@ -1243,6 +1293,11 @@ Result<void> Master::activate() {
                             fmt::format("activate: not possible while {}", to_string(now)));
         }
         auto s = impl.session;
+        // As the reference: the bus quiesces before activation; a bus that does not is an
+        // activation error and the session stays where it is.
+        if (auto quiet = co_await exec::quiesce(impl.loop, *s->bus, kQuietWindow); !quiet) {
+          co_return quiet.error().context("activate: the bus is not ready");
+        }
         {
           std::lock_guard lock(impl.mutex);
           impl.desired = TargetState::op;
@@ -1451,7 +1506,7 @@ MasterStatus Master::status() const {
       out.link = impl_->session->bus ? impl_->session->bus->link_name() : "";
       out.slave_count = impl_->session->slave_count;
       for (const auto& slave : impl_->session->slaves)
-        out.illegal_slave_transitions += slave->impl().fsm.refused();
+        out.illegal_slave_transitions += SlaveAccess::refused_transitions(*slave);
       for (const auto& d : impl_->session->domains)
         out.illegal_domain_transitions += d->stats().refused_transitions;
     }
@@ -1522,12 +1577,8 @@ MasterCounters Master::counters() const {
     out.domains.push_back(
         {d->id(), st.cycle_count, st.valid_count, st.wkc_mismatch_count, st.total_miss_count});
   }
-  for (const auto& slave : s->slaves) {
-    const auto& c = slave->impl().counters;
-    out.slaves.push_back({slave->name(), c.wkc_errors.load(std::memory_order_relaxed),
-                          c.mailbox_retries.load(std::memory_order_relaxed),
-                          c.sdo_failures.load(std::memory_order_relaxed)});
-  }
+  for (const auto& slave : s->slaves)
+    out.slaves.push_back(SlaveAccess::counters(*slave));
   if (s->dc) out.dc_max_difference_ns = s->dc->status().max_difference_ns;
   return out;
 }

@@ -168,31 +168,19 @@ exec::Task<Result<void>> Slave::Impl::run_sdos(const std::vector<SdoWrite>& writ
   co_return ok();
 }
 
-exec::Task<Result<PdoLayout>> Slave::Impl::read_coe_layout(const PdoLayout& known) {
+exec::Task<Result<CoePdoConfiguration>> Slave::Impl::read_coe_pdos(const PdoLayout& known) {
   if (!mailbox) {
     co_return Error(
         Errc::unsupported,
         fmt::format("{}: PDO layout from CoE needs a mailbox, the slave has none", who()));
   }
   CoePdoConfiguration coe;
-  for (const auto& sm : known.sync_managers)
-    (void)sm;
-  // Process-data SyncManagers are 2 (outputs) and 3 (inputs) on nearly every device; read the
-  // assignment of every SyncManager the SII describes beyond the mailbox.
-  const auto& sms = sii->decoded.image.sync_managers;
-  for (std::size_t i = 2; i < sms.size() && i < 16; ++i) {
-    const auto object = pdo_assignment_object(static_cast<std::uint8_t>(i));
+  for (auto assignment : detail::coe_assignments_to_read(sii->decoded.image)) {
+    const auto object = pdo_assignment_object(assignment.sync_manager);
     auto count = co_await master::upload<std::uint8_t>(*mailbox, object, 0);
     if (!count) {
       if (sdo_abort_code(count.error())) continue;  // no such object: SM not used for PDOs
       co_return count.error();
-    }
-    CoePdoAssignment assignment;
-    assignment.sync_manager = static_cast<std::uint8_t>(i);
-    if (sms[i].type == wire::sii_sm_type::kOutputs) {
-      assignment.direction = PdoDirection::output;
-    } else if (sms[i].type == wire::sii_sm_type::kInputs) {
-      assignment.direction = PdoDirection::input;
     }
     for (std::uint8_t sub = 1; sub <= *count; ++sub) {
       auto pdo = co_await master::upload<std::uint16_t>(*mailbox, object, sub);
@@ -214,213 +202,81 @@ exec::Task<Result<PdoLayout>> Slave::Impl::read_coe_layout(const PdoLayout& know
     }
     coe.assignments.push_back(std::move(assignment));
   }
-  co_return pdo_layout_from_coe(coe, &known);
+  co_return coe;
 }
 
+detail::PreopFacts Slave::Impl::preop_facts() const {
+  detail::PreopFacts facts;
+  facts.who = who();
+  facts.sii = sii->decoded.image;
+  facts.fmmu_count = esc.fmmu_count;
+  facts.has_mailbox = mailbox != nullptr;
+  const auto station = self.station();
+  for (const auto& domain : session.domains) {
+    detail::DomainFacts d;
+    d.id = domain->id();
+    for (const auto& r : domain->registrations()) {
+      if (r.key.slave != station) continue;
+      d.registered.push_back({r.key.sync_manager, r.size, r.direction, r.logical});
+    }
+    facts.domains.push_back(std::move(d));
+  }
+  return facts;
+}
+
+// The plan (preop_plan.hpp) decides; this carries it out: SDOs, the PDO mapping read where the
+// layout comes from CoE, the domains' registrations, the SyncManager and FMMU writes, and then
+// what the slave publishes.
 exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> keep) {
   (void)keep;
   auto& loop = session.loop;
   auto& bus = *session.bus;
   const auto station = self.station();
-  const auto& image = sii->decoded.image;
 
-  // Driver.
-  std::shared_ptr<const Driver> chosen;
-  if (!config.driver.empty()) {
-    chosen = session.drivers.find(std::string_view(config.driver));
-    if (!chosen) {
-      co_return Error(Errc::not_found,
-                      fmt::format("{}: unknown driver \"{}\"", who(), config.driver));
-    }
-  } else {
-    chosen = session.drivers.find(image.identity);
+  auto chosen = detail::choose_driver(session.drivers, config, sii->decoded.image.identity, who());
+  if (!chosen) co_return chosen.error();
+  auto made_state = (*chosen)->init(config.driver_config);
+  if (!made_state) {
+    co_return made_state.error().context(fmt::format("{}: driver {}", who(), (*chosen)->name()));
   }
-  auto made_state = chosen->init(config.driver_config);
-  if (!made_state)
-    co_return made_state.error().context(fmt::format("{}: driver {}", who(), chosen->name()));
 
-  // PDO layout.
-  auto sii_layout = pdo_layout_from_sii(image);
-  if (!sii_layout) co_return sii_layout.error().context(fmt::format("{}: SII PDOs", who()));
-  PdoLayout pdo_layout = *sii_layout;
-
-  SyncSettings sync_settings;  // DC sync modes come with the distributed-clocks work
-  auto driver_preop =
-      chosen->startup_sdos(config.driver_config, StartupPhase::preop, sync_settings);
-  if (!driver_preop) co_return driver_preop.error();
-  if (auto ran = co_await run_sdos(*driver_preop); !ran) co_return ran.error();
-  if (auto ran = co_await run_sdos(config.startup_sdos); !ran) co_return ran.error();
-
-  if (config.pdo_source == SlaveConfig::PdoSource::configured) {
-    if (!config.pdo_mapping) {
-      co_return Error(Errc::invalid_argument,
-                      fmt::format("{}: pdo_source is 'configured' but no mapping is given", who()));
-    }
-    auto wanted = pdo_layout_from_coe(*config.pdo_mapping, &*sii_layout);
-    if (!wanted) co_return wanted.error().context(fmt::format("{}: configured PDO mapping", who()));
-    auto writes = coe_mapping_writes(*wanted);
-    if (!writes) co_return writes.error();
-    if (auto ran = co_await run_sdos(*writes); !ran) co_return ran.error();
-    pdo_layout = *wanted;
-  } else if (config.pdo_source == SlaveConfig::PdoSource::coe) {
-    auto read = co_await read_coe_layout(*sii_layout);
+  const auto facts = preop_facts();
+  auto setup = detail::plan_layout(facts, config, **chosen);
+  if (!setup) co_return setup.error();
+  if (auto ran = co_await run_sdos(setup->sdos); !ran) co_return ran.error();
+  std::optional<CoePdoConfiguration> coe;
+  if (setup->read_from_coe) {
+    auto read = co_await read_coe_pdos(setup->sii_layout);
     if (!read) co_return read.error().context(fmt::format("{}: reading the PDO mapping", who()));
-    pdo_layout = *read;
-  }
-  auto driver_sync =
-      chosen->startup_sdos(config.driver_config, StartupPhase::sync_update, sync_settings);
-  if (!driver_sync) co_return driver_sync.error();
-  if (auto ran = co_await run_sdos(*driver_sync); !ran) co_return ran.error();
-
-  auto model = chosen->signal_model(pdo_layout, config.driver_config);
-  if (!model) co_return model.error().context(fmt::format("{}: signal model", who()));
-
-  // Which SyncManager goes to which domains.
-  std::map<std::uint8_t, std::set<std::string>> sm_domains;
-  const auto& request = config.process_data;
-  if (request.kind == ProcessDataRequest::Kind::all) {
-    for (const auto& sig : *model)
-      sm_domains[sig.sync_manager].insert(request.domain);
-  } else if (request.kind == ProcessDataRequest::Kind::signals) {
-    for (const auto& route : request.routes) {
-      auto it = std::find_if(model->begin(), model->end(),
-                             [&](const Signal& s) { return s.name == route.signal; });
-      if (it == model->end()) {
-        co_return Error(Errc::not_found,
-                        fmt::format("{}: process_data names signal \"{}\", which the {} driver "
-                                    "does not have",
-                                    who(), route.signal, chosen->name()));
-      }
-      sm_domains[it->sync_manager].insert(route.domain);
-    }
-  }
-  for (const auto& [sm, ids] : sm_domains) {
-    for (const auto& id : ids) {
-      if (!session.find_domain(id)) {
-        co_return Error(Errc::not_found,
-                        fmt::format("{}: process data routed to unknown domain \"{}\"", who(), id));
-      }
-    }
+    coe = std::move(*read);
   }
 
-  // Plan: one FMMU per (SyncManager, domain).
-  std::vector<SmAttachment> plan;
-  std::uint8_t next_fmmu = 0;
-  for (const auto& [sm_index, ids] : sm_domains) {
-    const auto* sm = pdo_layout.find_sync_manager(sm_index);
-    if (!sm || sm->byte_length() == 0) continue;
-    if (sm_index >= image.sync_managers.size()) {
-      co_return Error(Errc::invalid_argument,
-                      fmt::format("{}: PDOs assigned to SyncManager {}, which the SII does not "
-                                  "describe",
-                                  who(), sm_index));
-    }
-    for (const auto& id : ids) {
-      SmAttachment a;
-      a.sync_manager = sm_index;
-      a.direction = sm->direction;
-      a.domain = id;
-      a.physical_address = image.sync_managers[sm_index].start;
-      a.size = sm->byte_length();
-      a.fmmu = next_fmmu++;
-      plan.push_back(a);
-    }
-  }
-  const unsigned fmmu_available = esc.fmmu_count == 0 ? 16u : esc.fmmu_count;
-  if (plan.size() > fmmu_available) {
-    co_return Error(Errc::out_of_range, fmt::format("{}: needs {} FMMUs, the ESC has {}", who(),
-                                                    plan.size(), fmmu_available));
-  }
+  auto plan = detail::plan_process_data(facts, config, **chosen, *setup, coe ? &*coe : nullptr);
+  if (!plan) co_return plan.error();
+  if (auto ran = co_await run_sdos(plan->sdos); !ran) co_return ran.error();
 
-  // Room for all of it first, domain by domain: all of the slave's SyncManagers or none.
-  std::map<std::string, std::pair<std::size_t, std::size_t>> needed;  // domain -> count, bytes
-  for (const auto& a : plan) {
-    if (session.find_domain(a.domain)->registration(PdoKey{station, a.sync_manager})) continue;
-    auto& [count, bytes] = needed[a.domain];
-    ++count;
-    bytes += a.size;
-  }
-  for (const auto& [id, need] : needed) {
-    if (auto room = session.find_domain(id)->check_room(need.first, need.second); !room) {
-      co_return room.error().context(fmt::format(
-          "{}: registering its {} SyncManager(s) in domain \"{}\"", who(), need.first, id));
+  // All of the slave's SyncManagers are registered or none: room first, domain by domain.
+  for (const auto& need : plan->room) {
+    if (auto room = session.find_domain(need.domain)->check_room(need.count, need.bytes); !room) {
+      co_return room.error().context(
+          fmt::format("{}: registering its {} SyncManager(s) in domain \"{}\"", who(), need.count,
+                      need.domain));
     }
   }
-  // Register with the domains (re-using a registration from before a reconnect).
-  for (auto& a : plan) {
-    Domain* domain = session.find_domain(a.domain);
-    const PdoKey key{station, a.sync_manager};
-    auto existing = domain->registration(key);
-    if (existing) {
-      if (existing->size != a.size || existing->direction != a.direction) {
-        co_return Error(Errc::wrong_state,
-                        fmt::format("{}: SyncManager {} is registered in domain \"{}\" with {} "
-                                    "bytes, now {}: the domain must be rebuilt",
-                                    who(), a.sync_manager, a.domain, existing->size, a.size));
-      }
-      a.logical_address = existing->logical;
-      continue;
-    }
-    auto logical = domain->register_pdo(key, a.size, a.direction);
-    if (!logical)
+  for (const auto i : plan->new_registrations) {
+    auto& a = plan->attachments[i];
+    auto logical = session.find_domain(a.domain)->register_pdo(PdoKey{station, a.sync_manager},
+                                                               a.size, a.direction);
+    if (!logical) {
       co_return logical.error().context(fmt::format(
           "{}: registering SyncManager {} in domain \"{}\"", who(), a.sync_manager, a.domain));
+    }
     a.logical_address = *logical;
   }
 
-  // SyncManagers and FMMUs.
   bus::Transaction tx;
-  std::set<std::uint8_t> done_sms;
-  for (const auto& a : plan) {
-    if (done_sms.insert(a.sync_manager).second) {
-      const auto& sii_sm = image.sync_managers[a.sync_manager];
-      wire::SyncManagerConfig smc;
-      smc.physical_start = a.physical_address;
-      smc.length = a.size;
-      auto control = wire::SmControl::decode(sii_sm.control);
-      smc.control = control && control->mode == wire::SmMode::buffered
-                        ? *control
-                        : (a.direction == PdoDirection::output ? wire::kOutputsControl
-                                                               : wire::kInputsControl);
-      smc.activate.enable = true;
-      const auto base = static_cast<std::uint16_t>(reg::kSyncManagerBase + 8 * a.sync_manager);
-      const std::array<std::uint8_t, 1> off{0};
-      tx.fpwr(station, static_cast<std::uint16_t>(base + reg::kSyncManagerActivateOffset), off, 1);
-      tx.fpwr(station, base, smc.encode(), 1);
-    }
-    wire::FmmuConfig f;
-    f.logical_start = a.logical_address;
-    f.length = a.size;
-    f.logical_start_bit = 0;
-    f.logical_stop_bit = 7;
-    f.physical_start = a.physical_address;
-    f.type = a.direction == PdoDirection::output ? wire::FmmuType::write : wire::FmmuType::read;
-    f.active = true;
-    tx.fpwr(station, static_cast<std::uint16_t>(reg::kFmmuBase + reg::kFmmuSize * a.fmmu),
-            f.encode(), 1);
-  }
-  // Process data routed to no domain still needs its SyncManager: slaves check every assigned
-  // PDO's SyncManager on the way to SAFEOP (0x001D / 0x001E otherwise). No FMMU maps it.
-  for (const auto& sm : pdo_layout.sync_managers) {
-    if (sm.byte_length() == 0 || done_sms.count(sm.sync_manager) != 0 ||
-        sm.sync_manager >= image.sync_managers.size()) {
-      continue;
-    }
-    const auto& sii_sm = image.sync_managers[sm.sync_manager];
-    wire::SyncManagerConfig smc;
-    smc.physical_start = sii_sm.start;
-    smc.length = sm.byte_length();
-    auto control = wire::SmControl::decode(sii_sm.control);
-    smc.control =
-        control && control->mode == wire::SmMode::buffered
-            ? *control
-            : (sm.direction == PdoDirection::output ? wire::kOutputsControl : wire::kInputsControl);
-    smc.activate.enable = true;
-    const auto base = static_cast<std::uint16_t>(reg::kSyncManagerBase + 8 * sm.sync_manager);
-    const std::array<std::uint8_t, 1> off{0};
-    tx.fpwr(station, static_cast<std::uint16_t>(base + reg::kSyncManagerActivateOffset), off, 1);
-    tx.fpwr(station, base, smc.encode(), 1);
-  }
+  for (const auto& w : detail::process_data_writes(*plan))
+    tx.fpwr(station, w.address, w.data, 1);
   if (!tx.empty()) {
     auto written = co_await exec::transact(loop, bus, std::move(tx));
     if (!written) {
@@ -431,18 +287,18 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
 
   // Publish. Output images start as zeros, or keep what was staged before (a reconnect).
   std::lock_guard lock(mutex);
-  for (const auto& a : plan) {
+  for (const auto& a : plan->attachments) {
     if (a.direction != PdoDirection::output) continue;
     auto& img = output_images[a.sync_manager];
     if (img.size() != a.size) img.assign(a.size, 0);
     auto* domain = session.find_domain(a.domain);
     (void)domain->write(PdoKey{station, a.sync_manager}, img);
   }
-  driver = chosen;
+  driver = std::move(*chosen);
   driver_state = std::move(*made_state);
-  layout = std::move(pdo_layout);
-  signals = std::move(*model);
-  attachments = std::move(plan);
+  layout = std::move(plan->layout);
+  signals = std::move(plan->signals);
+  attachments = std::move(plan->attachments);
   configuration_error.reset();
   configuration_failure.reset();
   co_return ok();

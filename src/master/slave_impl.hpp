@@ -16,6 +16,7 @@
 #include <ecat/master/sii_reader.hpp>
 #include <ecat/master/slave.hpp>
 
+#include "preop_plan.hpp"
 #include "session.hpp"
 #include "slave_fsm.hpp"
 
@@ -124,7 +125,9 @@ struct Slave::Impl {
   static constexpr int kFailedPollsForDown = 2;
   int failed_polls = 0;
   int busy = 0;  // go_to() calls in progress (loop thread only)
+  // The PREOP configuration: the facts it depends on, planned (preop_plan.hpp), then carried out.
   exec::Task<Result<void>> configure_preop(std::shared_ptr<Session> keep);
+  detail::PreopFacts preop_facts() const;
   // SYNC0/SYNC1 and latch units from config.sync, on the way to SAFEOP (DC sessions only).
   exec::Task<Result<void>> apply_sync();
   // After a rebuild: a DC slave's offset, delay and filters again (a power cycle reset them),
@@ -137,7 +140,9 @@ struct Slave::Impl {
   bool latch_running = false;  // loop thread only
   const LatchConfig* find_latch(std::string_view name) const;
   exec::Task<Result<void>> run_sdos(const std::vector<SdoWrite>& writes);
-  exec::Task<Result<PdoLayout>> read_coe_layout(const PdoLayout& known);
+  // The assignment and mapping objects of the SyncManagers coe_assignments_to_read() names; a
+  // PDO whose mapping object is missing is left to `known` (a fixed PDO the SII describes).
+  exec::Task<Result<CoePdoConfiguration>> read_coe_pdos(const PdoLayout& known);
   exec::Task<Result<void>> go_to(wire::AlState target, std::shared_ptr<Session> keep);
   exec::Task<Result<void>> reconfigure(SlaveConfig next, std::shared_ptr<Session> keep);
   exec::Task<Result<void>> retry_configuration(std::shared_ptr<Session> keep);

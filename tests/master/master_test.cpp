@@ -234,7 +234,8 @@ TEST_F(MasterTest, DynamicSessionHoldsEverySlaveInPreop) {
   EXPECT_EQ(master.state(), MasterState::preop_ready);
   auto slaves = master.slaves();
   ASSERT_EQ(slaves.size(), 5u);
-  EXPECT_EQ(slaves[0].name, "slave_0");
+  EXPECT_EQ(slaves[0].name, "coupler");  // the EK1100's SII says so (dynamic_names.hpp)
+  EXPECT_EQ(slaves[1].name, "slave_1");
   for (const auto& s : slaves)
     EXPECT_EQ(s.state, SlaveState::preop);
   auto d = master.deactivate(TargetState::safeop);

@@ -116,7 +116,7 @@ TEST(MasterTool, SlavesJsonListsIdentityAndPorts) {
   EXPECT_TRUE(inputs.at("identity").contains("serial"));
   ASSERT_EQ(inputs.at("ports").size(), 4u);
   EXPECT_EQ(inputs.at("ports")[0].at("communication"), true);
-  EXPECT_EQ(list[0].at("name"), "slave_0");
+  EXPECT_EQ(list[0].at("name"), "coupler");
   EXPECT_EQ(list[0].at("device"), "EK1100 EtherCAT Coupler (2A E-Bus)");
   // The last slave of a line has only its port 0 in use.
   EXPECT_EQ(list[4].at("ports")[1].at("communication"), false);

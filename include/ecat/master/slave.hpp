@@ -34,6 +34,9 @@
 namespace ecat::master {
 
 struct Session;
+namespace detail {
+class SlaveAccess;
+}
 
 // Where one SyncManager's image lives in one domain (one FMMU).
 struct SmAttachment {
@@ -152,11 +155,15 @@ class Slave {
                                    std::function<void(const SignalEvent&)> callback);
   void unsubscribe(SubscriptionId id);
 
-  // ---- control loop side (the master's) ---------------------------------------------------
+ private:
+  // The control-loop side. Only its name is here: the master drives it through the named
+  // operations of detail::SlaveAccess (src/master/slave_access.hpp), so neither applications nor
+  // the master's own code depend on its fields.
+  friend class detail::SlaveAccess;
   struct Impl;
   Impl& impl() noexcept { return *impl_; }
+  const Impl& impl() const noexcept { return *impl_; }
 
- private:
   std::string name_;
   std::uint16_t position_;
   std::uint16_t station_;

@@ -1,0 +1,78 @@
+#include "slave_access.hpp"
+
+#include <mutex>
+#include <utility>
+
+#include "slave_impl.hpp"
+
+namespace ecat::master::detail {
+
+exec::Task<Result<void>> SlaveAccess::bring_up(Slave& slave, std::shared_ptr<Session> keep) {
+  return slave.impl().bring_up(std::move(keep));
+}
+
+void SlaveAccess::set_startup_error(Slave& slave, std::optional<std::string> why) {
+  auto& impl = slave.impl();
+  std::lock_guard lock(impl.mutex);
+  impl.startup_error = std::move(why);
+}
+
+void SlaveAccess::note_retry_in_init(Slave& slave) noexcept {
+  slave.impl().note_retry_in_init();
+}
+
+void SlaveAccess::start_health(Slave& slave, std::shared_ptr<Session> keep) {
+  slave.impl().start_health(std::move(keep));
+}
+
+TargetState SlaveAccess::target(const Slave& slave) noexcept {
+  return slave.impl().config.target;
+}
+
+bool SlaveAccess::awaiting_rebuild(const Slave& slave) noexcept {
+  return slave.impl().awaiting_rebuild();
+}
+
+exec::Task<Result<void>> SlaveAccess::go_to(Slave& slave, wire::AlState target,
+                                            std::shared_ptr<Session> keep) {
+  return slave.impl().go_to(target, std::move(keep));
+}
+
+exec::Task<Result<void>> SlaveAccess::retry_configuration(Slave& slave,
+                                                          std::shared_ptr<Session> keep) {
+  return slave.impl().retry_configuration(std::move(keep));
+}
+
+void SlaveAccess::clear_fault(Slave& slave) {
+  slave.impl().clear_fault();
+}
+
+bool SlaveAccess::retained_failure_without_process_data(const Slave& slave) {
+  const auto& impl = slave.impl();
+  std::lock_guard lock(impl.mutex);
+  return impl.configuration_error.has_value() && impl.attachments.empty() &&
+         impl.config.process_data.kind == ProcessDataRequest::Kind::none;
+}
+
+bool SlaveAccess::carries_process_data(const Slave& slave) {
+  const auto& impl = slave.impl();
+  std::lock_guard lock(impl.mutex);
+  return !impl.attachments.empty();
+}
+
+void SlaveAccess::on_input_change(Slave& slave, const InputChange& change) {
+  slave.impl().on_input_change(change);
+}
+
+std::uint64_t SlaveAccess::refused_transitions(const Slave& slave) noexcept {
+  return slave.impl().fsm.refused();
+}
+
+MasterCounters::SlaveCounters SlaveAccess::counters(const Slave& slave) {
+  const auto& c = slave.impl().counters;
+  return {slave.name(), c.wkc_errors.load(std::memory_order_relaxed),
+          c.mailbox_retries.load(std::memory_order_relaxed),
+          c.sdo_failures.load(std::memory_order_relaxed)};
+}
+
+}  // namespace ecat::master::detail
