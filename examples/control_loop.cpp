@@ -20,75 +20,86 @@
 #include <ecat/ecat.hpp>
 
 using namespace std::chrono_literals;
-using ecat::master::Slave;
+using ecat::master::SignalHandle;
 using ecat::master::Value;
 
-// Shared between the application and the cycle thread: plain atomics, no locks.
+// Everything the loop uses, owned by main and shared with the cycle thread. The signals are
+// resolved once, on the control side, when the session runs; `armed` hands them over to the
+// cycle thread (release/acquire), which from then on reads and writes them without lookups,
+// locks or allocation.
 struct Loop {
-  std::atomic<Slave*> inputs{nullptr};  // set once the session is operational
-  std::atomic<Slave*> outputs{nullptr};
+  SignalHandle input;
+  SignalHandle output;
+  std::atomic<bool> armed{false};
   std::atomic<std::uint64_t> cycles{0};
   std::atomic<std::uint64_t> edges{0};
   bool last = false;  // touched by the cycle thread only
 
   // Runs on the cycle thread right after the cycle's inputs were published; what it writes goes
   // out with the next cycle. It must not block, log or throw: it delays the cycle.
-  // read_input/write_output neither wait nor allocate (after their first use).
   void on_cycle(ecat::master::Domain&, const ecat::master::CycleOutcome& outcome) {
-    Slave* in = inputs.load(std::memory_order_acquire);
-    Slave* out = outputs.load(std::memory_order_acquire);
-    if (!outcome.valid || in == nullptr || out == nullptr) return;  // no fresh inputs: hold
-    auto value = in->read_input("channel_1");
+    if (!outcome.valid || !armed.load(std::memory_order_acquire)) return;  // no fresh inputs
+    auto value = input.read();
     if (!value) return;
     const bool level = ecat::master::as_bool(*value).value_or(false);
     if (level != last) edges.fetch_add(1, std::memory_order_relaxed);
     last = level;
-    (void)out->write_output("channel_1", Value(!level));
+    (void)output.write(Value(!level));
     cycles.fetch_add(1, std::memory_order_relaxed);
   }
 };
 
 int main(int argc, char** argv) {
   const std::string ring = argc > 1 ? argv[1] : "examples/default.yaml";
-  auto config = ecat::master::load_master_config(ring);
-  auto backend = ecat::sim::open_backend("sim:" + ring);
-  if (!config || !backend) {
-    std::fprintf(stderr, "%s\n", (!config ? config.error() : backend.error()).describe().c_str());
-    return 1;
-  }
 
-  // The callback belongs to the domain's configuration, so it is set before the session starts;
-  // the slaves it talks to exist only afterwards, hence the atomics.
+  // The callback belongs to the domain's configuration, so it is set before the session starts:
+  // open_master hands the configuration read from the file to `configure` first.
   Loop loop;
   bool found = false;
-  for (auto& domain : config->domains) {
-    if (domain.id != "main") continue;
-    domain.on_cycle = [&loop](ecat::master::Domain& d, const ecat::master::CycleOutcome& o) {
-      loop.on_cycle(d, o);
-    };
-    found = true;
+  auto master = ecat::open_master(ring, {.configure = [&](ecat::master::MasterConfig& config) {
+                                    for (auto& domain : config.domains) {
+                                      if (domain.id != "main") continue;
+                                      domain.on_cycle = [&loop](auto& d, const auto& o) {
+                                        loop.on_cycle(d, o);
+                                      };
+                                      found = true;
+                                    }
+                                  }});
+  if (!master) {
+    std::fprintf(stderr, "%s\n", master.error().describe().c_str());
+    return 1;
   }
   if (!found) {
     std::fprintf(stderr, "%s has no domain 'main'\n", ring.c_str());
     return 1;
   }
-
-  ecat::master::Master master(*config);
-  if (auto started = master.start(std::move(backend->link)); !started) {
-    std::fprintf(stderr, "%s\n", started.error().describe().c_str());
+  if (auto op = (*master)->await_operational(20s); !op) {
+    std::fprintf(stderr, "no OP: %s\n", op.error().describe().c_str());
     return 1;
   }
-  auto op = master.await_operational(20s);
-  auto inputs = master.slave("inputs");
-  auto outputs = master.slave("outputs");
-  if (!op || !inputs || !outputs) {
-    std::fprintf(stderr, "%s\n", !op ? op.error().describe().c_str() : "no inputs/outputs");
+  // Resolved once; a wrong slave or signal name is an error naming it.
+  auto input = (*master)->signal_handle("inputs", "channel_1");
+  auto output = (*master)->signal_handle("outputs", "channel_1");
+  if (!input || !output) {
+    std::fprintf(stderr, "%s\n", (!input ? input.error() : output.error()).describe().c_str());
     return 1;
   }
-  loop.inputs.store(*inputs, std::memory_order_release);
-  loop.outputs.store(*outputs, std::memory_order_release);
+  loop.input = std::move(*input);
+  loop.output = std::move(*output);
+  loop.armed.store(true, std::memory_order_release);
 
-  // The application thread only watches; the loop runs by itself.
+  // The application thread only watches; the loop runs by itself. await_next_cycle blocks until
+  // the next valid cycle completed (its inputs published, the callback run): from then on the
+  // loop is running.
+  auto main_domain = (*master)->domain("main");
+  if (!main_domain) {
+    std::fprintf(stderr, "%s\n", main_domain.error().describe().c_str());
+    return 1;
+  }
+  if (auto first = (*main_domain)->await_next_cycle(1s); !first) {
+    std::fprintf(stderr, "%s\n", first.error().describe().c_str());
+    return 1;
+  }
   const auto cycles_before = loop.cycles.load();
   const auto edges_before = loop.edges.load();
   std::this_thread::sleep_for(1s);
@@ -97,9 +108,8 @@ int main(int argc, char** argv) {
   std::printf("in 1 s: %llu cycles ran the loop, the input toggled %llu times\n",
               static_cast<unsigned long long>(cycles), static_cast<unsigned long long>(edges));
 
-  // Detach the loop from the slaves before they go away with the session.
-  loop.inputs.store(nullptr, std::memory_order_release);
-  loop.outputs.store(nullptr, std::memory_order_release);
-  (void)master.stop();
+  // Detach the loop from the signals before they go away with the session.
+  loop.armed.store(false, std::memory_order_release);
+  (void)(*master)->stop();
   return edges >= 100 ? 0 : 1;
 }

@@ -4,7 +4,8 @@
 // both sides of the wire. Its `simulator:` section is the segment (an EK1100 coupler, an EL1809
 // whose 16 inputs are wired to the 16 outputs of an EL2809, an EL3202 and a CiA 402 drive); its
 // master sections (`domains:`, `slaves:`, `dc:`, docs/MASTER-CONFIG.md) tell the master what to
-// make of it. On real hardware, open "raw:eth0" instead of "sim:FILE" (root or CAP_NET_RAW).
+// make of it. On real hardware, write `master: backend: raw:eth0` in the file (root or
+// CAP_NET_RAW).
 //
 //   example_reach_op [examples/default.yaml]
 //
@@ -12,7 +13,6 @@
 #include <chrono>
 #include <cstdio>
 #include <string>
-#include <thread>
 
 #include <ecat/ecat.hpp>
 
@@ -21,12 +21,13 @@ using ecat::master::Value;
 
 // Waits until `signal` of `slave` reads `expected`: an output written now goes out with the next
 // cycle (1 ms here) and comes back through the wiring a cycle or two later.
-static bool input_becomes(ecat::master::Slave& slave, const char* signal, bool expected) {
-  const auto deadline = std::chrono::steady_clock::now() + 1s;
-  while (std::chrono::steady_clock::now() < deadline) {
-    auto value = slave.read_input(signal);  // an error until the first valid cycle
+// Domain::await_next_cycle blocks until the next cycle's inputs are in.
+static bool input_becomes(ecat::master::Domain& domain, ecat::master::Slave& slave,
+                          const char* signal, bool expected) {
+  for (int cycles = 0; cycles < 1000; ++cycles) {
+    if (!domain.await_next_cycle(100ms)) return false;
+    auto value = slave.read_input(signal);
     if (value && ecat::master::as_bool(*value) == expected) return true;
-    std::this_thread::sleep_for(1ms);
   }
   return false;
 }
@@ -34,26 +35,17 @@ static bool input_becomes(ecat::master::Slave& slave, const char* signal, bool e
 int main(int argc, char** argv) {
   const std::string ring = argc > 1 ? argv[1] : "examples/default.yaml";
 
-  // What the master is told to do: its sections of the ring file (the simulator's are ignored).
-  auto config = ecat::master::load_master_config(ring);
-  if (!config) {
-    std::fprintf(stderr, "%s\n", config.error().describe().c_str());
+  // One call reads the file's master sections (`domains:`, `slaves:`, `dc:`, `master:`) and opens
+  // what the master talks to: the file's `master: backend:` (raw:IFACE, udp:HOST:PORT,
+  // sim:RING.yaml) or, as here, its own `simulator:` section run in this process. start() returns
+  // at once; discovery and the walk INIT -> PREOP -> SAFEOP -> OP run on the master's own
+  // threads. Every call returns a Result: a value, or an Error naming what failed.
+  auto opened = ecat::open_master(ring);
+  if (!opened) {
+    std::fprintf(stderr, "%s\n", opened.error().describe().c_str());
     return 1;
   }
-  // What it talks to: "sim:FILE" runs the file's simulated ring behind an in-process link.
-  auto backend = ecat::sim::open_backend("sim:" + ring);
-  if (!backend) {
-    std::fprintf(stderr, "%s\n", backend.error().describe().c_str());
-    return 1;
-  }
-
-  // start() returns at once; discovery and the walk INIT -> PREOP -> SAFEOP -> OP run on the
-  // master's own threads. Every call returns a Result: a value, or an Error naming what failed.
-  ecat::master::Master master(*config);
-  if (auto started = master.start(std::move(backend->link)); !started) {
-    std::fprintf(stderr, "%s\n", started.error().describe().c_str());
-    return 1;
-  }
+  ecat::master::Master& master = **opened;
   if (auto op = master.await_operational(20s); !op) {
     std::fprintf(stderr, "no OP: %s\n", op.error().describe().c_str());
     return 1;
@@ -63,8 +55,9 @@ int main(int argc, char** argv) {
   // Slaves are named by the configuration; their process data are named signals.
   auto outputs = master.slave("outputs");  // the EL2809
   auto inputs = master.slave("inputs");    // the EL1809
-  if (!outputs || !inputs) {
-    std::fprintf(stderr, "the ring has no slaves named outputs and inputs\n");
+  auto domain = master.domain("main");     // the process image both are exchanged in
+  if (!outputs || !inputs || !domain) {
+    std::fprintf(stderr, "the ring has no slaves named outputs and inputs in a domain main\n");
     return 1;
   }
   bool followed = true;
@@ -75,7 +68,7 @@ int main(int argc, char** argv) {
       followed = false;
       break;
     }
-    const bool seen = input_becomes(**inputs, "channel_1", level);
+    const bool seen = input_becomes(**domain, **inputs, "channel_1", level);
     std::printf("outputs.channel_1 = %d -> inputs.channel_1 %s\n", level ? 1 : 0,
                 seen ? "followed" : "DID NOT FOLLOW");
     followed = followed && seen;

@@ -41,17 +41,12 @@ static bool read_u32(ecat::master::Slave& slave, std::uint16_t index, std::uint8
 
 int main(int argc, char** argv) {
   const std::string ring = argc > 1 ? argv[1] : "examples/default.yaml";
-  auto config = ecat::master::load_master_config(ring);
-  auto backend = ecat::sim::open_backend("sim:" + ring);
-  if (!config || !backend) {
-    std::fprintf(stderr, "%s\n", (!config ? config.error() : backend.error()).describe().c_str());
+  auto opened = ecat::open_master(ring);  // configured and started from the file
+  if (!opened) {
+    std::fprintf(stderr, "%s\n", opened.error().describe().c_str());
     return 1;
   }
-  ecat::master::Master master(*config);
-  if (auto started = master.start(std::move(backend->link)); !started) {
-    std::fprintf(stderr, "%s\n", started.error().describe().c_str());
-    return 1;
-  }
+  ecat::master::Master& master = **opened;
   // Running: every slave reached the state its configuration asks for (PREOP at least).
   auto running = master.await_running(20s);
   auto drive = master.slave("drive");

@@ -1,6 +1,7 @@
 // The one header a user includes.
 #pragma once
 
+#include <ecat/app/open_master.hpp>
 #include <ecat/bus/bus.hpp>
 #include <ecat/bus/realtime.hpp>
 #include <ecat/bus/transaction.hpp>
@@ -13,6 +14,7 @@
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/master/signal_handle.hpp>
 #include <ecat/result.hpp>
 #include <ecat/sim/backend.hpp>
 #include <ecat/version.hpp>

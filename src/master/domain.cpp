@@ -9,6 +9,9 @@
 #include <thread>
 
 #include <fmt/format.h>
+#include <linux/futex.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 #include <ecat/bus/realtime.hpp>
 #include <ecat/master/domain.hpp>
@@ -1135,6 +1138,7 @@ void Domain::classify_valid(Exchange& x, Clock::time_point now) noexcept {
     if (DomainObserver* o = observer_.load(std::memory_order_acquire)) o->on_cycle_recovered(*this);
   }
   if (config_.on_cycle) config_.on_cycle(*this, CycleOutcome{x.cycle, true, std::nullopt});
+  announce_valid_cycle(x.cycle);
 }
 
 void Domain::classify_invalid(std::uint64_t cycle, CycleInvalid invalid,
@@ -1223,6 +1227,81 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
       o->on_inputs_changed(*this, changed);
     }
   }
+}
+
+// ---- await_next_cycle ----------------------------------------------------------------------
+// A futex on the count of valid cycles: the bus thread bumps it and wakes only when a waiter
+// announced itself (both sides sequentially consistent, so either the bus thread sees the waiter
+// or the waiter's FUTEX_WAIT sees the new count and returns at once). Waiters sleep in slices so
+// that a domain stopped under them is noticed.
+
+namespace {
+
+static_assert(sizeof(std::atomic<std::uint32_t>) == sizeof(std::uint32_t) &&
+              std::atomic<std::uint32_t>::is_always_lock_free);
+
+std::uint32_t* futex_word(std::atomic<std::uint32_t>& word) noexcept {
+  return reinterpret_cast<std::uint32_t*>(&word);
+}
+
+void futex_wait(std::atomic<std::uint32_t>& word, std::uint32_t expected,
+                nanoseconds timeout) noexcept {
+  const auto ns = std::max<std::int64_t>(0, timeout.count());
+  timespec ts{};
+  ts.tv_sec = static_cast<time_t>(ns / 1'000'000'000);
+  ts.tv_nsec = static_cast<long>(ns % 1'000'000'000);
+  (void)syscall(SYS_futex, futex_word(word), FUTEX_WAIT_PRIVATE, expected, &ts, nullptr, 0);
+}
+
+void futex_wake_all(std::atomic<std::uint32_t>& word) noexcept {
+  (void)syscall(SYS_futex, futex_word(word), FUTEX_WAKE_PRIVATE, std::numeric_limits<int>::max(),
+                nullptr, nullptr, 0);
+}
+
+}  // namespace
+
+void Domain::announce_valid_cycle(std::uint64_t cycle) noexcept {
+  last_valid_cycle_.store(cycle, std::memory_order_relaxed);
+  valid_cycle_seq_.fetch_add(1, std::memory_order_seq_cst);
+  if (cycle_waiters_.load(std::memory_order_seq_cst) != 0) futex_wake_all(valid_cycle_seq_);
+}
+
+Result<CycleOutcome> Domain::await_next_cycle(nanoseconds timeout) {
+  if (bus_.on_bus_thread()) {
+    return error(Errc::wrong_state,
+                 "await_next_cycle() called on the bus thread (from the per-cycle callback or an "
+                 "observer): it would wait for the cycle it is part of; the callback already "
+                 "runs once per cycle");
+  }
+  const auto not_cycling = [this](std::string_view when) {
+    return error(Errc::wrong_state, fmt::format("await_next_cycle(): the domain is {} ({})",
+                                                to_string(state()), when));
+  };
+  if (state() != DomainState::cycling) return not_cycling("when called");
+  const std::uint32_t seen = valid_cycle_seq_.load(std::memory_order_seq_cst);
+  const std::uint64_t invalid_before = stats().cycle_count - stats().valid_count;
+  const auto deadline = Clock::now() + timeout;
+  constexpr nanoseconds kSlice = 50ms;  // how soon a stop under a waiter is noticed
+  for (;;) {
+    if (valid_cycle_seq_.load(std::memory_order_seq_cst) != seen) {
+      return CycleOutcome{last_valid_cycle_.load(std::memory_order_relaxed), true, std::nullopt};
+    }
+    if (state() != DomainState::cycling) return not_cycling("stopped while waited on");
+    const auto left = deadline - Clock::now();
+    if (left <= nanoseconds(0)) break;
+    cycle_waiters_.fetch_add(1, std::memory_order_seq_cst);
+    futex_wait(valid_cycle_seq_, seen, std::min<nanoseconds>(left, kSlice));
+    cycle_waiters_.fetch_sub(1, std::memory_order_seq_cst);
+  }
+  const DomainStats s = stats();
+  const std::uint64_t invalid = s.cycle_count - s.valid_count - invalid_before;
+  return error(
+      Errc::timeout,
+      fmt::format("no valid cycle within {} us ({} cycles meanwhile not valid{})",
+                  std::chrono::duration_cast<std::chrono::microseconds>(timeout).count(), invalid,
+                  s.last_invalid
+                      ? fmt::format(", last invalid: {}", to_string(s.last_invalid->reason))
+                      : std::string()));
 }
 
 }  // namespace ecat::master

@@ -80,7 +80,7 @@ struct BusOptions {
   // mistaken for the reply to a new datagram. Zero means 4 x the frame timeout at that moment.
   std::chrono::nanoseconds late_reply_quarantine{0};
   // Runs first thing on the bus thread (name it, set SCHED_FIFO, pin it to a CPU, ...).
-  std::function<void()> on_thread_start;
+  std::function<void()> on_thread_start{};
   // After the link fails (closed, or repeated send/receive errors) the bus completes everything
   // in flight with the failure, fails new work at once, and tries Link::reopen(): first after
   // reopen_backoff_min, then at doubling intervals up to reopen_backoff_max (the reference
@@ -90,7 +90,7 @@ struct BusOptions {
   std::chrono::nanoseconds reopen_backoff_max = std::chrono::seconds(1);
   // Called on the bus thread when the link fails, when it is reopened, and when it turns out it
   // cannot be reopened (info() tells which). Rare; must not block (post the news elsewhere).
-  std::function<void()> on_link_change;
+  std::function<void()> on_link_change{};
 };
 
 struct BusStats {

@@ -34,7 +34,7 @@ struct DatagramRequest {
   std::uint32_t data_offset = 0;
   // When set, the bus fails the transaction with Errc::wkc_mismatch if the reply's working
   // counter differs.
-  std::optional<std::uint16_t> expected_wkc;
+  std::optional<std::uint16_t> expected_wkc{};
 
   std::uint16_t adp() const noexcept { return static_cast<std::uint16_t>(address); }
   std::uint16_t ado() const noexcept { return static_cast<std::uint16_t>(address >> 16); }

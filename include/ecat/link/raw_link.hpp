@@ -15,9 +15,9 @@ namespace ecat::link {
 
 struct RawLinkOptions {
   // Network interface name, e.g. "eth0".
-  std::string interface;
+  std::string interface = {};
   // Ethernet source address of sent frames; the interface's own address when absent.
-  std::optional<wire::MacAddress> source_mac;
+  std::optional<wire::MacAddress> source_mac{};
   // SO_BUSY_POLL: the kernel polls the device queue for this long before sleeping in a blocking
   // receive (0 = off). Only helps with drivers that support busy polling; needs CAP_NET_ADMIN
   // above net.core.busy_read.

@@ -29,14 +29,14 @@ struct UdpLinkOptions {
   // Client: the peer (IPv4 or IPv6 address, or a name resolved once, at open). Server: the local
   // address to listen on; empty means loopback (127.0.0.1), "*" every address (IPv6 and IPv4
   // where the system allows).
-  std::string host;
+  std::string host{};
   // Client: the peer's port. Server: the port to listen on; 0 picks a free one (see local_port()).
   std::uint16_t port = wire::kEtherCatUdpPort;
   // Server only: how long the master's host keeps the segment after its last datagram before
   // another host may take over.
   std::chrono::nanoseconds peer_hold = std::chrono::seconds(1);
   // Client only: the local address and port to send from (empty / 0: chosen by the kernel).
-  std::string bind_address;
+  std::string bind_address{};
   std::uint16_t bind_port = 0;
   // SO_RCVBUF in bytes (0 = kernel default).
   std::size_t receive_buffer_bytes = 0;

@@ -74,7 +74,7 @@ struct DcTimingModel {
 };
 
 struct DcPlanOptions {
-  DcTimingModel timing;
+  DcTimingModel timing{};
 };
 
 struct DcPlannedSlave {
@@ -116,7 +116,7 @@ constexpr std::int64_t decode_dc_difference(std::uint32_t raw) noexcept {
 // Initialisation
 
 struct DcInitOptions {
-  DcPlanOptions plan;
+  DcPlanOptions plan{};
   std::uint8_t system_time_filter_depth = 4;     // 0x0934 (ESC power-up value)
   std::uint8_t speed_counter_filter_depth = 12;  // 0x0935 (ESC power-up value)
   // Static drift compensation: FRMWs of the reference time, one per frame, until every
@@ -131,7 +131,7 @@ struct DcInitOptions {
   std::chrono::nanoseconds time_limit = std::chrono::seconds(3);
   std::chrono::nanoseconds transaction_timeout = std::chrono::milliseconds(200);
   // The master's time (ns since 2000); empty: dc_master_time_now.
-  std::function<std::int64_t()> master_clock;
+  std::function<std::int64_t()> master_clock{};
 };
 
 struct DcInitResult {
@@ -335,7 +335,7 @@ class DcMaintainer final : public CyclicParticipant {
 struct DcSyncRequest {
   std::uint16_t station = 0;
   std::chrono::nanoseconds cycle = std::chrono::milliseconds(1);  // SYNC0 cycle
-  SyncConfig sync;
+  SyncConfig sync{};
   // The slave's SII (for the DC category), when the master has it.
   const wire::SiiImage* sii = nullptr;
   // The slave's ESI device description (its DC OpModes), when the configuration names one.

@@ -125,7 +125,7 @@ struct CycleOutcome;
 using CycleCallback = std::function<void(Domain& domain, const CycleOutcome& outcome)>;
 
 struct DomainConfig {
-  std::string id;  // names the domain in every message
+  std::string id{};  // names the domain in every message
   // Any value >= kMinPeriod (not limited to whole milliseconds).
   std::chrono::nanoseconds period = std::chrono::milliseconds(1);
   std::uint32_t logical_base = 0;
@@ -157,7 +157,7 @@ struct DomainConfig {
   // and, when valid, its inputs published: read() sees this cycle's inputs and write() is staged
   // for the next cycle. For control loops that compute outputs from the latest inputs. It must
   // not block, allocate, log or throw (it delays the cycle); an exception ends the process.
-  CycleCallback on_cycle;
+  CycleCallback on_cycle{};
 };
 
 // Why a cycle was not valid.
@@ -391,6 +391,16 @@ class Domain final : public CyclicParticipant {
   // Freshness of the inputs as a whole.
   FreshnessInfo freshness() const noexcept;
 
+  // ---- Waiting for the cycle (application threads) ------------------------------------------
+  // Blocks until the next valid cycle after the call has completed: its inputs published (read()
+  // sees them) and the per-cycle callback run. Invalid cycles are waited through. Returns that
+  // cycle's outcome. Errc::timeout when none came in `timeout` (the message says how many invalid
+  // ones did, and why the last was invalid); Errc::wrong_state when the domain is not cycling or
+  // stops while waited on, and on the bus thread (the per-cycle callback, an observer): there it
+  // would wait for the cycle it is part of. The bus thread wakes waiters with one system call
+  // per valid cycle, and only while someone waits.
+  Result<CycleOutcome> await_next_cycle(std::chrono::nanoseconds timeout);
+
   // Delivers queued input change records to `f(const InputChange&)`, oldest first. One drainer
   // at a time (serialized internally).
   template <class F>
@@ -487,6 +497,12 @@ class Domain final : public CyclicParticipant {
   // Statistics (written by the bus thread, read anywhere).
   struct Counters;
   std::unique_ptr<Counters> counters_;
+
+  // await_next_cycle: valid cycles completed (a futex word) and the threads waiting on it.
+  void announce_valid_cycle(std::uint64_t cycle) noexcept;
+  std::atomic<std::uint32_t> valid_cycle_seq_{0};
+  std::atomic<std::uint32_t> cycle_waiters_{0};
+  std::atomic<std::uint64_t> last_valid_cycle_{0};
 };
 
 }  // namespace ecat::master

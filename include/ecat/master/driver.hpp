@@ -34,7 +34,7 @@ namespace ecat::master {
 // A driver's settings, as text (a ring file, the command line, code). Readers parse and check
 // them, naming the key when a value is wrong.
 struct DriverConfig {
-  std::map<std::string, std::string, std::less<>> options;
+  std::map<std::string, std::string, std::less<>> options{};
 
   std::optional<std::string_view> text(std::string_view key) const;
   Result<std::optional<double>> number(std::string_view key) const;
@@ -57,9 +57,9 @@ enum class SmSyncMode : std::uint16_t {
 std::string_view to_string(SmSyncMode mode) noexcept;
 
 struct SyncSettings {
-  std::optional<SmSyncMode> output;  // nullopt: leave 0x1C32 alone
-  std::optional<SmSyncMode> input;   // nullopt: leave 0x1C33 alone
-  std::uint32_t cycle_ns = 0;        // written to :02 of the objects written, when not 0
+  std::optional<SmSyncMode> output{};  // nullopt: leave 0x1C32 alone
+  std::optional<SmSyncMode> input{};   // nullopt: leave 0x1C33 alone
+  std::uint32_t cycle_ns = 0;          // written to :02 of the objects written, when not 0
 
   bool operator==(const SyncSettings&) const = default;
 };
@@ -115,8 +115,8 @@ struct DeviceState {
 
 // "Write `value` to output signal `signal`": value in engineering units (encode_scaled).
 struct OutputWrite {
-  std::string signal;
-  Value value;
+  std::string signal{};
+  Value value{};
 
   bool operator==(const OutputWrite&) const = default;
 };

@@ -84,7 +84,7 @@ struct MailboxOptions {
   std::size_t max_emergencies = 64;
   std::size_t max_unsolicited = 64;
   // Called on the loop thread for every emergency received (after it was queued).
-  std::function<void(std::uint16_t station, const wire::Emergency&)> on_emergency;
+  std::function<void(std::uint16_t station, const wire::Emergency&)> on_emergency{};
   // For every bus transaction. A frame lost on the way back is retried: the slave recognises a
   // repeated request by its counter, and a repeated read finds SM1 empty (WKC 0).
   bus::TransactOptions transact{std::chrono::milliseconds(200), 2};

@@ -26,6 +26,7 @@
 #include <ecat/master/config.hpp>
 #include <ecat/master/dc.hpp>
 #include <ecat/master/events.hpp>
+#include <ecat/master/signal_handle.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
@@ -203,6 +204,10 @@ class Master {
   // Waits until every event raised so far has reached the subscribers (tests, orderly exits).
   bool flush_events(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
   MasterCounters counters() const;
+
+  // A signal of a slave of the running session, resolved once for hot-path reads and writes
+  // (the per-cycle callback's way to process data; SignalHandle::resolve says what fails).
+  Result<SignalHandle> signal_handle(std::string_view slave, std::string_view signal);
 
   struct Impl;
 

@@ -167,17 +167,17 @@ Result<PdoLayout> pdo_layout_from_sii(const wire::SiiImage& sii);
 // The value of one assignment object 0x1C10+n: the PDO indices of subindices 1..count.
 struct CoePdoAssignment {
   std::uint8_t sync_manager = 0;
-  std::vector<std::uint16_t> pdo_indices;
+  std::vector<std::uint16_t> pdo_indices{};
   // The SyncManager's direction, from the SII SyncManager type (3 outputs, 4 inputs) when known;
   // nullopt infers it from the PDO index ranges (0x16xx output, 0x1Axx input).
-  std::optional<PdoDirection> direction;
+  std::optional<PdoDirection> direction{};
 };
 
 // The value of one mapping object: entries 1..count, each index << 16 | subindex << 8 | bits.
 struct CoePdoMapping {
   std::uint16_t pdo_index = 0;
-  std::vector<std::uint32_t> entries;
-  std::string name;  // the object's name (SDO information), if known
+  std::vector<std::uint32_t> entries{};
+  std::string name{};  // the object's name (SDO information), if known
 };
 
 // Names and data types of mapped objects (from SDO information), keyed by index:subindex.
@@ -185,13 +185,13 @@ struct CoeEntryInfo {
   std::uint16_t index = 0;
   std::uint8_t subindex = 0;
   std::uint16_t data_type = coe_type::kNone;
-  std::string name;
+  std::string name{};
 };
 
 struct CoePdoConfiguration {
-  std::vector<CoePdoAssignment> assignments;
-  std::vector<CoePdoMapping> mappings;
-  std::vector<CoeEntryInfo> entry_info;
+  std::vector<CoePdoAssignment> assignments{};
+  std::vector<CoePdoMapping> mappings{};
+  std::vector<CoeEntryInfo> entry_info{};
 };
 
 constexpr std::uint32_t coe_mapping_entry(std::uint16_t index, std::uint8_t subindex,
@@ -213,7 +213,7 @@ Result<PdoLayout> pdo_layout_from_coe(const CoePdoConfiguration& coe,
 struct SdoWrite {
   std::uint16_t index = 0;
   std::uint8_t subindex = 0;
-  std::vector<std::uint8_t> data;  // little-endian value
+  std::vector<std::uint8_t> data{};  // little-endian value
   bool complete_access = false;
 
   bool operator==(const SdoWrite&) const = default;

@@ -56,8 +56,8 @@ SignalType signal_type_for(std::uint16_t data_type, std::uint16_t bit_length) no
 struct LinearScale {
   double factor = 1.0;
   double offset = 0.0;
-  std::optional<double> minimum;
-  std::optional<double> maximum;
+  std::optional<double> minimum{};
+  std::optional<double> maximum{};
 
   bool operator==(const LinearScale&) const = default;
 };

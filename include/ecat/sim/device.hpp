@@ -25,17 +25,17 @@ namespace ecat::sim {
 // (`ecat sim profile` writes them): the ESC information registers 0x0000..0x0009 and how the SII
 // interface behaves. Unset fields keep the profile's value.
 struct EscPreset {
-  std::optional<std::uint8_t> type;                // 0x0000
-  std::optional<std::uint8_t> revision;            // 0x0001
-  std::optional<std::uint16_t> build;              // 0x0002
-  std::optional<std::uint8_t> fmmu_count;          // 0x0004 (1..16)
-  std::optional<std::uint8_t> sync_manager_count;  // 0x0005 (1..16)
-  std::optional<std::uint8_t> ram_size_kib;        // 0x0006
-  std::optional<std::uint8_t> ports;               // 0x0007, the port descriptor
+  std::optional<std::uint8_t> type{};                // 0x0000
+  std::optional<std::uint8_t> revision{};            // 0x0001
+  std::optional<std::uint16_t> build{};              // 0x0002
+  std::optional<std::uint8_t> fmmu_count{};          // 0x0004 (1..16)
+  std::optional<std::uint8_t> sync_manager_count{};  // 0x0005 (1..16)
+  std::optional<std::uint8_t> ram_size_kib{};        // 0x0006
+  std::optional<std::uint8_t> ports{};               // 0x0007, the port descriptor
   // 0x0008; bit 2 (DC) also decides whether the ESC has a DC unit at all.
-  std::optional<std::uint16_t> features;
-  std::optional<std::int64_t> sii_busy_ns;     // how long an SII command keeps the busy bit
-  std::optional<std::uint8_t> sii_read_bytes;  // 4 or 8 bytes per SII read
+  std::optional<std::uint16_t> features{};
+  std::optional<std::int64_t> sii_busy_ns{};     // how long an SII command keeps the busy bit
+  std::optional<std::uint8_t> sii_read_bytes{};  // 4 or 8 bytes per SII read
 
   bool empty() const noexcept;
   void apply(EscHardware& hardware) const;
@@ -44,8 +44,8 @@ struct EscPreset {
 // Where a slave starts instead of station 0 in INIT: a segment a master configured before the
 // simulated one was "switched on" (TwinCAT's capture starts in the middle of a session).
 struct StartState {
-  std::optional<std::uint16_t> station;    // configured station address (0x0010)
-  std::optional<std::uint16_t> al_status;  // AL status (0x0130): state, error bit
+  std::optional<std::uint16_t> station{};    // configured station address (0x0010)
+  std::optional<std::uint16_t> al_status{};  // AL status (0x0130): state, error bit
 };
 
 // A CoE object entry a ring sets (or adds) in a device's dictionary: the value a capture showed,
@@ -53,9 +53,9 @@ struct StartState {
 struct ObjectPreset {
   std::uint16_t index = 0;
   std::uint8_t subindex = 0;
-  std::vector<std::uint8_t> value;  // as on the wire (little endian; strings as their bytes)
+  std::vector<std::uint8_t> value{};  // as on the wire (little endian; strings as their bytes)
   bool writable = false;
-  std::optional<std::uint32_t> abort_code;  // every access is refused with this code
+  std::optional<std::uint32_t> abort_code{};  // every access is refused with this code
 };
 
 struct DeviceConfig {
@@ -63,14 +63,14 @@ struct DeviceConfig {
   // "generic"), "eeprom" (file = an SII image) or "esi" (file = ESI XML, options["product"]
   // selects the device when the file holds several).
   std::string profile = "generic";
-  std::string file;
+  std::string file{};
   // Profile-specific settings, as text (for example {"channels", "8"}).
-  std::map<std::string, std::string> options;
+  std::map<std::string, std::string> options{};
   // The device's distributed clock, when it has one.
-  DcClockModel clock;
-  EscPreset esc;
-  StartState start;
-  std::vector<ObjectPreset> objects;
+  DcClockModel clock{};
+  EscPreset esc{};
+  StartState start{};
+  std::vector<ObjectPreset> objects{};
 };
 
 // The physical side of a device, as tests and wiring see it.

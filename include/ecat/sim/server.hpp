@@ -35,11 +35,11 @@ namespace ecat::sim {
 
 struct SimServerOptions {
   // Segment time in nanoseconds; CLOCK_MONOTONIC when empty. Must not go backwards.
-  std::function<std::int64_t()> clock;
+  std::function<std::int64_t()> clock{};
   // The longest the segment goes without advance() while the link is idle.
   std::chrono::nanoseconds advance_period = std::chrono::milliseconds(1);
   // Profile name of each slave, for status (make_server fills it from the ring).
-  std::vector<std::string> profiles;
+  std::vector<std::string> profiles{};
 };
 
 struct SimServerStats {

@@ -77,14 +77,14 @@ struct DcSyncRequirement {
 };
 
 struct StandardConfig {
-  wire::SiiImage sii;
-  ObjectDictionary dictionary;
-  CoeServerConfig coe;  // used when the SII declares a standard mailbox
+  wire::SiiImage sii{};
+  ObjectDictionary dictionary{};
+  CoeServerConfig coe{};  // used when the SII declares a standard mailbox
   bool check_fmmus = false;
   bool require_valid_outputs = false;
   // Also a DC requirement: 0x1C32:01 (SM output parameter, synchronisation type) written to 2
   // (DC SYNC0) or 3 (DC SYNC1) by the master makes SYNC0 required.
-  DcSyncRequirement dc;
+  DcSyncRequirement dc{};
 };
 
 class StandardApplication : public DeviceApplication {

@@ -1,0 +1,109 @@
+#include <algorithm>
+#include <cstring>
+#include <utility>
+
+#include <fmt/format.h>
+
+#include <ecat/master/master.hpp>
+#include <ecat/master/signal_handle.hpp>
+#include <ecat/wire/bytes.hpp>
+
+namespace ecat::master {
+
+Result<SignalHandle> SignalHandle::resolve(Master& master, std::string_view slave_name,
+                                           std::string_view signal_name) {
+  const auto what = [&] {
+    return fmt::format("signal \"{}\" of slave {}", signal_name, slave_name);
+  };
+  auto slave = master.slave(slave_name);
+  if (!slave) return slave.error().context(fmt::format("resolving {}", what()));
+  const SlaveInfo info = (*slave)->info();
+  if (info.signals.empty()) {
+    return Error(Errc::not_ready,
+                 fmt::format("resolving {}: the slave has no signals yet (they come with its "
+                             "PREOP configuration; state {})",
+                             what(), to_string(info.state)));
+  }
+  const auto sig = std::find_if(info.signals.begin(), info.signals.end(),
+                                [&](const Signal& s) { return s.name == signal_name; });
+  if (sig == info.signals.end()) {
+    std::string names;
+    for (const auto& s : info.signals)
+      names += (names.empty() ? "" : ", ") + s.name;
+    return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\" (it has: {})",
+                                              slave_name, signal_name, names));
+  }
+  if (sig->bit_length == 0 || sig->bit_length > 64) {
+    return Error(Errc::unsupported,
+                 fmt::format("{} has {} bits: handles carry signals of 1..64 bits (read wider "
+                             "ones with Slave::read_input)",
+                             what(), sig->bit_length));
+  }
+  SignalHandle handle;
+  handle.slave_ = std::string(slave_name);
+  handle.signal_ = *sig;
+  handle.field_ = *sig;
+  handle.field_.bit_offset = 0;
+  std::size_t image_size = 0;
+  for (const auto& a : info.attachments) {
+    if (a.sync_manager != sig->sync_manager) continue;
+    auto domain = master.domain(a.domain);
+    if (!domain) return domain.error().context(fmt::format("resolving {}", what()));
+    auto pdo = (*domain)->find(PdoKey{info.station, a.sync_manager});
+    if (!pdo) return pdo.error().context(fmt::format("resolving {}", what()));
+    handle.targets_.push_back(Target{*domain, *pdo});
+    image_size = std::max<std::size_t>(image_size, a.size);
+    if (sig->direction == PdoDirection::input) break;  // read from one domain
+  }
+  if (handle.targets_.empty()) {
+    return Error(Errc::not_found,
+                 fmt::format("{} is not routed to a domain (its slave's process_data)", what()));
+  }
+  handle.image_.assign(image_size, 0);
+  return handle;
+}
+
+Result<Value> SignalHandle::read() const {
+  if (!bound()) {
+    return Error(Errc::not_ready, "read() of an unbound signal handle (SignalHandle::resolve)");
+  }
+  const Target& t = targets_.front();
+  wire::MutableBytes image(image_.data(), image_.size());
+  auto got = signal_.direction == PdoDirection::input ? t.domain->read_fresh(t.pdo, image)
+                                                      : t.domain->read(t.pdo, image);
+  if (!got) {
+    return got.error().context(
+        fmt::format("{} \"{}\" of slave {}", to_string(signal_.direction), signal_.name, slave_));
+  }
+  return decode_scaled(signal_, image.first(*got));
+}
+
+Result<void> SignalHandle::write(const Value& value) {
+  if (!bound()) {
+    return Error(Errc::not_ready, "write() of an unbound signal handle (SignalHandle::resolve)");
+  }
+  if (signal_.direction != PdoDirection::output) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("signal \"{}\" of slave {} is an input", signal_.name, slave_));
+  }
+  auto raw = from_engineering(signal_, value);
+  if (!raw) return raw.error();
+  std::uint8_t word[8] = {};
+  if (auto encoded = encode(field_, *raw, std::span<std::uint8_t>(word, sizeof word)); !encoded) {
+    return encoded.error().context(fmt::format("output \"{}\" of slave {}", signal_.name, slave_));
+  }
+  const std::uint64_t bits = wire::load_le64(word);
+  for (const Target& t : targets_) {
+    if (auto w = t.domain->write_bits(t.pdo, signal_.bit_offset, signal_.bit_length, bits); !w) {
+      return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"",
+                                           signal_.name, slave_, t.domain->id()));
+    }
+  }
+  return ok();
+}
+
+Result<SignalHandle> Master::signal_handle(std::string_view slave, std::string_view signal) {
+  return SignalHandle::resolve(*this, slave, signal);
+}
+
+}  // namespace ecat::master
