@@ -1,34 +1,21 @@
-// The one header a user includes.
+// The one header an application includes: the master, its slaves and domains, their
+// configurations and summaries, signal values and handles, Result/Error, the event stream, the
+// log, opening a link by name and starting a master from a ring file (open_master). The
+// simulator has its own header (<ecat/sim/backend.hpp>: the built-in simulated ring); the bus,
+// the cycler, the coroutine runtime and the protocol codecs are the library's own business,
+// reachable by their headers for tools and tests.
 #pragma once
 
 #include <ecat/app/open_master.hpp>
-#include <ecat/bus/bus.hpp>
-#include <ecat/bus/realtime.hpp>
-#include <ecat/bus/transaction.hpp>
-#include <ecat/exec/event_loop.hpp>
-#include <ecat/exec/task.hpp>
-#include <ecat/exec/transact.hpp>
 #include <ecat/link/link.hpp>
-#include <ecat/link/memory_link.hpp>
 #include <ecat/link/open.hpp>
-#include <ecat/link/raw_link.hpp>
-#include <ecat/link/udp_link.hpp>
+#include <ecat/log.hpp>
+#include <ecat/master/config.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/events.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/master/signal.hpp>
 #include <ecat/master/signal_handle.hpp>
+#include <ecat/master/slave.hpp>
 #include <ecat/result.hpp>
-#include <ecat/sim/backend.hpp>
 #include <ecat/version.hpp>
-#include <ecat/wire/al.hpp>
-#include <ecat/wire/bytes.hpp>
-#include <ecat/wire/coe.hpp>
-#include <ecat/wire/emergency.hpp>
-#include <ecat/wire/eoe.hpp>
-#include <ecat/wire/foe.hpp>
-#include <ecat/wire/frame.hpp>
-#include <ecat/wire/mailbox.hpp>
-#include <ecat/wire/mailbox_summary.hpp>
-#include <ecat/wire/registers.hpp>
-#include <ecat/wire/sdo_abort.hpp>
-#include <ecat/wire/sdo_info.hpp>
-#include <ecat/wire/sii.hpp>
-#include <ecat/wire/soe.hpp>

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <ecat/master/config.hpp>
+#include <ecat/master/domain.hpp>
 
 namespace ecat::master {
 

@@ -10,6 +10,7 @@
 
 #include <fmt/format.h>
 
+#include <ecat/bus/bus.hpp>
 #include <ecat/master/cycler.hpp>
 
 namespace ecat::master {

@@ -7,17 +7,21 @@
 #include <cstring>
 #include <limits>
 #include <thread>
+#include <type_traits>
 
 #include <fmt/format.h>
 #include <linux/futex.h>
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <ecat/bus/bus.hpp>
 #include <ecat/bus/realtime.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/wire/frame.hpp>
 
 namespace ecat::master {
+
+static_assert(std::is_same_v<Clock, bus::Clock>, "domain times are the bus's clock");
 
 using std::chrono::nanoseconds;
 using namespace std::chrono_literals;

@@ -12,6 +12,7 @@
 
 #include <ecat/config/esi.hpp>
 #include <ecat/exec/task.hpp>
+#include <ecat/master/coe_client.hpp>
 #include <ecat/master/dc.hpp>
 #include <ecat/master/sii_reader.hpp>
 #include <ecat/master/slave.hpp>

@@ -14,6 +14,9 @@
 
 #include <gtest/gtest.h>
 
+#include <ecat/bus/bus.hpp>
+#include <ecat/master/al_control.hpp>
+#include <ecat/master/domain.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/sim/application.hpp>
 #include <ecat/sim/device.hpp>

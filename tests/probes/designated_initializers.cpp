@@ -5,7 +5,11 @@
 // structs carries one (`std::string name{};`).
 #include <chrono>
 
+#include <ecat/bus/bus.hpp>
 #include <ecat/ecat.hpp>
+#include <ecat/link/memory_link.hpp>
+#include <ecat/link/raw_link.hpp>
+#include <ecat/link/udp_link.hpp>
 #include <ecat/master/coe_client.hpp>
 #include <ecat/master/dc.hpp>
 #include <ecat/master/mailbox.hpp>

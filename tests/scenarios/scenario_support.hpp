@@ -45,6 +45,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <ecat/bus/bus.hpp>
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/master/domain.hpp>

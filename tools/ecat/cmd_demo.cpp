@@ -18,6 +18,7 @@
 
 #include <fmt/format.h>
 
+#include <ecat/bus/bus.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>

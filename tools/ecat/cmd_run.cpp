@@ -22,6 +22,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include <ecat/bus/bus.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/sim/backend.hpp>
 #include <ecat/sim/ring.hpp>

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include <ecat/bus/transact_options.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/bytes.hpp>
 #include <ecat/wire/frame.hpp>
@@ -157,17 +158,6 @@ class TransactionResult {
   };
   std::vector<Entry> entries_;
   std::vector<std::uint8_t> data_;
-};
-
-// How the bus treats one reliable transaction.
-struct TransactOptions {
-  // Overall limit from submission to completion, queueing and retries included. Must be positive.
-  std::chrono::nanoseconds timeout = std::chrono::seconds(1);
-  // How many times the whole transaction is sent again after one of its frames got no reply.
-  // A retry repeats every datagram of the transaction, so a non-idempotent datagram (a mailbox
-  // write, ARMW/FRMW, APRW/FPRW/BRW, a write that starts an action) may take effect twice:
-  // set retries = 0 for such transactions and handle Errc::timeout in the caller.
-  unsigned retries = 2;
 };
 
 }  // namespace ecat::bus

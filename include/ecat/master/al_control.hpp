@@ -16,19 +16,11 @@
 #include <ecat/bus/bus.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
+#include <ecat/master/config.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/al.hpp>
 
 namespace ecat::master {
-
-struct AlOptions {
-  // Limit for one step (write + the slave reaching the state). ETG.1000.6 lets a slave take up
-  // to 10 s for PREOP -> SAFEOP; real devices answer in a few ms, the simulator at once.
-  std::chrono::nanoseconds step_timeout = std::chrono::seconds(5);
-  // Pause between two AL status reads while waiting.
-  std::chrono::nanoseconds poll_interval = std::chrono::milliseconds(1);
-  bus::TransactOptions transact{std::chrono::milliseconds(200), 2};
-};
 
 // The states a request from `from` to `to` passes through, `to` last; empty when `from == to`;
 // nullopt when there is no path (BOOT is reached from INIT only and left to INIT only).

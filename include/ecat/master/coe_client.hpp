@@ -28,21 +28,12 @@
 #include <vector>
 
 #include <ecat/exec/task.hpp>
+#include <ecat/master/config.hpp>
 #include <ecat/master/mailbox.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/sdo_info.hpp>
 
 namespace ecat::master {
-
-struct SdoOptions {
-  // Transfer the whole object (subindex 0 or 1 only). Starting at subindex 0 the value begins with
-  // subindex 0 padded to 16 bits (see wire::split_complete_access).
-  bool complete_access = false;
-  // For each mailbox exchange of the transfer (a segmented transfer has several).
-  std::chrono::nanoseconds timeout = std::chrono::seconds(1);
-  // Uploads announcing more than this fail before their segments are fetched.
-  std::size_t max_upload_size = 16 * 1024 * 1024;
-};
 
 // The value of index:subindex (with complete access: of the object from subindex on).
 exec::Task<Result<std::vector<std::uint8_t>>> upload_sdo(Mailbox& mailbox, std::uint16_t index,

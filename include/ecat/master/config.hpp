@@ -5,23 +5,324 @@
 #pragma once
 
 #include <chrono>
+#include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include <ecat/bus/transact_options.hpp>
 #include <ecat/drivers/builtin.hpp>
-#include <ecat/master/al_control.hpp>
-#include <ecat/master/domain.hpp>
 #include <ecat/master/driver.hpp>
 #include <ecat/master/pdo.hpp>
-#include <ecat/master/startup.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
+#include <ecat/wire/bytes.hpp>
 
 namespace ecat::master {
+
+// ---- options of the session's steps (al_control.hpp, startup.hpp) ---------------------------
+
+struct AlOptions {
+  // Limit for one step (write + the slave reaching the state). ETG.1000.6 lets a slave take up
+  // to 10 s for PREOP -> SAFEOP; real devices answer in a few ms, the simulator at once.
+  std::chrono::nanoseconds step_timeout = std::chrono::seconds(5);
+  // Pause between two AL status reads while waiting.
+  std::chrono::nanoseconds poll_interval = std::chrono::milliseconds(1);
+  bus::TransactOptions transact{std::chrono::milliseconds(200), 2};
+};
+
+struct ScanOptions {
+  std::chrono::nanoseconds poll = std::chrono::milliseconds(100);
+  // The count must stay the same for this long (and over at least two reads).
+  std::chrono::nanoseconds stable = std::chrono::seconds(1);
+  // Give up (Errc::timeout) when no stable non-zero count was seen for this long.
+  std::chrono::nanoseconds timeout = std::chrono::seconds(10);
+};
+
+struct InitOptions {
+  unsigned attempts = 100;
+  std::chrono::nanoseconds interval = std::chrono::milliseconds(10);
+};
+
+// ---- how an SDO transfer is made (Slave::upload_sdo and friends, coe_client.hpp) -------------
+
+struct SdoOptions {
+  // Transfer the whole object (subindex 0 or 1 only). Starting at subindex 0 the value begins with
+  // subindex 0 padded to 16 bits (see wire::split_complete_access).
+  bool complete_access = false;
+  // For each mailbox exchange of the transfer (a segmented transfer has several).
+  std::chrono::nanoseconds timeout = std::chrono::seconds(1);
+  // Uploads announcing more than this fail before their segments are fetched.
+  std::size_t max_upload_size = 16 * 1024 * 1024;
+};
+
+// ---- domains: configuration and what they report (domain.hpp holds the Domain) -------------
+
+// The clock domain times are on (the bus's: bus::Clock).
+using Clock = std::chrono::steady_clock;
+
+enum class DomainState : std::uint8_t { open, cycling, stopped };
+std::string_view to_string(DomainState state) noexcept;
+
+// The domain's state diagram (../shared/seeds/domain.md), the only changes a Domain makes: each
+// edge with what causes it. stop_cycling and the miss threshold are two rows of cycling ->
+// stopped. Anything else asked for is refused and counted (DomainStats::refused_transitions).
+enum class DomainTrigger : std::uint8_t { start_cycling, stop_cycling, miss_threshold };
+std::string_view to_string(DomainTrigger trigger) noexcept;
+struct DomainTransition {
+  DomainState from;
+  DomainState to;
+  DomainTrigger trigger;
+  std::string_view label;  // the diagram's label
+};
+std::span<const DomainTransition> domain_transitions() noexcept;
+
+struct PdoKey {
+  std::uint16_t slave = 0;        // configured station address
+  std::uint8_t sync_manager = 0;  // SyncManager index
+  auto operator<=>(const PdoKey&) const = default;
+};
+// "station 0x1002 SM2"
+std::string to_string(const PdoKey& key);
+
+// Position of a registration in its domain: O(1) hot-path access without a key lookup.
+struct PdoHandle {
+  std::uint32_t index = 0;
+  auto operator<=>(const PdoHandle&) const = default;
+};
+
+class Domain;
+struct CycleOutcome;
+
+// The per-cycle callback (DomainConfig::on_cycle).
+using CycleCallback = std::function<void(Domain& domain, const CycleOutcome& outcome)>;
+
+struct DomainConfig {
+  std::string id{};  // names the domain in every message
+  // Any value >= kMinPeriod (not limited to whole milliseconds).
+  std::chrono::nanoseconds period = std::chrono::milliseconds(1);
+  std::uint32_t logical_base = 0;
+  // Consecutive transport misses (timeouts, expired or unsendable exchanges) that stop the domain.
+  std::uint32_t miss_threshold = 1000;
+  // Consecutive invalid cycles (misses or WKC mismatches) that report the domain degraded.
+  std::uint32_t recovery_threshold = 3;
+  // Inputs older than this are stale. 0: 3 x period (follows update_period()).
+  std::chrono::nanoseconds stale_after{0};
+  // How long an exchange may wait for the link before the bus drops it (Bus::submit_realtime).
+  // 0: max(period x 9/10, 200 us) (follows update_period()).
+  std::chrono::nanoseconds realtime_budget{0};
+  // Largest image (bytes). Registrations beyond it fail with image_too_large. 2035 is the
+  // reference's one-datagram limit; larger images are split over several datagrams and frames.
+  std::size_t max_image_size = 2035;
+  // Largest LRW datagram (data bytes). 0: as large as one frame of the bus carries (1486 bytes on
+  // a standard 1500-byte Ethernet payload).
+  std::size_t max_datagram_size = 0;
+  // Registrations the domain can hold (storage is reserved up front so readers never race a
+  // reallocation).
+  std::size_t max_registrations = 256;
+  // Exchanges that may be in flight at once: a lost frame keeps its exchange until the bus's frame
+  // timeout, and the following cycles use the others. When all are still in flight, the cycle is
+  // a miss (counted as an overrun).
+  std::size_t exchanges_in_flight = 4;
+  // Input change records buffered for drain_changes() (rounded up to a power of two).
+  std::size_t change_queue_capacity = 1024;
+  // Called on the bus (cycle) thread once per cycle, right after the cycle's reply was classified
+  // and, when valid, its inputs published: read() sees this cycle's inputs and write() is staged
+  // for the next cycle. For control loops that compute outputs from the latest inputs. It must
+  // not block, allocate, log or throw (it delays the cycle); an exception ends the process.
+  CycleCallback on_cycle{};
+};
+
+// Why a cycle was not valid.
+enum class InvalidReason : std::uint8_t {
+  wkc_mismatch,  // a reply came back, but a working counter differs from the expectation
+  timeout,     // transport miss: no reply in time, dropped as stale (expired), or no free exchange
+  link_error,  // transport miss: the link failed to send
+  closed,      // transport miss: the bus is stopped
+};
+std::string_view to_string(InvalidReason reason) noexcept;
+
+struct CycleInvalid {
+  InvalidReason reason = InvalidReason::timeout;
+  std::uint32_t expected_wkc = 0;  // sum over the datagrams (wkc_mismatch)
+  std::uint32_t actual_wkc = 0;
+  std::uint16_t datagram = 0;  // first datagram that differed (wkc_mismatch)
+  bool operator==(const CycleInvalid&) const = default;
+};
+
+// What the per-cycle callback is told.
+struct CycleOutcome {
+  std::uint64_t cycle = 0;              // the cycle's number (as in the domain's stats)
+  bool valid = false;                   // inputs published this cycle
+  std::optional<CycleInvalid> invalid;  // why not, when not valid
+};
+
+struct CycleHealth {
+  bool healthy = true;                  // the latest cycle was valid (true before any cycle)
+  std::optional<CycleInvalid> invalid;  // when not healthy
+};
+
+struct DomainStats {
+  DomainState state = DomainState::open;
+  CycleHealth health;
+  std::uint64_t cycle_count = 0;         // cycles started (ticks while cycling)
+  std::uint64_t valid_count = 0;         // valid cycles
+  std::uint64_t miss_count = 0;          // consecutive transport misses (now)
+  std::uint64_t total_miss_count = 0;    // transport misses, all time
+  std::uint64_t invalid_streak = 0;      // consecutive invalid cycles (now)
+  std::uint64_t wkc_mismatch_count = 0;  // all time
+  std::uint64_t timeout_count = 0;       // no reply within the bus's frame timeout
+  std::uint64_t expired_count = 0;       // dropped by the bus: not sendable within the budget
+  std::uint64_t overrun_count = 0;       // every exchange still in flight at the tick
+  std::uint64_t link_error_count = 0;    // link failures and a stopped bus
+  std::uint64_t late_results = 0;        // results of older cycles that arrived after newer ones
+  std::uint64_t output_stage_skips = 0;  // cycles sent with the previous outputs (writer held lock)
+  std::uint64_t changes_dropped = 0;     // change records lost to a full queue
+  // Changes the state diagram does not draw that were asked for and refused (start while
+  // cycling, stop while not cycling).
+  std::uint64_t refused_transitions = 0;
+  std::uint32_t last_wkc = 0;  // sum of the working counters of the latest reply
+  std::optional<Clock::time_point> last_valid_at;
+  std::optional<Clock::time_point> last_invalid_at;
+  std::optional<CycleInvalid> last_invalid;
+  // Submission to completion of exchanges that got a reply.
+  std::chrono::nanoseconds last_latency{0};
+  std::chrono::nanoseconds min_latency{0};
+  std::chrono::nanoseconds max_latency{0};
+  std::chrono::nanoseconds mean_latency{0};
+};
+
+struct PdoRegistration {
+  PdoKey key;
+  PdoHandle handle;
+  std::uint32_t offset = 0;   // in the image
+  std::uint32_t logical = 0;  // logical_base + offset
+  std::uint16_t size = 0;
+  PdoDirection direction = PdoDirection::input;
+  bool contributes_wkc = true;
+};
+
+// One LRW datagram of the cycle.
+struct DomainDatagram {
+  std::uint32_t offset = 0;  // in the image
+  std::uint32_t logical = 0;
+  std::uint16_t length = 0;
+  std::uint16_t expected_wkc = 0;
+};
+
+struct DomainInfo {
+  std::string id;
+  DomainState state = DomainState::open;
+  std::chrono::nanoseconds period{0};
+  std::chrono::nanoseconds stale_after{0};
+  std::chrono::nanoseconds realtime_budget{0};
+  std::uint32_t logical_base = 0;
+  std::uint32_t image_size = 0;
+  std::uint32_t expected_wkc = 0;  // sum over the datagrams
+  std::vector<DomainDatagram> datagrams;
+  std::vector<PdoRegistration> registrations;
+  DomainStats stats;
+};
+
+enum class Freshness : std::uint8_t { not_ready, fresh, stale };
+std::string_view to_string(Freshness freshness) noexcept;
+
+struct FreshnessInfo {
+  Freshness state = Freshness::not_ready;
+  std::optional<Clock::time_point> refreshed_at;  // last valid cycle
+  std::optional<std::chrono::nanoseconds> age;    // now - refreshed_at
+  std::chrono::nanoseconds stale_after{0};
+};
+
+struct SampleInfo {
+  std::size_t size = 0;                         // bytes copied
+  std::optional<Clock::time_point> updated_at;  // inputs: last valid cycle; outputs: last write
+  std::optional<Clock::time_point> changed_at;  // last time the bytes changed
+  std::optional<FreshnessInfo> freshness;       // inputs only
+};
+
+struct Sample {
+  std::vector<std::uint8_t> value;
+  SampleInfo info;
+};
+
+// One input registration whose bytes changed in a valid cycle.
+struct InputChange {
+  PdoHandle handle;
+  PdoKey key;
+  std::uint64_t cycle = 0;       // the domain's cycle number
+  Clock::time_point at;          // when the reply was published
+  std::uint16_t first_byte = 0;  // first and last changed byte within the registration
+  std::uint16_t last_byte = 0;
+};
+
+struct DrainResult {
+  std::size_t delivered = 0;
+  std::uint64_t dropped = 0;  // records lost to a full queue since the previous drain
+};
+
+// ---- distributed clocks: what they report (dc.hpp holds the machinery) -----------------------
+
+struct DcSlaveStatus {
+  std::uint16_t station = 0;
+  std::int64_t difference_ns = 0;          // last 0x092C
+  std::int64_t max_abs_difference_ns = 0;  // since start
+  std::uint64_t reinitialised = 0;         // re-initialisations after a reconnect
+};
+
+struct DcStatus {
+  std::uint16_t reference_station = 0;
+  bool locked = false;
+  std::int64_t max_difference_ns = 0;  // max |difference| of the last sample
+  std::vector<DcSlaveStatus> slaves;
+  std::vector<std::int64_t> history;  // max |difference| per sample, oldest first
+  std::uint64_t samples = 0;
+  std::uint64_t lock_count = 0;    // unlocked -> locked
+  std::uint64_t unlock_count = 0;  // locked -> unlocked
+  std::chrono::steady_clock::time_point last_lock_change{};
+  // Phase of the last FRMW at the reference clock against the SYNC0 grid, in (-cycle/2, cycle/2]:
+  // positive = the frame passed the reference after the grid point.
+  std::int64_t phase_ns = 0;
+  std::int64_t phase_target_ns = 0;  // DcRuntimeOptions::phase_target
+  // phase_ns - phase_target_ns, wrapped into (-cycle/2, cycle/2]: what steering holds near 0.
+  std::int64_t phase_error_ns = 0;
+  // Largest |phase_error_ns| since the steering settled (without steering: since start).
+  std::int64_t max_abs_phase_error_ns = 0;
+  std::vector<std::int64_t> phase_history;  // phase_error_ns per sample (as `history`)
+  // Steering (DcRuntimeOptions::follow_reference).
+  bool follows_reference = false;
+  bool phase_settled = false;        // the error stayed within cycle/20 for 20 samples
+  double cycle_rate_ppm = 0.0;       // the rate applied to the cycle (Bus::set_cycle_rate)
+  std::int64_t cycle_offset_ns = 0;  // where the steered deadlines stand against the host grid
+  std::uint64_t phase_steps = 0;     // coarse re-alignments (start, lost phase)
+  std::uint64_t reference_time = 0;  // system time from the last FRMW
+  // The reference clock's rate against the host's steady clock, in ppm (positive: the reference
+  // runs fast), smoothed. A cycle that follows the reference runs its period shortened by it.
+  double reference_drift_ppm = 0.0;
+  std::uint64_t frmw_sent = 0;
+  std::uint64_t frmw_failed = 0;  // not ok (timeout, expired, wkc)
+  std::uint32_t consecutive_failures = 0;
+  bool failed = false;                 // consecutive_failures reached the failure threshold
+  std::uint64_t runtime_failures = 0;  // healthy -> failed
+  std::uint64_t overruns = 0;          // ticks skipped because the last exchange was pending
+};
+
+enum class AssignActivateSource : std::uint8_t { config, esi, sii, mode_default, none };
+std::string_view to_string(AssignActivateSource source) noexcept;
+
+struct DcSyncResult {
+  std::uint16_t assign_activate = 0;
+  AssignActivateSource source = AssignActivateSource::none;
+  std::uint64_t start_time = 0;  // first SYNC0 (system time); 0 in free run
+  std::uint32_t sync0_cycle_ns = 0;
+  std::uint32_t sync1_cycle_ns = 0;
+  std::uint8_t latch_control[2]{};
+};
 
 // Which of a slave's signals go to which domain.
 struct ProcessDataRequest {

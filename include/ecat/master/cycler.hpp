@@ -34,8 +34,12 @@
 #include <mutex>
 #include <vector>
 
-#include <ecat/bus/bus.hpp>
 #include <ecat/result.hpp>
+
+namespace ecat::bus {
+class Bus;
+struct CycleTick;
+}  // namespace ecat::bus
 
 namespace ecat::master {
 

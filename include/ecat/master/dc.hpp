@@ -193,50 +193,6 @@ struct DcRuntimeOptions {
   std::uint32_t failure_threshold = 3;
 };
 
-struct DcSlaveStatus {
-  std::uint16_t station = 0;
-  std::int64_t difference_ns = 0;          // last 0x092C
-  std::int64_t max_abs_difference_ns = 0;  // since start
-  std::uint64_t reinitialised = 0;         // re-initialisations after a reconnect
-};
-
-struct DcStatus {
-  std::uint16_t reference_station = 0;
-  bool locked = false;
-  std::int64_t max_difference_ns = 0;  // max |difference| of the last sample
-  std::vector<DcSlaveStatus> slaves;
-  std::vector<std::int64_t> history;  // max |difference| per sample, oldest first
-  std::uint64_t samples = 0;
-  std::uint64_t lock_count = 0;    // unlocked -> locked
-  std::uint64_t unlock_count = 0;  // locked -> unlocked
-  std::chrono::steady_clock::time_point last_lock_change{};
-  // Phase of the last FRMW at the reference clock against the SYNC0 grid, in (-cycle/2, cycle/2]:
-  // positive = the frame passed the reference after the grid point.
-  std::int64_t phase_ns = 0;
-  std::int64_t phase_target_ns = 0;  // DcRuntimeOptions::phase_target
-  // phase_ns - phase_target_ns, wrapped into (-cycle/2, cycle/2]: what steering holds near 0.
-  std::int64_t phase_error_ns = 0;
-  // Largest |phase_error_ns| since the steering settled (without steering: since start).
-  std::int64_t max_abs_phase_error_ns = 0;
-  std::vector<std::int64_t> phase_history;  // phase_error_ns per sample (as `history`)
-  // Steering (DcRuntimeOptions::follow_reference).
-  bool follows_reference = false;
-  bool phase_settled = false;        // the error stayed within cycle/20 for 20 samples
-  double cycle_rate_ppm = 0.0;       // the rate applied to the cycle (Bus::set_cycle_rate)
-  std::int64_t cycle_offset_ns = 0;  // where the steered deadlines stand against the host grid
-  std::uint64_t phase_steps = 0;     // coarse re-alignments (start, lost phase)
-  std::uint64_t reference_time = 0;  // system time from the last FRMW
-  // The reference clock's rate against the host's steady clock, in ppm (positive: the reference
-  // runs fast), smoothed. A cycle that follows the reference runs its period shortened by it.
-  double reference_drift_ppm = 0.0;
-  std::uint64_t frmw_sent = 0;
-  std::uint64_t frmw_failed = 0;  // not ok (timeout, expired, wkc)
-  std::uint32_t consecutive_failures = 0;
-  bool failed = false;                 // consecutive_failures reached the failure threshold
-  std::uint64_t runtime_failures = 0;  // healthy -> failed
-  std::uint64_t overruns = 0;          // ticks skipped because the last exchange was pending
-};
-
 // Runs on the bus thread through a Cycler (add with Cycler::kPriorityDc). Every tick it sends
 // the FRMW of the reference's 0x0910 as realtime work; every read_every-th tick the same frame
 // also reads every DC slave's 0x092C (realtime, so the sample belongs to the cycle it was taken
@@ -343,18 +299,6 @@ struct DcSyncRequest {
   // How far ahead of the slave's current system time the first pulse is placed.
   std::chrono::nanoseconds start_lead = std::chrono::milliseconds(100);
   std::chrono::nanoseconds timeout = std::chrono::milliseconds(200);
-};
-
-enum class AssignActivateSource : std::uint8_t { config, esi, sii, mode_default, none };
-std::string_view to_string(AssignActivateSource source) noexcept;
-
-struct DcSyncResult {
-  std::uint16_t assign_activate = 0;
-  AssignActivateSource source = AssignActivateSource::none;
-  std::uint64_t start_time = 0;  // first SYNC0 (system time); 0 in free run
-  std::uint32_t sync0_cycle_ns = 0;
-  std::uint32_t sync1_cycle_ns = 0;
-  std::uint8_t latch_control[2]{};
 };
 
 // AssignActivate for `sync`: SyncConfig::assign_activate, else the first ESI DC OpMode for the

@@ -21,15 +21,17 @@
 #include <string_view>
 #include <vector>
 
-#include <ecat/bus/bus.hpp>
 #include <ecat/link/link.hpp>
 #include <ecat/master/config.hpp>
-#include <ecat/master/dc.hpp>
 #include <ecat/master/events.hpp>
 #include <ecat/master/signal_handle.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
+
+namespace ecat::bus {
+class Bus;  // <ecat/bus/bus.hpp>: the session's bus, for diagnostics (Master::bus)
+}  // namespace ecat::bus
 
 namespace ecat::master {
 

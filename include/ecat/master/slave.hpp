@@ -16,12 +16,8 @@
 #include <string_view>
 #include <vector>
 
-#include <ecat/master/coe_client.hpp>
 #include <ecat/master/config.hpp>
-#include <ecat/master/dc.hpp>
-#include <ecat/master/domain.hpp>
 #include <ecat/master/driver.hpp>
-#include <ecat/master/mailbox.hpp>
 #include <ecat/master/pdo.hpp>
 #include <ecat/master/signal.hpp>
 #include <ecat/master/states.hpp>

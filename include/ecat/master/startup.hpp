@@ -11,6 +11,7 @@
 #include <ecat/bus/bus.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
+#include <ecat/master/config.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/registers.hpp>
@@ -20,14 +21,6 @@ namespace ecat::master {
 // Slaves answering a broadcast read of 0x0000 (the working counter).
 exec::Task<Result<std::uint16_t>> count_slaves(exec::EventLoop& loop, bus::Bus& bus,
                                                bus::TransactOptions options = {});
-
-struct ScanOptions {
-  std::chrono::nanoseconds poll = std::chrono::milliseconds(100);
-  // The count must stay the same for this long (and over at least two reads).
-  std::chrono::nanoseconds stable = std::chrono::seconds(1);
-  // Give up (Errc::timeout) when no stable non-zero count was seen for this long.
-  std::chrono::nanoseconds timeout = std::chrono::seconds(10);
-};
 
 // Polls count_slaves() until it is non-zero and unchanged for `stable`.
 exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
@@ -51,11 +44,6 @@ exec::Task<Result<std::vector<wire::DlStatus>>> read_dl_status(exec::EventLoop& 
 // FMMUs, SyncManagers, DC activation/system time/filters, alias control, AL control INIT with
 // acknowledge, EEPROM to ECAT. Required writes must reach all `count` slaves.
 exec::Task<Result<void>> reset_slaves(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count);
-
-struct InitOptions {
-  unsigned attempts = 100;
-  std::chrono::nanoseconds interval = std::chrono::milliseconds(10);
-};
 
 // Requests INIT (with error acknowledge) from every slave and waits until each station shows
 // INIT, re-requesting from slaves that do not; names the blocking stations on failure.

@@ -9,6 +9,7 @@
 #include <thread>
 
 #include <ecat/ecat.hpp>
+#include <ecat/sim/backend.hpp>  // the built-in simulated ring
 
 namespace {
 
