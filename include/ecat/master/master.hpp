@@ -39,7 +39,11 @@ class Domain;
 
 // A terminal failure the session keeps after it ends (upstream-inventory §6.3).
 struct Failure {
-  std::string kind;  // "startup_failed", "awaiting_preop_timeout", "dc_lock_lost", ...
+  // Why the last session ended by itself: "startup_failed" (discovery or configuration),
+  // "awaiting_preop_failed" (a slave did not reach PREOP in time), "dc_lock_lost" (under
+  // LockPolicy::fatal), "link_lost" (the link did not come back within link_recovery_window, or
+  // cannot be reopened), "bus_stopped".
+  std::string kind;
   Error error;
   std::chrono::system_clock::time_point at;
 };
@@ -172,8 +176,9 @@ class Master {
   // Changes a running domain's period (the stored configuration is unchanged).
   Result<void> update_domain_cycle_time(std::string_view domain, std::chrono::nanoseconds period);
 
-  // Distributed clocks. Errc::not_ready (with the reason: DC disabled in the configuration, no
-  // DC-capable slave, initialisation failed, not activated yet) when DC does not run.
+  // Distributed clocks. When DC does not run, the error says why: Errc::unsupported when it
+  // cannot (no session, DC disabled in the configuration, no DC-capable slave or its
+  // initialisation failed), Errc::not_ready when it will (not initialised or not activated yet).
   Result<DcStatus> dc_status() const;
   Result<ReferenceClock> reference_clock() const;
   // Waits until every DC slave's system-time difference stayed below the lock threshold for the
