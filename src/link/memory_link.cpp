@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include <ecat/link/memory_link.hpp>
+#include <ecat/wire/frame.hpp>
 
 #include "link/posix.hpp"
 

@@ -109,7 +109,8 @@ exec::Task<Result<void>> write_al_control(exec::EventLoop& loop, bus::Bus& bus,
   std::array<std::uint8_t, 2> data{};
   wire::store_le16(data.data(), control);
   tx.fpwr(station, reg::kAlControl, data, 1);
-  auto reply = co_await exec::transact(loop, bus, std::move(tx), options.transact);
+  auto reply = co_await exec::transact(
+      loop, bus, std::move(tx), bus::TransactOptions{options.read_timeout, options.read_retries});
   if (!reply) {
     co_return reply.error().context(
         fmt::format("writing AL control 0x{:04x} to slave 0x{:04x}", control, station));
@@ -121,13 +122,15 @@ exec::Task<Result<void>> write_al_control(exec::EventLoop& loop, bus::Bus& bus,
 
 exec::Task<Result<wire::AlStatusBlock>> al_acknowledge(exec::EventLoop& loop, bus::Bus& bus,
                                                        std::uint16_t station, AlOptions options) {
-  auto status = co_await read_al_status(loop, bus, station, options.transact);
+  auto status = co_await read_al_status(
+      loop, bus, station, bus::TransactOptions{options.read_timeout, options.read_retries});
   if (!status) co_return status.error();
   if (!status->status.error) co_return *status;
   auto written = co_await write_al_control(
       loop, bus, station, wire::encode_al_control(status->status.state, true), options);
   if (!written) co_return written.error();
-  co_return co_await read_al_status(loop, bus, station, options.transact);
+  co_return co_await read_al_status(
+      loop, bus, station, bus::TransactOptions{options.read_timeout, options.read_retries});
 }
 
 exec::Task<Result<void>> al_step(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t station,
@@ -138,7 +141,8 @@ exec::Task<Result<void>> al_step(exec::EventLoop& loop, bus::Bus& bus, std::uint
   const auto deadline = exec::Clock::now() + options.step_timeout;
   wire::AlStatusBlock last{};
   while (true) {
-    auto status = co_await read_al_status(loop, bus, station, options.transact);
+    auto status = co_await read_al_status(
+        loop, bus, station, bus::TransactOptions{options.read_timeout, options.read_retries});
     if (!status) co_return status.error();
     last = *status;
     if (last.status.error) {
@@ -164,7 +168,8 @@ exec::Task<Result<void>> al_step(exec::EventLoop& loop, bus::Bus& bus, std::uint
 
 exec::Task<Result<AlState>> al_request(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t station,
                                        AlState target, AlOptions options) {
-  auto status = co_await read_al_status(loop, bus, station, options.transact);
+  auto status = co_await read_al_status(
+      loop, bus, station, bus::TransactOptions{options.read_timeout, options.read_retries});
   if (!status) co_return status.error();
   if (status->status.error) {
     auto acked = co_await al_acknowledge(loop, bus, station, options);

@@ -2,10 +2,15 @@
 
 #include <fmt/format.h>
 
+#include <ecat/drivers/builtin.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/domain.hpp>
 
 namespace ecat::master {
+
+DriverRegistry builtin_drivers() {
+  return drivers::builtin_registry();
+}
 
 std::string_view to_string(SyncMode mode) noexcept {
   switch (mode) {

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <ecat/link/memory_link.hpp>
+#include <ecat/wire/frame.hpp>
 
 #include "support/counting_allocator.hpp"
 

@@ -344,11 +344,12 @@ TEST_F(MasterDcSteeringTest, TheCycleFollowsTheReferenceClockAtAConstantPhase) {
   // The reference runs 95 ppm fast: the cycle runs about that much faster to stay with it
   // (the drift is estimated from host reception times: a loaded machine skews it).
   EXPECT_NEAR(status.cycle_rate_ppm, -95.0, 60.0);
-  // Constant phase: 3 s at 95 ppm would slide 285 us; steered it stays put (the bounds leave
-  // room for a loaded machine, where every sample carries tens of microseconds of host noise;
-  // dc_bench gives the figures).
+  // Constant phase: 3 s at 95 ppm would slide 285 us; steered it stays put. The bound is what
+  // tells the two apart with room for a loaded machine, where every sample carries tens of
+  // microseconds of host noise (a clean-clone CI run with a compile beside it saw 82 us);
+  // dc_bench gives the figures.
   const auto slide = phase_slide(status.phase_history, 60, 1'000'000, false);
-  EXPECT_LT(std::llabs(slide), 60'000)
+  EXPECT_LT(std::llabs(slide), 120'000)
       << "phase slid " << slide << " ns; " << status.phase_steps << " coarse steps";
   std::vector<std::int64_t> sorted = status.phase_history;
   std::sort(sorted.begin(), sorted.end());

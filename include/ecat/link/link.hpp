@@ -7,7 +7,9 @@
 // thread to wake a blocked receive().
 #pragma once
 
+#include <array>
 #include <chrono>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -17,7 +19,6 @@
 
 #include <ecat/result.hpp>
 #include <ecat/wire/bytes.hpp>
-#include <ecat/wire/frame.hpp>
 
 namespace ecat::link {
 
@@ -29,7 +30,7 @@ struct ReceivedFrame {
   // the link has one, otherwise taken right after the receive call returned.
   std::int64_t timestamp_ns = 0;
   // Ethernet source address (all zero for links without one).
-  wire::MacAddress source{};
+  std::array<std::uint8_t, 6> source{};  // wire::MacAddress
 };
 
 struct LinkStats {
@@ -86,7 +87,7 @@ class Link {
   virtual LinkStats stats() const = 0;
 
   // Largest EtherCAT frame send() accepts.
-  virtual std::size_t max_frame_size() const { return wire::kMaxFrameSize; }
+  virtual std::size_t max_frame_size() const;  // wire::kMaxFrameSize unless the link says less
 };
 
 }  // namespace ecat::link

@@ -15,8 +15,6 @@
 #include <string_view>
 #include <vector>
 
-#include <ecat/bus/transact_options.hpp>
-#include <ecat/drivers/builtin.hpp>
 #include <ecat/master/driver.hpp>
 #include <ecat/master/pdo.hpp>
 #include <ecat/master/states.hpp>
@@ -33,7 +31,9 @@ struct AlOptions {
   std::chrono::nanoseconds step_timeout = std::chrono::seconds(5);
   // Pause between two AL status reads while waiting.
   std::chrono::nanoseconds poll_interval = std::chrono::milliseconds(1);
-  bus::TransactOptions transact{std::chrono::milliseconds(200), 2};
+  // Each AL status read: its time limit and how often it is sent again after a lost frame.
+  std::chrono::nanoseconds read_timeout = std::chrono::milliseconds(200);
+  unsigned read_retries = 2;
 };
 
 struct ScanOptions {
@@ -423,6 +423,10 @@ struct CycleThreadOptions {
   std::optional<int> cpu{};            // pinned to this CPU
 };
 
+// The built-in device drivers (drivers::builtin_registry(), <ecat/drivers/builtin.hpp>): what
+// MasterConfig::drivers starts with.
+DriverRegistry builtin_drivers();
+
 struct MasterConfig {
   // What the master talks to when the caller does not say (ring files: `master: backend:`):
   // raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Master::start takes a link; tools open this one.
@@ -453,7 +457,7 @@ struct MasterConfig {
   // The device drivers slaves are matched with (by identity, or by SlaveConfig::driver's name):
   // the built-in ones to begin with; an application adds its own the same way
   // (`config.drivers.add(std::make_shared<MyDriver>())`, later additions win).
-  DriverRegistry drivers = ecat::drivers::builtin_registry();
+  DriverRegistry drivers = builtin_drivers();
 };
 
 // Checks a configuration: unique slave names and domain ids, known domains in process-data
