@@ -270,13 +270,7 @@ class ApplicationInputs final : public Driver {
 // MasterConfig::drivers: the built-in drivers unless changed; an application's own driver is
 // added the same way and wins over the built-in one for the devices it claims.
 TEST(DriverRegistry, AMasterUsesTheDriversOfItsConfiguration) {
-  constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-)";
+  constexpr const char* kRing = test::kTerminalRing;
   for (const bool own : {false, true}) {
     SCOPED_TRACE(own ? "with the application's driver" : "built-ins");
     auto server = test::make_sim_server(kRing);

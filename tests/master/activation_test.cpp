@@ -33,13 +33,7 @@ bool eventually(const std::function<bool()>& condition, std::chrono::millisecond
   return condition();
 }
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-)";
+constexpr const char* kRing = test::kTerminalRing;
 
 // DC-capable: a drive with a drifting clock behind the terminals.
 constexpr const char* kDcRing = R"(version: 1

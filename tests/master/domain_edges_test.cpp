@@ -81,34 +81,11 @@ DomainTrigger trigger_of(const Event& e) {
   return e.detail().rfind("after ", 0) == 0 ? T::miss_threshold : T::stop_cycling;
 }
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-)";
+constexpr const char* kRing = test::kTerminalRing;
 
 MasterConfig config(std::uint32_t miss_threshold = 1000) {
-  MasterConfig c;
-  c.scan = {.poll = 2ms, .stable = 10ms, .timeout = 5s};
-  c.retry_interval = 50ms;
-  c.slave_retry_interval = 50ms;
-  c.frame_timeout = 20ms;
-  c.dc.reset();
-  DomainConfig main;
-  main.id = "main";
-  main.period = 2ms;
-  main.recovery_threshold = 3;
-  main.miss_threshold = miss_threshold;
-  c.domains.push_back(main);
-  for (const char* name : {"coupler", "inputs", "outputs"}) {
-    SlaveConfig s;
-    s.name = name;
-    if (std::string_view(name) != "coupler") s.process_data = ProcessDataRequest::all("main");
-    s.health_poll = 20ms;
-    c.slaves.push_back(s);
-  }
+  MasterConfig c = test::quick_config(2ms);
+  c.domains.front().miss_threshold = miss_threshold;
   return c;
 }
 

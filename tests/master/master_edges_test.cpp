@@ -196,43 +196,17 @@ Coverage& coverage() {
 
 // ---- a session --------------------------------------------------------------------------------
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-)";
+constexpr const char* kRing = test::kTerminalRing;
 
 // AL status 0x001D: invalid output configuration (what the refusing slave answers).
 constexpr std::uint16_t kRefusal = 0x001D;
 
 SlaveConfig slave(std::string name, bool process_data, TargetState target = TargetState::op) {
-  SlaveConfig c;
-  c.name = std::move(name);
-  if (process_data) c.process_data = ProcessDataRequest::all("main");
-  c.target = target;
-  c.health_poll = 20ms;
-  return c;
+  return test::quick_slave(std::move(name), process_data, target);
 }
 
 MasterConfig base_config(TargetState target = TargetState::op) {
-  MasterConfig config;
-  config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 5s};
-  config.awaiting_preop_timeout = 10s;
-  config.retry_interval = 50ms;
-  config.slave_retry_interval = 50ms;
-  // A loaded machine may not run the simulator's thread within the tuned timeout.
-  config.frame_timeout = 20ms;
-  config.dc.reset();
-  DomainConfig main;
-  main.id = "main";
-  main.period = 2ms;
-  main.recovery_threshold = 3;
-  config.domains.push_back(main);
-  config.slaves = {slave("coupler", false, target), slave("inputs", true, target),
-                   slave("outputs", true, target)};
-  return config;
+  return test::quick_config(2ms, target);
 }
 
 class Session {

@@ -60,6 +60,51 @@ inline std::uint16_t station_at(std::size_t position) {
 
 // The simulated ring a YAML text describes (not serving yet); a test failure and null when the
 // ring does not build.
+// EK1100 + EL1809 + EL2809: the simulated ring most master tests drive.
+inline constexpr const char* kTerminalRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+)";
+
+// A slave of kTerminalRing's kind: process data in domain "main" (unless not wanted), health
+// polled every 20 ms.
+inline SlaveConfig quick_slave(std::string name, bool process_data = true,
+                               TargetState target = TargetState::op) {
+  SlaveConfig c;
+  c.name = std::move(name);
+  if (process_data) c.process_data = ProcessDataRequest::all("main");
+  c.target = target;
+  c.health_poll = std::chrono::milliseconds(20);
+  return c;
+}
+
+// A configuration for sessions against the simulator: quick scans and retries, a frame timeout a
+// loaded machine's simulator thread keeps (the tuned one may be too short), no DC, one domain
+// "main" of `period` (3 invalid cycles make it a critical fault), and kTerminalRing's slaves at
+// `target`. Tests change what they need beyond this.
+inline MasterConfig quick_config(std::chrono::nanoseconds period = std::chrono::milliseconds(2),
+                                 TargetState target = TargetState::op) {
+  using namespace std::chrono_literals;
+  MasterConfig config;
+  config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 5s};
+  config.awaiting_preop_timeout = 10s;
+  config.retry_interval = 50ms;
+  config.slave_retry_interval = 50ms;
+  config.frame_timeout = 20ms;
+  config.dc.reset();
+  DomainConfig main;
+  main.id = "main";
+  main.period = period;
+  main.recovery_threshold = 3;
+  config.domains.push_back(main);
+  config.slaves = {quick_slave("coupler", false, target), quick_slave("inputs", true, target),
+                   quick_slave("outputs", true, target)};
+  return config;
+}
+
 inline std::unique_ptr<sim::SimServer> make_sim_server(std::string_view ring_yaml) {
   auto ring = sim::parse_ring(ring_yaml);
   if (!ring) {

@@ -91,13 +91,7 @@ SlaveConfig slave(std::string name, bool process_data = true,
   return c;
 }
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-)";
+constexpr const char* kRing = test::kTerminalRing;
 
 struct Session {
   std::unique_ptr<sim::SimServer> server;
