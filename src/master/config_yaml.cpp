@@ -9,8 +9,8 @@
 
 #include <ecat/master/config.hpp>
 
-#include "core/read_file.hpp"
 #include "config/spec_tree.hpp"
+#include "core/read_file.hpp"
 
 namespace ecat::master {
 namespace {
@@ -74,11 +74,11 @@ class Reader {
   Result<void> master(const SpecNode& node, MasterConfig& config) {
     const std::string path = "master";
     if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
-    if (auto r = check_keys(ctx_, node, path,
-                            {"backend", "cycle_priority", "cycle_cpu", "base_station",
-                             "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
-                             "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
-                             "link_recovery_window_ms"});
+    if (auto r = check_keys(
+            ctx_, node, path,
+            {"backend", "cycle_priority", "cycle_cpu", "base_station", "frame_timeout_us",
+             "scan_poll_ms", "scan_stable_ms", "scan_timeout_ms", "awaiting_preop_timeout_ms",
+             "retry_interval_ms", "link_recovery_window_ms"});
         !r) {
       return r.error();
     }

@@ -342,7 +342,9 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
                                   who(), wire::to_string(target), *configuration_error));
     }
   }
-  auto status = co_await read_al_status(loop, bus, station, bus::TransactOptions{session.config.al.read_timeout, session.config.al.read_retries});
+  auto status = co_await read_al_status(
+      loop, bus, station,
+      bus::TransactOptions{session.config.al.read_timeout, session.config.al.read_retries});
   if (!status) co_return status.error().context(fmt::format("{}: reading AL status", who()));
   if (status->status.error) {
     auto acked = co_await al_acknowledge(loop, bus, station, session.config.al);
@@ -369,7 +371,10 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
     if (!stepped) {
       record_al_error(stepped.error());
       // What the slave is in now (it may have fallen back).
-      if (auto now = co_await read_al_status(loop, bus, station, bus::TransactOptions{session.config.al.read_timeout, session.config.al.read_retries})) {
+      if (auto now =
+              co_await read_al_status(loop, bus, station,
+                                      bus::TransactOptions{session.config.al.read_timeout,
+                                                           session.config.al.read_retries})) {
         set_state(slave_state_of(now->status.state));
       }
       co_return stepped.error().context(

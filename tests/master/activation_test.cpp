@@ -45,23 +45,13 @@ simulator:
     - {name: axis, profile: servo, clock: {drift_ppm: 40, offset_ns: 1500000}}
 )";
 
+// The quick test configuration (1 ms domain) with `names` as the slaves, all but the coupler
+// with process data.
 MasterConfig config_for(std::initializer_list<const char*> names) {
-  MasterConfig config;
-  config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 5s};
-  config.awaiting_preop_timeout = 10s;
-  config.retry_interval = 50ms;
-  config.frame_timeout = 20ms;
-  config.dc.reset();
-  DomainConfig main;
-  main.id = "main";
-  main.period = 1ms;
-  config.domains.push_back(main);
-  for (const char* name : names) {
-    SlaveConfig s;
-    s.name = name;
-    if (std::string(name) != "coupler") s.process_data = ProcessDataRequest::all("main");
-    config.slaves.push_back(s);
-  }
+  MasterConfig config = test::quick_config(1ms);
+  config.slaves.clear();
+  for (const char* name : names)
+    config.slaves.push_back(test::quick_slave(name, std::string_view(name) != "coupler"));
   return config;
 }
 
