@@ -43,14 +43,21 @@ std::optional<wire::CoeService> coe_service_of(const MailboxMessage& message) {
   return coe->service;
 }
 
+// An SDO message: a response (service 3) or an abort, which travels as a request (service 2) in
+// its standard form (wire/coe.hpp SdoAbort).
+bool is_sdo_service(std::optional<wire::CoeService> service) {
+  return service == wire::CoeService::sdo_response || service == wire::CoeService::sdo_request;
+}
+
 // Replies to an SDO request: everything but what is recognisably someone else's (a late
-// initiate response naming another object, SDO information traffic). Whatever else arrives is
-// taken as the reply and checked, so a broken reply fails the transfer instead of timing it out.
+// initiate response or abort naming another object, SDO information traffic). Whatever else
+// arrives is taken as the reply and checked, so a broken reply fails the transfer instead of
+// timing it out.
 Mailbox::ReplyFilter sdo_filter(std::uint16_t index, std::uint8_t subindex) {
   return [index, subindex](const MailboxMessage& message) {
     const auto service = coe_service_of(message);
     if (service == wire::CoeService::sdo_information) return false;
-    if (service != wire::CoeService::sdo_response) return true;
+    if (!is_sdo_service(service)) return true;
     auto sdo = wire::decode_sdo(message.data);
     if (!sdo) return true;
     const auto named = named_object(*sdo);
@@ -101,8 +108,9 @@ constexpr std::string_view specifier_name(std::uint8_t scs) {
   }
 }
 
+// SDO information replies: everything but SDO traffic (a late SDO response or abort).
 bool info_filter(const MailboxMessage& message) {
-  return coe_service_of(message) != wire::CoeService::sdo_response;
+  return !is_sdo_service(coe_service_of(message));
 }
 
 // One transfer: the mailbox, the object, and the words for errors.
@@ -181,11 +189,16 @@ class Transfer {
                                                     what_, station, reply.data.size())),
                     SdoFailure::invalid_response);
     }
-    if (coe->service != wire::CoeService::sdo_response) {
+    // Service 2 is an SDO request: from a slave, only an abort comes in that form (its standard
+    // one); anything else in it is not an answer.
+    const bool abort_request = coe->service == wire::CoeService::sdo_request &&
+                               reply.data.size() > wire::kCoeHeaderSize &&
+                               (reply.data[wire::kCoeHeaderSize] >> 5) == 4;
+    if (coe->service != wire::CoeService::sdo_response && !abort_request) {
       return tagged(
           Error(Errc::mailbox_error,
                 fmt::format("{}: slave {:#06x} answered with CoE service {} ({}), expected 3 "
-                            "(SDO response)",
+                            "(SDO response) or an abort",
                             what_, station, static_cast<unsigned>(coe->service),
                             wire::to_string(coe->service))),
           SdoFailure::unexpected_coe_service);
@@ -222,8 +235,7 @@ class Transfer {
   }
 
   exec::Task<void> abort(const Mailbox::Guard& guard, wire::SdoAbortCode code) {
-    wire::SdoAbort request{index_, subindex_, static_cast<std::uint32_t>(code),
-                           wire::SdoDirection::request};
+    wire::SdoAbort request{index_, subindex_, static_cast<std::uint32_t>(code)};
     auto data = wire::encode_sdo(request);
     if (!data) co_return;
     (void)co_await mailbox_.send(guard, wire::MailboxType::coe, std::move(*data), options_.timeout,

@@ -231,7 +231,7 @@ CoeServer::Response CoeServer::sdo_abort(std::uint16_t index, std::uint8_t subin
   ++stats_.aborts_sent;
   Response response;
   response.data =
-      encode_or_empty(wire::SdoAbort{index, subindex, code, wire::SdoDirection::response});
+      encode_or_empty(wire::SdoAbort{index, subindex, code});  // service 2, as real slaves send
   response.stage = stage;
   response.index = index;
   response.subindex = subindex;
@@ -296,6 +296,13 @@ std::vector<CoeServer::Response> CoeServer::handle_coe(Esc& esc, wire::Bytes dat
   switch (coe->service) {
     case wire::CoeService::sdo_request:
       return handle_sdo(esc, data);
+    case wire::CoeService::sdo_response:
+      // A master's abort in the non-standard form (service 3) still ends the transfer, as real
+      // slave stacks that look only at the command take it; any other response is not a request.
+      if (data.size() > wire::kCoeHeaderSize && (data[wire::kCoeHeaderSize] >> 5) == 4) {
+        return handle_sdo(esc, data);
+      }
+      break;
     case wire::CoeService::sdo_information:
       if (config_.sdo_info) {
         const std::size_t capacity = reply_capacity(esc);

@@ -294,7 +294,7 @@ SdoDirection direction_of(const SdoMessage& message) noexcept {
       [](const auto& m) {
         using T = std::decay_t<decltype(m)>;
         if constexpr (std::is_same_v<T, SdoAbort>) {
-          return m.direction;
+          return m.service;
         } else if constexpr (std::is_same_v<T, SdoInitiateDownloadRequest> ||
                              std::is_same_v<T, SdoDownloadSegmentRequest> ||
                              std::is_same_v<T, SdoInitiateUploadRequest> ||
@@ -408,7 +408,7 @@ Result<std::vector<std::uint8_t>> encode_sdo(const SdoMessage& message) {
           return encode_segment(m, kScsUploadSegment, kResponse, "SDO upload segment response");
         } else {
           static_assert(std::is_same_v<T, SdoAbort>);
-          return encode_fixed(m.direction == SdoDirection::request ? kRequest : kResponse,
+          return encode_fixed(m.service == SdoDirection::request ? kRequest : kResponse,
                               command(kCsAbort, 0), m.index, m.subindex, m.code);
         }
       },

@@ -299,6 +299,49 @@ TEST_F(CoeClientTest, AbortsCarryTheirExactCodes) {
 
 // ---- injected faults ---------------------------------------------------------------------------
 
+// A refusal in the bytes real slave stacks send (SOES, KickCAT's slaves, Beckhoff terminals):
+// CoE service 2 and command 0x80. The master must report the slave's own code and must not answer
+// with an abort of its own. The non-standard service-3 form some stacks send is taken the same
+// way. The bytes are put into SM1 directly, ahead of the simulator's own answer, so the test does
+// not depend on how ecat's simulator encodes aborts.
+TEST_F(CoeClientTest, AbortsInTheBytesRealStacksSendKeepTheirCode) {
+  struct Form {
+    const char* name;
+    std::uint8_t service_byte;  // the high byte of the CoE header: service << 4
+  };
+  for (const Form form : {Form{"service 2 (standard)", 0x20}, Form{"service 3", 0x30}}) {
+    SCOPED_TRACE(form.name);
+    // A mailbox of our own, so the slave's counter sequence starts fresh; drain SM1 first (the
+    // simulator's answer to the previous round's request is still in it).
+    Mailbox mailbox(bench_->loop, *bench_->bus, test::station_at(1), mbx().config());
+    (void)run(mailbox.poll());
+    const Bytes real = {0x0A, 0x00,
+                        0x00, 0x00,
+                        0x00, 0x23,               // length 10, CoE, counter 2
+                        0x00, form.service_byte,  // CoE header
+                        0x80, 0x00,
+                        0x20, 0x01,  // abort 0x2000:01
+                        0x02, 0x00,
+                        0x01, 0x06};  // 0x06010002 read-only
+    const bool placed =
+        bench_->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+          return segment.esc(1).pdi_mailbox_send(1, real);
+        });
+    ASSERT_TRUE(placed);
+    const auto before = coe_stats(1).mailboxes_received;
+    auto result = run(download<std::uint32_t>(mailbox, 0x2000, 1, 5));
+    ASSERT_FALSE(result.ok());
+    EXPECT_EQ(result.error().code(), Errc::sdo_abort) << result.error().describe();
+    EXPECT_EQ(sdo_abort_code(result.error()), 0x06010002u);
+    EXPECT_EQ(sdo_failure(result.error()), SdoFailure::aborted);
+    EXPECT_EQ(result.error().message(),
+              "SDO download 0x2000:01 of slave 0x1002 aborted: 0x06010002 attempt to write a "
+              "read-only object");
+    // Only the download request reached the slave: no abort of the master's own followed it.
+    EXPECT_EQ(coe_stats(1).mailboxes_received - before, 1u);
+  }
+}
+
 TEST_F(CoeClientTest, InjectedAbortsAtEachStage) {
   inject(
       sim::fault::mailbox_abort("mbx", 0x2003, 1, 0x08000020, sim::MailboxStage::upload_segment));
@@ -345,7 +388,7 @@ TEST_F(CoeClientTest, CorruptRepliesFailWithWhatWasWrong) {
        "instead of CoE"},
       {protocol_fault(0x2002, 1, S::upload_init, K::coe_service, 4), Errc::mailbox_error,
        "SDO upload 0x2002:01 of slave 0x1002: slave 0x1002 answered with CoE service 4 (TxPDO), "
-       "expected 3 (SDO response)"},
+       "expected 3 (SDO response) or an abort"},
       {protocol_fault(0x2002, 1, S::upload_segment, K::toggle_mismatch), Errc::mailbox_error,
        "SDO upload 0x2002:01 of slave 0x1002: upload segment 1 carries toggle bit 1, expected 0"},
       // One command byte and no data, of another kind: named by its command (SdoFailure).

@@ -185,7 +185,7 @@ TEST_F(MailboxFaults, Scenario17_WrongMailboxTypeAndCoeService) {
   ASSERT_FALSE(service);
   EXPECT_EQ(service.error().message(),
             "SDO upload 0x2001:01 of slave 0x1003: slave 0x1003 answered with CoE service 2 (SDO "
-            "request), expected 3 (SDO response)");
+            "request), expected 3 (SDO response) or an abort");
   expect_undisturbed();
   EXPECT_EQ(upload(0x2001, 1).size(), 12u);
 }

@@ -141,10 +141,14 @@ TEST(Sdo, KnownCommandBytes) {
       // Longer segment: no padding, n = 0.
       {SdoDownloadSegmentRequest{.toggle = true, .last = true, .data = {1, 2, 3, 4, 5, 6, 7, 8}},
        {0x00, 0x20, 0x11, 1, 2, 3, 4, 5, 6, 7, 8}},
-      {SdoAbort{0x6000, 0x02, 0x06020000, SdoDirection::response},
-       {0x00, 0x30, 0x80, 0x00, 0x60, 0x02, 0x00, 0x00, 0x02, 0x06}},
+      // Aborts travel as SDO requests (service 2) from either side, as real stacks send them.
+      {SdoAbort{0x6000, 0x02, 0x06020000},
+       {0x00, 0x20, 0x80, 0x00, 0x60, 0x02, 0x00, 0x00, 0x02, 0x06}},
       {SdoAbort{0x1234, 0x05, 0x05040000, SdoDirection::request},
        {0x00, 0x20, 0x80, 0x34, 0x12, 0x05, 0x00, 0x00, 0x04, 0x05}},
+      // The non-standard service-3 form some stacks send keeps its form through a round trip.
+      {SdoAbort{0x6000, 0x02, 0x06020000, SdoDirection::response},
+       {0x00, 0x30, 0x80, 0x00, 0x60, 0x02, 0x00, 0x00, 0x02, 0x06}},
   };
   for (const auto& [message, bytes] : cases) {
     SCOPED_TRACE(to_string(message));
@@ -245,8 +249,8 @@ TEST(Sdo, DirectionsAndNames) {
   EXPECT_EQ(direction_of(SdoDownloadSegmentResponse{}), SdoDirection::response);
   EXPECT_EQ(direction_of(SdoInitiateUploadResponse{}), SdoDirection::response);
   EXPECT_EQ(direction_of(SdoUploadSegmentResponse{}), SdoDirection::response);
-  EXPECT_EQ(direction_of(SdoAbort{.direction = SdoDirection::request}), SdoDirection::request);
-  EXPECT_EQ(direction_of(SdoAbort{}), SdoDirection::response);
+  EXPECT_EQ(direction_of(SdoAbort{.service = SdoDirection::response}), SdoDirection::response);
+  EXPECT_EQ(direction_of(SdoAbort{}), SdoDirection::request);  // the standard form
   EXPECT_EQ(to_string(SdoMessage(SdoInitiateDownloadRequest{})), "initiate download request");
   EXPECT_EQ(to_string(SdoMessage(SdoInitiateDownloadResponse{})), "initiate download response");
   EXPECT_EQ(to_string(SdoMessage(SdoDownloadSegmentRequest{})), "download segment request");
@@ -470,6 +474,38 @@ TEST(Emergency, ErrorCodeTexts) {
   for (const auto& [code, text] : expected) {
     EXPECT_EQ(emergency_error_text(code), text) << std::hex << code;
   }
+}
+
+}  // namespace
+}  // namespace ecat::wire
+
+namespace ecat::wire {
+namespace {
+
+// A slave's refusal exactly as real slave stacks put it into SM1 (SOES' SDO abort, KickCAT's
+// simulated slave, Beckhoff terminals): mailbox header (length 10, address 0, channel 0,
+// priority 0, type 3 CoE, counter 2), CoE header with service 2 (SDO request), command 0x80,
+// 0x6041:00, abort code 0x06020000 little endian. The IgH master recognises an abort only in this
+// form (CoE service 2 and command specifier 4).
+TEST(Sdo, AnAbortAsRealSlaveStacksSendItDecodesWithItsCode) {
+  const std::vector<std::uint8_t> mailbox = {0x0A, 0x00, 0x00, 0x00, 0x00, 0x23, 0x00, 0x20,
+                                             0x80, 0x41, 0x60, 0x00, 0x00, 0x00, 0x02, 0x06};
+  auto header = decode_mailbox_header(mailbox);
+  ASSERT_TRUE(header.ok()) << header.error().message();
+  EXPECT_EQ(header->type, MailboxType::coe);
+  EXPECT_EQ(header->length, 10);
+  auto sdo = decode_sdo(Bytes(mailbox).subspan(kMailboxHeaderSize));
+  ASSERT_TRUE(sdo.ok()) << sdo.error().message();
+  const auto* abort = std::get_if<SdoAbort>(&*sdo);
+  ASSERT_NE(abort, nullptr) << to_string(*sdo);
+  EXPECT_EQ(abort->index, 0x6041);
+  EXPECT_EQ(abort->subindex, 0);
+  EXPECT_EQ(abort->code, 0x06020000u);
+  EXPECT_EQ(abort->service, SdoDirection::request);
+  // And ecat's encoder (the simulator's refusals) produces these very bytes.
+  auto ours = encode_sdo(SdoAbort{0x6041, 0, 0x06020000});
+  ASSERT_TRUE(ours.ok());
+  EXPECT_EQ(*ours, std::vector<std::uint8_t>(mailbox.begin() + kMailboxHeaderSize, mailbox.end()));
 }
 
 }  // namespace

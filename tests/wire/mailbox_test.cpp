@@ -290,7 +290,7 @@ TEST(MailboxSummary, EverySdoMessage) {
   auto sdo = [](SdoMessage m, std::uint8_t counter = 1) {
     return summarize_mailbox(mailbox(MailboxType::coe, counter, value_of(encode_sdo(m))));
   };
-  EXPECT_EQ(sdo(SdoAbort{0x6000, 2, 0x06020000, SdoDirection::response}, 5),
+  EXPECT_EQ(sdo(SdoAbort{0x6000, 2, 0x06020000}, 5),
             "mbx CoE cnt=5 SDO abort 0x6000:02 0x06020000 (object does not exist in the object "
             "dictionary)");
   EXPECT_EQ(sdo(SdoAbort{0x1234, 0, 0x12345678, SdoDirection::request}),

@@ -158,17 +158,24 @@ struct SdoUploadSegmentResponse {
                          const SdoUploadSegmentResponse&) = default;
 };
 
-// Which way an SDO message travels: a request (CoE service 2, client to server: master to slave)
-// or a response (CoE service 3, server to client).
+// The CoE service an SDO message travels in: request (service 2: client to server, master to
+// slave, and every abort in its standard form) or response (service 3: server to client).
 enum class SdoDirection : std::uint8_t { request, response };
 
-// Abort transfer (cs 4): sent by the slave to refuse or end a transfer (a response), or by the
-// master to abandon one (a request).
+// Abort transfer (cs 4): sent by the slave to refuse or end a transfer, or by the master to
+// abandon one. On the wire an abort travels as an SDO *request* (CoE service 2) whichever side
+// sends it: SOES, KickCAT and Beckhoff terminals answer a refused transfer with service 2 and
+// command 0x80, and the IgH master recognises an abort only in that form (SOEM takes a service-3
+// abort of a download for a success). Some stacks send it as service 3; decoders accept both and
+// keep the form in `service` (so a decoded abort re-encodes to the same bytes), encoders send
+// service 2 unless told otherwise.
 struct SdoAbort {
   std::uint16_t index = 0;
   std::uint8_t subindex = 0;
   std::uint32_t code = 0;  // see sdo_abort.hpp
-  SdoDirection direction = SdoDirection::response;
+  // The CoE service the abort travels in: request (2, the standard form from either side) or
+  // response (3, the non-standard form some stacks send).
+  SdoDirection service = SdoDirection::request;
 
   friend bool operator==(const SdoAbort&, const SdoAbort&) = default;
 };
@@ -178,6 +185,7 @@ using SdoMessage =
                  SdoDownloadSegmentResponse, SdoInitiateUploadRequest, SdoInitiateUploadResponse,
                  SdoUploadSegmentRequest, SdoUploadSegmentResponse, SdoAbort>;
 
+// The CoE service the message travels in (an abort: its `service`).
 SdoDirection direction_of(const SdoMessage& message) noexcept;
 // "initiate download request", "upload segment response", "abort transfer", ...
 std::string_view to_string(const SdoMessage& message) noexcept;
