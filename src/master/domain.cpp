@@ -268,13 +268,15 @@ Result<std::unique_ptr<Domain>> Domain::create(bus::Bus& bus, DomainConfig confi
   if (config.recovery_threshold == 0) return fail("recovery_threshold must be at least 1");
   if (config.stale_after < 0ns) return fail("stale_after must not be negative");
   if (config.realtime_budget < 0ns) return fail("realtime_budget must not be negative");
-  if (config.max_image_size == 0) return fail("max_image_size must be at least 1");
-  if (static_cast<std::uint64_t>(config.logical_base) + config.max_image_size >
-      (std::uint64_t{1} << 32)) {
+  const std::size_t image_limit =
+      config.max_image_size != 0 ? config.max_image_size : kAutoImageLimit;
+  if (static_cast<std::uint64_t>(config.logical_base) + image_limit > (std::uint64_t{1} << 32)) {
     return fail(
-        fmt::format("logical window 0x{:08x} + {} bytes (max_image_size) passes the end of "
-                    "the 4 GiB logical address space",
-                    config.logical_base, config.max_image_size));
+        fmt::format("logical window 0x{:08x} + {} bytes ({}) passes the end of the 4 GiB "
+                    "logical address space",
+                    config.logical_base, image_limit,
+                    config.max_image_size != 0 ? "max_image_size"
+                                               : "the largest image a domain sizes itself to"));
   }
   const std::size_t frame_room =
       bus.max_frame_size() > wire::kFrameHeaderSize + wire::kDatagramOverhead
@@ -290,9 +292,9 @@ Result<std::unique_ptr<Domain>> Domain::create(bus::Bus& bus, DomainConfig confi
                     config.max_datagram_size, frame_room, bus.link_name()));
   }
   if (config.max_datagram_size == 0) config.max_datagram_size = frame_room;
-  if (config.max_registrations == 0 || config.max_registrations > 65535) {
-    return fail(
-        fmt::format("max_registrations must be 1..65535, got {}", config.max_registrations));
+  if (config.max_registrations > kMaxRegistrations) {
+    return fail(fmt::format("max_registrations must be 0 (as many as registered) or 1..{}, got {}",
+                            kMaxRegistrations, config.max_registrations));
   }
   if (config.exchanges_in_flight == 0 || config.exchanges_in_flight > 64) {
     return fail(
@@ -310,19 +312,62 @@ Domain::Domain(bus::Bus& bus, DomainConfig config, DomainObserver* observer)
       config_(std::move(config)),
       observer_(observer),
       period_ns_(config_.period.count()),
-      entries_(std::make_unique<Entry[]>(config_.max_registrations)),
-      staging_(std::make_unique<std::uint8_t[]>(config_.max_image_size)),
-      input_words_(
-          std::make_unique<std::atomic<std::uint64_t>[]>((config_.max_image_size + 7) / 8)),
+      registration_limit_(config_.max_registrations != 0 ? config_.max_registrations
+                                                         : kMaxRegistrations),
+      image_limit_(config_.max_image_size != 0 ? config_.max_image_size : kAutoImageLimit),
+      entry_blocks_(std::make_unique<std::atomic<Entry*>[]>(
+          (registration_limit_ + kEntryBlock - 1) / kEntryBlock)),
       counters_(std::make_unique<Counters>()) {
+  for (std::size_t i = 0; i < (registration_limit_ + kEntryBlock - 1) / kEntryBlock; ++i)
+    entry_blocks_[i].store(nullptr, std::memory_order_relaxed);
+  // A configured image size is reserved at once (as before); an automatic one starts small.
+  reserve_image_locked(config_.max_image_size != 0 ? config_.max_image_size : 64);
   std::size_t capacity = 1;
   while (capacity < config_.change_queue_capacity)
     capacity <<= 1;
   changes_ = std::make_unique<InputChange[]>(capacity);
   change_mask_ = capacity - 1;
-  const std::size_t words = (config_.max_image_size + 7) / 8;
+}
+
+Domain::Entry& Domain::entry(std::uint32_t i) const noexcept {
+  return entry_blocks_[i / kEntryBlock].load(std::memory_order_relaxed)[i % kEntryBlock];
+}
+
+std::string_view Domain::registration_limit_name() const noexcept {
+  return config_.max_registrations != 0 ? "max_registrations" : "the most a domain holds";
+}
+
+std::string_view Domain::image_limit_name() const noexcept {
+  return config_.max_image_size != 0 ? "max_image_size"
+                                     : "the largest image a domain sizes itself to";
+}
+
+void Domain::reserve_entry_locked(std::uint32_t count) {
+  const std::uint32_t block = count / kEntryBlock;
+  if (entry_blocks_[block].load(std::memory_order_relaxed) != nullptr) return;
+  entry_storage_.push_back(std::make_unique<Entry[]>(kEntryBlock));
+  // Relaxed: the count published after the entry is written (release) carries it to readers.
+  entry_blocks_[block].store(entry_storage_.back().get(), std::memory_order_relaxed);
+}
+
+void Domain::reserve_image_locked(std::size_t bytes) {
+  if (bytes <= image_capacity_) return;
+  std::size_t capacity = std::max<std::size_t>(image_capacity_ * 2, bytes);
+  capacity = std::min(capacity, image_limit_);
+  const std::size_t words = (capacity + 7) / 8;
+  auto inputs = std::make_unique<std::atomic<std::uint64_t>[]>(words);
   for (std::size_t i = 0; i < words; ++i)
-    input_words_[i].store(0, std::memory_order_relaxed);
+    inputs[i].store(0, std::memory_order_relaxed);
+  // Nothing was published into the inputs yet (the domain is open): the new words are all zero.
+  input_words_.store(inputs.get(), std::memory_order_release);
+  input_storage_.push_back(std::move(inputs));
+  // Staged outputs move along, under the staging lock every writer and reader of it takes.
+  auto staging = std::make_unique<std::uint8_t[]>(capacity);
+  lock_staging();
+  if (staging_) std::memcpy(staging.get(), staging_.get(), image_capacity_);
+  staging_ = std::move(staging);
+  unlock_staging();
+  image_capacity_ = capacity;
 }
 
 Domain::~Domain() {
@@ -365,18 +410,16 @@ nanoseconds Domain::realtime_budget() const noexcept {
 Result<void> Domain::check_room(std::size_t count, std::size_t bytes) const {
   std::lock_guard lock(control_mutex_);
   const std::size_t used = entry_count_.load(std::memory_order_relaxed);
-  if (used + count > config_.max_registrations) {
+  if (used + count > registration_limit_) {
     return error(Errc::out_of_range,
-                 fmt::format("cannot register {} more: {} of {} registrations (max_registrations) "
-                             "used",
-                             count, used, config_.max_registrations));
+                 fmt::format("cannot register {} more: {} of {} registrations ({}) used", count,
+                             used, registration_limit_, registration_limit_name()));
   }
-  if (image_size_ + bytes > config_.max_image_size) {
-    return error(
-        Errc::out_of_range,
-        fmt::format("cannot register {} more bytes: image_too_large: {} + {} bytes exceeds "
-                    "the {} byte maximum (max_image_size)",
-                    bytes, image_size_, bytes, config_.max_image_size));
+  if (image_size_ + bytes > image_limit_) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot register {} more bytes: image_too_large: {} + {} bytes "
+                             "exceeds the {} byte maximum ({})",
+                             bytes, image_size_, bytes, image_limit_, image_limit_name()));
   }
   return ok();
 }
@@ -399,25 +442,27 @@ Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDir
   }
   const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
   for (std::uint32_t i = 0; i < count; ++i) {
-    if (entries_[i].key == key) {
+    if (entry(i).key == key) {
       return error(
           Errc::invalid_argument,
           fmt::format("{} is already registered (at logical 0x{:08x}, {} bytes)", to_string(key),
-                      config_.logical_base + entries_[i].offset, entries_[i].size));
+                      config_.logical_base + entry(i).offset, entry(i).size));
     }
   }
-  if (count >= config_.max_registrations) {
+  if (count >= registration_limit_) {
     return error(Errc::out_of_range,
-                 fmt::format("cannot register {}: all {} registrations (max_registrations) used",
-                             to_string(key), config_.max_registrations));
+                 fmt::format("cannot register {}: all {} registrations ({}) used", to_string(key),
+                             registration_limit_, registration_limit_name()));
   }
-  if (image_size_ + bytes > config_.max_image_size) {
+  if (image_size_ + bytes > image_limit_) {
     return error(Errc::out_of_range,
                  fmt::format("cannot register {}: image_too_large: {} + {} bytes exceeds the {} "
-                             "byte maximum (max_image_size)",
-                             to_string(key), image_size_, bytes, config_.max_image_size));
+                             "byte maximum ({})",
+                             to_string(key), image_size_, bytes, image_limit_, image_limit_name()));
   }
-  Entry& e = entries_[count];
+  reserve_entry_locked(count);
+  reserve_image_locked(image_size_ + bytes);
+  Entry& e = entry(count);
   e.key = key;
   e.index = count;
   e.offset = image_size_;
@@ -437,12 +482,12 @@ std::vector<DomainDatagram> Domain::plan_locked() const {
   std::uint32_t offset = 0;
   std::uint32_t first = 0;  // first registration ending after `offset`
   while (offset < image_size_) {
-    while (first < count && entries_[first].offset + entries_[first].size <= offset)
+    while (first < count && entry(first).offset + entry(first).size <= offset)
       ++first;
     // Whole registrations while they fit; a registration larger than a datagram is cut.
     std::uint32_t end = offset;
     for (std::uint32_t i = first; i < count; ++i) {
-      const std::uint32_t reg_end = entries_[i].offset + entries_[i].size;
+      const std::uint32_t reg_end = entry(i).offset + entry(i).size;
       if (reg_end - offset <= max_dg) {
         end = reg_end;
         continue;
@@ -461,8 +506,8 @@ std::vector<DomainDatagram> Domain::plan_locked() const {
       bool writes;
     };
     std::vector<SlaveShare> shares;
-    for (std::uint32_t i = first; i < count && entries_[i].offset < end; ++i) {
-      const Entry& e = entries_[i];
+    for (std::uint32_t i = first; i < count && entry(i).offset < end; ++i) {
+      const Entry& e = entry(i);
       if (!e.contributes_wkc) continue;
       auto it = std::find_if(shares.begin(), shares.end(),
                              [&](const SlaveShare& s) { return s.slave == e.key.slave; });
@@ -500,7 +545,7 @@ Result<void> Domain::build_exchanges_locked() {
   for (const auto& d : plan->datagrams)
     plan->expected_total += d.expected_wkc;
   for (std::uint32_t i = 0; i < plan->entry_count; ++i) {
-    if (entries_[i].direction == PdoDirection::input) plan->input_entries.push_back(i);
+    if (entry(i).direction == PdoDirection::input) plan->input_entries.push_back(i);
   }
   plan->tx_image.assign(image_size_, 0);
   plan->rx_image.assign(image_size_, 0);
@@ -610,7 +655,7 @@ std::vector<PdoRegistration> Domain::registrations() const {
   const std::uint32_t count = entry_count_.load(std::memory_order_acquire);
   out.reserve(count);
   for (std::uint32_t i = 0; i < count; ++i) {
-    const Entry& e = entries_[i];
+    const Entry& e = entry(i);
     out.push_back({e.key, PdoHandle{i}, e.offset, config_.logical_base + e.offset, e.size,
                    e.direction, e.contributes_wkc});
   }
@@ -694,7 +739,7 @@ DomainInfo Domain::info() const {
 Result<const Domain::Entry*> Domain::lookup(PdoKey key) const {
   const std::uint32_t count = entry_count_.load(std::memory_order_acquire);
   for (std::uint32_t i = 0; i < count; ++i) {
-    if (entries_[i].key == key) return &entries_[i];
+    if (entry(i).key == key) return &entry(i);
   }
   return error(Errc::not_found, fmt::format("{} is not registered", to_string(key)));
 }
@@ -705,7 +750,7 @@ Result<const Domain::Entry*> Domain::lookup(PdoHandle handle) const {
     return error(Errc::not_found, fmt::format("no registration with handle {} ({} registered)",
                                               handle.index, count));
   }
-  return &entries_[handle.index];
+  return &entry(handle.index);
 }
 
 void Domain::lock_staging() const noexcept {
@@ -852,7 +897,7 @@ Result<SampleInfo> Domain::sample_entry(const Entry& e, wire::MutableBytes out,
     if ((s1 & 1u) == 0) {
       refreshed = refreshed_ns_.load(std::memory_order_relaxed);
       changed = e.input_changed_ns.load(std::memory_order_relaxed);
-      load_bytes(input_words_.get(), e.offset, out.data(), e.size);
+      load_bytes(input_words_.load(std::memory_order_acquire), e.offset, out.data(), e.size);
       std::atomic_thread_fence(std::memory_order_acquire);
       if (input_seq_.load(std::memory_order_relaxed) == s1) break;
     }
@@ -1183,7 +1228,7 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
   Plan& p = *plan_;
   std::size_t changed = 0;
   for (const std::uint32_t index : p.input_entries) {
-    const Entry& e = entries_[index];
+    const Entry& e = entry(index);
     const std::uint8_t* fresh = p.rx_image.data() + e.offset;
     const std::uint8_t* old = p.last_inputs.data() + e.offset;
     std::size_t first = 0;
@@ -1206,8 +1251,9 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
   input_seq_.store(seq + 1, std::memory_order_relaxed);
   std::atomic_thread_fence(std::memory_order_release);
   for (std::size_t i = 0; i < changed; ++i) {
-    Entry& e = entries_[p.changed[i].entry];
-    store_bytes(input_words_.get(), e.offset, p.rx_image.data() + e.offset, e.size);
+    Entry& e = entry(p.changed[i].entry);
+    store_bytes(input_words_.load(std::memory_order_relaxed), e.offset,
+                p.rx_image.data() + e.offset, e.size);
     e.input_changed_ns.store(now_ns, std::memory_order_relaxed);
   }
   refreshed_ns_.store(now_ns, std::memory_order_relaxed);
@@ -1215,7 +1261,7 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
   p.published = true;
 
   for (std::size_t i = 0; i < changed; ++i) {
-    const Entry& e = entries_[p.changed[i].entry];
+    const Entry& e = entry(p.changed[i].entry);
     std::memcpy(p.last_inputs.data() + e.offset, p.rx_image.data() + e.offset, e.size);
     InputChange record;
     record.handle = PdoHandle{e.index};

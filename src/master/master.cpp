@@ -279,8 +279,11 @@ struct Master::Impl : DomainObserver {
     std::uint32_t base = 0;
     for (auto dc : s->config.domains) {
       if (dc.logical_base == 0) dc.logical_base = base;
+      // Each domain gets a logical window as large as its image may grow (a self-sizing one:
+      // kAutoImageLimit), so that no two domains' FMMUs ever map the same logical addresses.
+      const std::size_t limit = dc.max_image_size != 0 ? dc.max_image_size : kAutoImageLimit;
       const std::uint32_t span = static_cast<std::uint32_t>(
-          std::max<std::size_t>(0x800, (dc.max_image_size + 0x7FF) & ~std::size_t{0x7FF}));
+          std::max<std::size_t>(0x800, (limit + 0x7FF) & ~std::size_t{0x7FF}));
       base = dc.logical_base + span;
       auto domain = Domain::create(bus, dc, this);
       if (!domain) co_return domain.error();
@@ -565,8 +568,17 @@ struct Master::Impl : DomainObserver {
     if (s->stopping || session != s) co_return;
     std::map<std::string, ActivationFailure> failures;
     for (std::size_t i = 0; i < results.size(); ++i) {
-      if (results[i]) continue;
       const auto target = min_target(want, SlaveAccess::target(*order[i]));
+      if (results[i]) {
+        // `operational` means every slave driven here is at its target: a walk that reported
+        // success but left the slave elsewhere (it dropped back meanwhile, or a step was skipped)
+        // keeps the session blocked and says where the slave is.
+        const auto now = order[i]->state();
+        if (al_state_of(now) == target) continue;
+        results[i] = Error(Errc::wrong_state,
+                           fmt::format("slave {} is {} after its walk to {}", order[i]->name(),
+                                       to_string(now), wire::to_string(target)));
+      }
       failures.emplace(order[i]->name(),
                        ActivationFailure{order[i]->name(), target, results[i].error(),
                                          al_status_code(results[i].error())});

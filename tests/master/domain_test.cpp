@@ -143,12 +143,11 @@ TEST(DomainStateTest, TransitionsAndErrorsAsTheReference) {
             "domain \"main\": station 0x1003 SM1 is already registered (at logical 0x00010001, 1 "
             "bytes)");
 
+  // A self-sizing domain (the default) takes images beyond one datagram, up to its ceiling.
   auto big = domain->register_pdo({kInputs2, 0}, 2033, PdoDirection::input);
-  ASSERT_FALSE(big.ok());
-  EXPECT_EQ(big.error().code(), Errc::out_of_range);
-  EXPECT_EQ(big.error().message(),
-            "domain \"main\": cannot register station 0x1004 SM0: image_too_large: 4 + 2033 bytes "
-            "exceeds the 2035 byte maximum (max_image_size)");
+  ASSERT_TRUE(big.ok()) << big.error().message();
+  auto huge = domain->register_pdo({kInputs2, 1}, 60000, PdoDirection::input);
+  ASSERT_TRUE(huge.ok()) << huge.error().message();
 
   auto zero = domain->register_pdo({kInputs2, 0}, 0, PdoDirection::input);
   ASSERT_FALSE(zero.ok());
@@ -528,6 +527,63 @@ TEST(DomainCycleTest, UpdatePeriodIsLive) {
   ASSERT_TRUE(d.write(PdoKey{kOutputs, 0}, Bytes{0x11}).ok());
   ASSERT_TRUE(d.write(PdoKey{kOutputs, 1}, Bytes{0x22}).ok());
   EXPECT_TRUE(lb.inputs_become({0x11, 0x22}));
+}
+
+// The limits a user sets are kept, and the errors name them; without them a domain grows with
+// its registrations up to the built-in ceilings, which the errors name instead.
+TEST(DomainStateTest, ConfiguredAndBuiltInLimits) {
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  auto c = config();
+  c.max_image_size = 2035;
+  c.max_registrations = 3;
+  auto limited = make_domain(*rig->bus, c);
+  ASSERT_TRUE(limited);
+  auto big = limited->register_pdo({kInputs2, 0}, 2036, PdoDirection::input);
+  ASSERT_FALSE(big.ok());
+  EXPECT_EQ(big.error().code(), Errc::out_of_range);
+  EXPECT_EQ(big.error().message(),
+            "domain \"main\": cannot register station 0x1004 SM0: image_too_large: 0 + 2036 bytes "
+            "exceeds the 2035 byte maximum (max_image_size)");
+  for (std::uint8_t sm = 0; sm < 3; ++sm)
+    ASSERT_TRUE(limited->register_pdo({kInputs2, sm}, 1, PdoDirection::input).ok());
+  auto fourth = limited->register_pdo({kInputs2, 3}, 1, PdoDirection::input);
+  ASSERT_FALSE(fourth.ok());
+  EXPECT_EQ(fourth.error().message(),
+            "domain \"main\": cannot register station 0x1004 SM3: all 3 registrations "
+            "(max_registrations) used");
+
+  auto grows = make_domain(*rig->bus, config());
+  ASSERT_TRUE(grows);
+  // 1000 registrations (four blocks of entries) and an image of 1000 x 3 bytes: far beyond the
+  // reference's fixed 256 registrations and 2035 bytes.
+  for (std::uint16_t i = 0; i < 1000; ++i) {
+    auto r = grows->register_pdo({static_cast<std::uint16_t>(0x2000 + i / 16),
+                                  static_cast<std::uint8_t>(i % 16)},
+                                 3, i % 2 == 0 ? PdoDirection::input : PdoDirection::output);
+    ASSERT_TRUE(r.ok()) << r.error().message();
+    EXPECT_EQ(*r, 0x00010000u + 3u * i);
+  }
+  EXPECT_EQ(grows->info().image_size, 3000u);
+  // Outputs staged while the image grew are kept.
+  const std::vector<std::uint8_t> staged{1, 2, 3};
+  ASSERT_TRUE(grows->write(PdoKey{0x2000, 1}, staged).ok());
+  ASSERT_TRUE(grows->register_pdo({0x3000, 0}, 5000, PdoDirection::input).ok());
+  std::vector<std::uint8_t> back(3);
+  ASSERT_TRUE(grows->read(PdoKey{0x2000, 1}, back).ok());
+  EXPECT_EQ(back, (std::vector<std::uint8_t>{1, 2, 3}));
+  auto ceiling = grows->register_pdo({0x3000, 1}, 65535, PdoDirection::input);
+  ASSERT_TRUE(ceiling.ok());
+  for (std::uint8_t sm = 2; sm < 16; ++sm) {
+    auto r = grows->register_pdo({0x3000, sm}, 65535, PdoDirection::input);
+    if (!r) {
+      EXPECT_NE(r.error().message().find("the largest image a domain sizes itself to"),
+                std::string::npos)
+          << r.error().message();
+      break;
+    }
+    ASSERT_LE(grows->info().image_size, kAutoImageLimit);
+  }
 }
 
 TEST(DomainCycleTest, ImageLargerThanOneFrame) {

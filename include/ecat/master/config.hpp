@@ -102,6 +102,12 @@ struct CycleOutcome;
 // The per-cycle callback (DomainConfig::on_cycle).
 using CycleCallback = std::function<void(Domain& domain, const CycleOutcome& outcome)>;
 
+// The largest image a domain sizes itself to (DomainConfig::max_image_size 0), and so the
+// logical address span the master reserves for such a domain.
+inline constexpr std::size_t kAutoImageLimit = std::size_t{1} << 20;
+// The most registrations a domain holds (DomainConfig::max_registrations 0).
+inline constexpr std::size_t kMaxRegistrations = 65535;
+
 struct DomainConfig {
   std::string id{};  // names the domain in every message
   // Any value >= kMinPeriod (not limited to whole milliseconds).
@@ -116,15 +122,17 @@ struct DomainConfig {
   // How long an exchange may wait for the link before the bus drops it (Bus::submit_realtime).
   // 0: max(period x 9/10, 200 us) (follows update_period()).
   std::chrono::nanoseconds realtime_budget{0};
-  // Largest image (bytes). Registrations beyond it fail with image_too_large. 2035 is the
-  // reference's one-datagram limit; larger images are split over several datagrams and frames.
-  std::size_t max_image_size = 2035;
+  // Largest image (bytes). Registrations beyond it fail with image_too_large. 0 (the default):
+  // as large as the registrations make it, up to kAutoImageLimit; the image grows while slaves
+  // register and is fixed when the domain first cycles. Images larger than one datagram are split
+  // over several datagrams and frames. (The reference fixes 2035 bytes, its one-datagram limit.)
+  std::size_t max_image_size = 0;
   // Largest LRW datagram (data bytes). 0: as large as one frame of the bus carries (1486 bytes on
   // a standard 1500-byte Ethernet payload).
   std::size_t max_datagram_size = 0;
-  // Registrations the domain can hold (storage is reserved up front so readers never race a
-  // reallocation).
-  std::size_t max_registrations = 256;
+  // Registrations the domain may hold. 0 (the default): as many as the slaves register, up to
+  // 65535. Storage grows in fixed blocks that never move, so readers never race a reallocation.
+  std::size_t max_registrations = 0;
   // Exchanges that may be in flight at once: a lost frame keeps its exchange until the bus's frame
   // timeout, and the following cycles use the others. When all are still in flight, the cycle is
   // a miss (counted as an overrun).

@@ -141,7 +141,8 @@ class Domain final : public CyclicParticipant {
   // Appends a whole SM image of `bytes` bytes (1..65535) and returns its logical address.
   // Errc::wrong_state when not open (not_open), Errc::invalid_argument for a zero or oversized
   // size or a key already registered, Errc::out_of_range when the image would exceed
-  // max_image_size (image_too_large) or max_registrations is reached.
+  // max_image_size (image_too_large) or max_registrations is reached (their defaults: the
+  // kAutoImageLimit and kMaxRegistrations ceilings).
   Result<std::uint32_t> register_pdo(PdoKey key, std::size_t bytes, PdoDirection direction,
                                      bool contributes_wkc = true);
   // Whether `count` more registrations of `bytes` bytes in all fit (max_registrations,
@@ -270,20 +271,40 @@ class Domain final : public CyclicParticipant {
   mutable std::mutex control_mutex_;  // control plane only
   mutable std::mutex drain_mutex_;
 
-  // Registrations: fixed storage, published by count (entries [0, count) are immutable).
-  std::unique_ptr<Entry[]> entries_;
+  // Registrations: blocks of kEntryBlock entries that never move once allocated, published by
+  // count (entries [0, count) are immutable but for their atomics). A block's pointer is stored
+  // before the count that makes its first entry visible, so a reader that saw the count sees it.
+  static constexpr std::uint32_t kEntryBlock = 256;
+  Entry& entry(std::uint32_t i) const noexcept;
+  // Makes room for entry `count` (a new block when needed); control thread, under control_mutex_.
+  void reserve_entry_locked(std::uint32_t count);
+  // Makes the image hold `bytes` (staging and input words grow, never beyond image_limit_);
+  // control thread, under control_mutex_, while open.
+  void reserve_image_locked(std::size_t bytes);
+  // What the limits are called in errors: the configured field, or the built-in ceiling.
+  std::string_view registration_limit_name() const noexcept;
+  std::string_view image_limit_name() const noexcept;
+  std::size_t registration_limit_;  // max_registrations, or kMaxRegistrations
+  std::size_t image_limit_;         // max_image_size, or kAutoImageLimit
+  std::unique_ptr<std::atomic<Entry*>[]> entry_blocks_;
+  std::vector<std::unique_ptr<Entry[]>> entry_storage_;  // owns the blocks (control thread)
   std::atomic<std::uint32_t> entry_count_{0};
-  std::uint32_t image_size_ = 0;  // control thread (under control_mutex_)
+  std::uint32_t image_size_ = 0;    // control thread (under control_mutex_)
+  std::size_t image_capacity_ = 0;  // bytes staging_ and input_words_ hold (control thread)
   std::vector<std::uint16_t> wkc_override_;
 
-  // Outputs: staging image under a writer spinlock.
+  // Outputs: staging image under a writer spinlock (replaced, grown, only under it too).
   mutable std::atomic<bool> staging_lock_{false};
   std::unique_ptr<std::uint8_t[]> staging_;
   std::uint64_t staging_version_ = 0;  // under staging_lock_
 
   // Inputs: seqlocked words, single writer (bus thread).
   std::atomic<std::uint64_t> input_seq_{0};
-  std::unique_ptr<std::atomic<std::uint64_t>[]> input_words_;
+  // Read through input_words_ (lock-free readers); a grown array replaces it while the domain is
+  // open, and the arrays it replaced stay alive until the domain goes (a reader may still hold
+  // one: all zeros, as nothing was published yet).
+  std::atomic<std::atomic<std::uint64_t>*> input_words_{nullptr};
+  std::vector<std::unique_ptr<std::atomic<std::uint64_t>[]>> input_storage_;
   std::atomic<std::int64_t> refreshed_ns_{0};  // 0: never
 
   // Frozen at the first start_cycling.
