@@ -13,6 +13,7 @@
 #include <ecat/wire/mailbox_summary.hpp>
 #include <ecat/wire/sdo_info.hpp>
 #include <ecat/wire/soe.hpp>
+#include <ecat/wire/voe.hpp>
 
 namespace {
 
@@ -77,6 +78,9 @@ void decode_body(Bytes data) {
   }
   if (auto soe = decode_soe(data)) {
     check_round_trip(*soe, encode_soe, [](Bytes b) { return decode_soe(b); });
+  }
+  if (auto voe = decode_voe(data)) {
+    check_round_trip(*voe, encode_voe, [](Bytes b) { return decode_voe(b); });
   }
   if (auto error = decode_mailbox_error(data)) (void)mailbox_error_text(error->detail);
 }

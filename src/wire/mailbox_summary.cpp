@@ -13,6 +13,7 @@
 #include <ecat/wire/sdo_abort.hpp>
 #include <ecat/wire/sdo_info.hpp>
 #include <ecat/wire/soe.hpp>
+#include <ecat/wire/voe.hpp>
 
 namespace ecat::wire {
 namespace {
@@ -308,6 +309,14 @@ void summarize_soe(std::string& s, Bytes data) {
   append_data(s, message->data);
 }
 
+void summarize_voe(std::string& s, Bytes data) {
+  auto message = decode_voe(data);
+  if (!message) return append_malformed(s, message.error());
+  fmt::format_to(Out(s), " vendor=0x{:08x} type=0x{:04x}", message->header.vendor_id,
+                 message->header.vendor_type);
+  append_data(s, message->data);
+}
+
 }  // namespace
 
 std::string summarize_mailbox(Bytes mailbox_buffer) {
@@ -352,6 +361,9 @@ std::string summarize_mailbox(Bytes mailbox_buffer) {
       break;
     case MailboxType::soe:
       summarize_soe(s, data);
+      break;
+    case MailboxType::voe:
+      summarize_voe(s, data);
       break;
     default:
       fmt::format_to(Out(s), " {} bytes", data.size());
