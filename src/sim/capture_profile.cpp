@@ -247,6 +247,7 @@ struct SlaveState {
   std::optional<std::uint32_t> sii_read_address;
   std::map<std::uint32_t, std::uint16_t> sii_words;
   std::optional<bool> sii_8_bytes;
+  std::optional<bool> sii_two_address_bytes;  // 0x0502 bit 7 as read
   // How long the EEPROM stays busy: polls after a read command that still showed busy (lower
   // bound) and the first that did not (upper bound), in capture nanoseconds.
   std::optional<std::int64_t> sii_command_ns;
@@ -472,7 +473,11 @@ void ProfileBuilder::observe_read(std::size_t slave, std::uint16_t ado, wire::By
   const std::uint32_t first = ado;
   const std::uint32_t last = ado + static_cast<std::uint32_t>(data.size()) - 1;
   auto covers = [&](std::uint32_t a) { return a >= first && a <= last; };
-  if (covers(reg::kSiiControl)) s.sii_8_bytes = (s.shadow[reg::kSiiControl] & 0x40) != 0;
+  if (covers(reg::kSiiControl)) {
+    s.sii_8_bytes = (s.shadow[reg::kSiiControl] & wire::sii_control::kReadSize8) != 0;
+    s.sii_two_address_bytes =
+        (s.shadow[reg::kSiiControl] & wire::sii_control::kTwoAddressBytes) != 0;
+  }
   if (covers(reg::kSiiControl + 1) && s.sii_command_ns) {
     const std::int64_t since = elapsed_ns(*s.sii_command_ns, time_ns);
     if ((s.shadow[reg::kSiiControl + 1] & 0x80) != 0) {
@@ -904,6 +909,14 @@ CaptureSlaveProfile ProfileBuilder::finish_slave(std::size_t position) {
 
   // ---- Hardware (what the capture shows directly; reconcile_hardware fills the rest)
   if (s.sii_8_bytes) out.hardware.sii_reads_8_bytes = *s.sii_8_bytes;
+  // 0x0502 bit 7 (EEPROM address algorithm) is a hardware fact (the ESC's EEPROM size pin or
+  // PDI setting), not something the simulator should derive from how many words the capture
+  // happened to read: every ESC of the shared captures reads 0x..40, one address byte.
+  if (s.sii_two_address_bytes) {
+    out.hardware.sii_two_address_bytes = *s.sii_two_address_bytes;
+    note("esc.sii_two_address_bytes", Evidence::observed,
+         fmt::format("SII control 0x0502 bit 7 read as {}", *s.sii_two_address_bytes ? 1 : 0));
+  }
   if (s.sii_busy_seen) {
     // Between the longest time a poll still saw busy and the shortest it saw the EEPROM done.
     const std::int64_t hi = s.sii_busy_hi.value_or(s.sii_busy_lo + s.sii_busy_lo / 4);
@@ -1307,7 +1320,9 @@ Json slave_json(const CaptureSlaveProfile& s) {
                 {"features", fmt::format("{:#06x}", hw.features.encode())},
                 {"dc", hw.dc_supported},
                 {"dc_system_time", s.dc_system_time},
-                {"sii_8_byte_reads", hw.sii_reads_8_bytes}}},
+                {"sii_8_byte_reads", hw.sii_reads_8_bytes},
+                {"sii_two_address_bytes",
+                 hw.sii_two_address_bytes ? Json(*hw.sii_two_address_bytes) : Json(nullptr)}}},
               {"device_emulation", s.device_emulation},
               {"mailbox", s.has_mailbox},
               {"sii", {{"bytes", s.sii.size()}, {"words_read", read}}},

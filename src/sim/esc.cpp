@@ -124,24 +124,18 @@ void Esc::reset_registers() {
   std::memcpy(memory_.data(), encoded.data(), encoded.size());
 
   // Values the ESC loads from the SII EEPROM's configuration area at power-up.
-  auto eeprom_word = [&](std::size_t word) -> std::uint16_t {
-    return word * 2 + 1 < eeprom_.size() ? wire::load_le16(&eeprom_[word * 2]) : 0;
-  };
-  wire::store_le16(&memory_[reg::kPdiControl], eeprom_word(0));  // PDI control + ESC config
-  wire::store_le16(&memory_[reg::kPdiConfiguration], eeprom_word(1));
-  wire::store_le16(&memory_[reg::kDcPulseLength], eeprom_word(2));
-  wire::store_le16(&memory_[reg::kExtendedPdiConfiguration], eeprom_word(3));
-  wire::store_le16(&memory_[reg::kStationAlias], eeprom_word(4));
-
-  std::uint16_t sii_status = hardware_.sii_reads_8_bytes ? wire::sii_control::kReadSize8 : 0;
-  // Every ESC of the shared captures reports 0x0040 here with a 2 KiB EEPROM (one address byte).
-  if (eeprom_.size() > kOneAddressByteEepromBytes) {
-    sii_status |= wire::sii_control::kTwoAddressBytes;
-  }
-  const bool eeprom_ok =
-      eeprom_.size() >= 16 && wire::sii_crc8(wire::Bytes(eeprom_).first(14)) == eeprom_[14];
+  sii_busy_until_ns_ = 0;
+  sii_pending_.reset();
+  const bool eeprom_ok = sii_load_configuration(true);
+  std::uint16_t sii_status = sii_fixed_bits();
   if (!eeprom_ok) sii_status |= wire::sii_control::kChecksumError;
-  wire::store_le16(&memory_[reg::kSiiControl], sii_status);
+  // No configuration area at all: nothing answers on the I2C bus, the device information could
+  // not be loaded (0x0502 bit 12). A checksum error alone leaves bit 12 clear so that the
+  // EEPROM can still be read and repaired through the interface.
+  if (eeprom_.size() < wire::kSiiChecksummedBytes + 2) {
+    sii_status |= wire::sii_control::kDeviceInfoError;
+  }
+  sii_store_status(sii_status);
 
   // The DC system time unit is powered down when the ESC configuration enables neither the SYNC
   // out nor the latch in unit; only the port receive times remain. EL1004 in
@@ -152,6 +146,10 @@ void Esc::reset_registers() {
 
   wire::DlStatus dl;
   dl.pdi_operational = eeprom_ok;
+  // SII word 0 bit 9 (ESC configuration 0x0141 bit 1, enhanced link detection for all ports) is
+  // also mapped to DL status bit 2 (ESC datasheet section I, "ESC Configuration Area"). None of
+  // the shared EEPROMs and captures sets it (0x0141 = 0x0D / 0x01, DL status 0x5A31 / 0x5613).
+  dl.enhanced_link_detection = eeprom_ok && (memory_[reg::kEscConfiguration] & 0x02) != 0;
   // Nothing reloads the PDI watchdog of an ESC without a PDI (PDI control 0): the EK1100
   // (0x0140 = 0x00) reports DL status 0x5A31 in the replay captures, terminals with a PDI 0x..33.
   dl.pdi_watchdog_ok = !eeprom_ok || memory_[reg::kPdiControl] != 0;
@@ -169,7 +167,6 @@ void Esc::reset_registers() {
     update_sm_status(i);
   for (auto& f : fmmus_)
     f = wire::FmmuConfig{};
-  sii_busy_until_ns_ = 0;
   last_mailbox_reply_.clear();
   if (dc_) dc_->reset();
 }
@@ -192,6 +189,9 @@ std::optional<std::uint16_t> Esc::al_refusal(wire::AlState state) const noexcept
 void Esc::advance(std::int64_t now_ns) {
   if (now_ns > now_ns_) now_ns_ = now_ns;
   sii_finish_if_due();
+  // The segment advances every ESC before each frame: the SII write enable (0x0502 bit 0) is
+  // self-clearing at the start of the next frame (ESC datasheet section II, 0x0502).
+  sii_store_status(static_cast<std::uint16_t>(sii_status_ & ~wire::sii_control::kWriteEnable));
   // Process-data watchdog: an output SyncManager with the watchdog trigger enabled that sees no
   // complete write for the watchdog time expires (status bit 0 -> 0, counter + 1).
   const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
@@ -650,7 +650,8 @@ void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const Pa
     if (!overlaps(first, last, reg::sync_manager(i), reg::kSyncManagerSize)) continue;
     sync_manager_written(i, sms_[i].enabled);
   }
-  if (overlaps(first, last, reg::kSiiControl, 2)) sii_command(read_u16(reg::kSiiControl));
+  if (overlaps(first, last, reg::kSiiAccess, 1)) sii_access_written();
+  if (overlaps(first, last, reg::kSiiControl, 2)) sii_control_written(first, last);
   const std::uint32_t dc_end = dc_system_time_ ? kDcBase + kDcSize : kDcReceiveTimesEnd;
   if (dc_ && overlaps(first, last, kDcBase, dc_end - kDcBase)) {
     dc_->on_write(static_cast<std::uint16_t>(std::max<std::uint32_t>(first, kDcBase)),
@@ -742,72 +743,193 @@ void Esc::refresh_registers_for_read(std::uint32_t address, std::size_t length) 
 // ---------------------------------------------------------------------------------------------
 // SII EEPROM interface
 
-void Esc::sii_command(std::uint16_t written) {
+// The interface as the ESC datasheets (section II, registers 0x0500..0x050F) describe it:
+//   - 0x0502 bit 0 (write enable) is latched from the master's write and self-clearing: at the
+//     start of the next frame (Esc::advance) and when a command consumed it;
+//   - bits 8..10 (command) and 15 (busy) read back while a command runs and clear when it ends
+//     (0x8140 then 0x0040 after FPWR 0x0502 = 0x0100 from the EK1100 in
+//     replay-ek1100-el2828-el2889.pcapng);
+//   - a write while busy is ignored, and so is a command while the acknowledge/command error
+//     (bit 13) is pending; the NOP command clears bits 13 and 14;
+//   - bit 14 (write enable error): a write command without write enable; it does not start;
+//   - bit 13: the EEPROM did not acknowledge (an address beyond the EEPROM, an injected NACK) or
+//     the command is invalid (anything but 0, 1, 2, 4 in bits 8..10);
+//   - bit 11 (checksum error) and bit 12 (device information not loaded) report the last load of
+//     the configuration area (power-up or reload command); bits 6 and 7 are hardware facts.
+// The EEPROM itself is non-volatile: a write lands in eeprom_ when its write cycle ends and
+// survives power_cycle; the registers loaded from it change at the next power-up (or reload).
+
+std::uint16_t Esc::sii_fixed_bits() const noexcept {
   namespace sc = wire::sii_control;
-  std::uint16_t status = read_u16(reg::kSiiControl);
-  // The status bits the master cannot change survive its write.
-  const std::uint16_t fixed = static_cast<std::uint16_t>(
-      (hardware_.sii_reads_8_bytes ? sc::kReadSize8 : 0) |
-      (eeprom_.size() > kOneAddressByteEepromBytes ? sc::kTwoAddressBytes : 0));
-  if (sii_busy_until_ns_ > now_ns_) return;  // commands are ignored while busy
-  const std::uint16_t command = written & sc::kCommandMask;
-  status = static_cast<std::uint16_t>(fixed | (status & sc::kChecksumError));
+  const bool two_bytes =
+      hardware_.sii_two_address_bytes.value_or(eeprom_.size() > kOneAddressByteEepromBytes);
+  return static_cast<std::uint16_t>((hardware_.sii_reads_8_bytes ? sc::kReadSize8 : 0) |
+                                    (two_bytes ? sc::kTwoAddressBytes : 0));
+}
+
+bool Esc::sii_load_configuration(bool power_up) {
+  if (eeprom_.size() < wire::kSiiChecksummedBytes + 2 ||
+      wire::sii_crc8(wire::Bytes(eeprom_).first(wire::kSiiChecksummedBytes)) !=
+          eeprom_[wire::kSiiChecksummedBytes]) {
+    return false;
+  }
+  auto eeprom_word = [&](std::size_t word) -> std::uint16_t {
+    return wire::load_le16(&eeprom_[word * 2]);
+  };
+  const std::uint16_t word0 = eeprom_word(wire::sii_word::kPdiControl);
+  if (power_up) {
+    wire::store_le16(&memory_[reg::kPdiControl], word0);  // PDI control + ESC configuration
+    wire::store_le16(&memory_[reg::kStationAlias], eeprom_word(wire::sii_word::kStationAlias));
+  } else {
+    // A reload transfers neither the station alias nor the enhanced-link-detection bits of the
+    // ESC configuration (0x0141 bits 1, 4..7): they are taken at power-up or reset only (ESC
+    // datasheet section I, "SII EEPROM content").
+    constexpr std::uint8_t kPowerUpOnly = 0xF2;
+    memory_[reg::kPdiControl] = static_cast<std::uint8_t>(word0);
+    memory_[reg::kEscConfiguration] = static_cast<std::uint8_t>(
+        (memory_[reg::kEscConfiguration] & kPowerUpOnly) | ((word0 >> 8) & ~kPowerUpOnly));
+  }
+  wire::store_le16(&memory_[reg::kPdiConfiguration],
+                   eeprom_word(wire::sii_word::kPdiConfiguration));
+  wire::store_le16(&memory_[reg::kDcPulseLength], eeprom_word(wire::sii_word::kSyncImpulseLength));
+  wire::store_le16(&memory_[reg::kExtendedPdiConfiguration],
+                   eeprom_word(wire::sii_word::kPdiConfiguration2));
+  return true;
+}
+
+void Esc::pdi_take_eeprom(bool take) {
+  const bool offered = (memory_[reg::kSiiAccess] & wire::sii_access::kPdiOwns) != 0;
+  memory_[reg::kSiiPdiAccess] = (take && offered) ? 0x01 : 0x00;
+}
+
+void Esc::sii_access_written() {
+  // Bit 1 forces ECAT access: the PDI loses the EEPROM at once (0x0501 bit 0 reset), and the
+  // bit itself does not stay set. Taking the offer back (bit 0 = 0) does not take the EEPROM
+  // from a PDI that holds it: the PDI has to give it back.
+  if ((memory_[reg::kSiiAccess] & wire::sii_access::kForceEcatAccess) != 0) {
+    memory_[reg::kSiiPdiAccess] = 0;
+    memory_[reg::kSiiAccess] =
+        static_cast<std::uint8_t>(memory_[reg::kSiiAccess] & ~wire::sii_access::kForceEcatAccess);
+  }
+}
+
+void Esc::sii_control_written(std::uint32_t first, std::uint32_t last) {
+  namespace sc = wire::sii_control;
+  // memory_ holds what the master wrote over the ESC's status; the status before the write is
+  // rebuilt from it and the ESC's own state: only bit 0 and bits 8..10 are writable.
+  const std::uint16_t written = read_u16(reg::kSiiControl);
+  const bool low = overlaps(first, last, reg::kSiiControl, 1);
+  const bool high = overlaps(first, last, reg::kSiiControl + 1, 1);
+  std::uint16_t status = sii_status_;
+  auto store = [&] { sii_store_status(status); };
+  const bool busy = sii_pending_.has_value() && sii_busy_until_ns_ > now_ns_;
+  const bool pdi_holds = (memory_[reg::kSiiAccess] & wire::sii_access::kPdiOwns) != 0 &&
+                         (memory_[reg::kSiiPdiAccess] & 0x01) != 0;
+  if (busy || pdi_holds) {
+    store();  // ignored: the interface is busy, or the PDI holds the EEPROM
+    return;
+  }
+  if (low) {
+    status =
+        static_cast<std::uint16_t>((status & ~sc::kWriteEnable) | (written & sc::kWriteEnable));
+  }
+  const std::uint16_t command = high ? written & sc::kCommandMask : 0;
+  if (!high) {
+    store();
+    return;
+  }
+  if (command == sc::kCommandNop) {
+    status = static_cast<std::uint16_t>(status & ~(sc::kAcknowledgeError | sc::kWriteEnableError));
+    store();
+    return;
+  }
+  if ((status & sc::kAcknowledgeError) != 0) {
+    store();  // ignored until a NOP acknowledges the error
+    return;
+  }
+  status = static_cast<std::uint16_t>(status & ~sc::kWriteEnableError);
+  const bool write_enabled = (status & sc::kWriteEnable) != 0;
+  status = static_cast<std::uint16_t>(status & ~sc::kWriteEnable);  // consumed by the command
+  SiiPending pending;
+  pending.command = command;
+  std::int64_t busy_ns = hardware_.sii_busy_ns;
   const std::uint32_t word = read_u32(reg::kSiiAddress);
+  const bool nack = sii_nacks_ > 0 && (!sii_nack_writes_only_ || command == sc::kCommandWrite);
   switch (command) {
-    case sc::kCommandNop:
-      break;  // clears the error bits
     case sc::kCommandRead: {
+      // The data register is filled at once (the captures' data reads all follow the end of
+      // busy, so nothing shows when the real ESC fills it).
       const std::size_t n = hardware_.sii_reads_8_bytes ? 8 : 4;
       for (std::size_t i = 0; i < n; ++i) {
         const std::size_t byte = static_cast<std::size_t>(word) * 2 + i;
-        memory_[reg::kSiiData + i] = byte < eeprom_.size() ? eeprom_[byte] : 0xFF;
+        memory_[reg::kSiiData + i] = byte < eeprom_.size() && !nack ? eeprom_[byte] : 0xFF;
       }
-      if (static_cast<std::size_t>(word) * 2 >= eeprom_.size()) status |= sc::kAcknowledgeError;
+      if (nack || static_cast<std::size_t>(word) * 2 >= eeprom_.size()) {
+        pending.errors = sc::kAcknowledgeError;
+      }
       break;
     }
     case sc::kCommandWrite: {
-      if ((written & sc::kWriteEnable) == 0) {
+      if (!write_enabled) {
+        // Refused before anything reaches the EEPROM: no busy time.
         status |= sc::kWriteEnableError;
-        break;
+        store();
+        return;
       }
       const std::size_t byte = static_cast<std::size_t>(word) * 2;
-      if (byte + 1 >= eeprom_.size()) {
-        status |= sc::kAcknowledgeError;
-        break;
+      if (nack || byte + 1 >= eeprom_.size()) {
+        pending.errors = sc::kAcknowledgeError;
+      } else {
+        pending.write_byte = byte;
+        pending.write_data = {memory_[reg::kSiiData], memory_[reg::kSiiData + 1]};
       }
-      eeprom_[byte] = memory_[reg::kSiiData];
-      eeprom_[byte + 1] = memory_[reg::kSiiData + 1];
+      busy_ns = hardware_.sii_write_busy_ns;
       break;
     }
-    case sc::kCommandReload: {
-      auto eeprom_word = [&](std::size_t w) -> std::uint16_t {
-        return w * 2 + 1 < eeprom_.size() ? wire::load_le16(&eeprom_[w * 2]) : 0;
-      };
-      wire::store_le16(&memory_[reg::kStationAlias], eeprom_word(4));
+    case sc::kCommandReload:
+      if (nack) pending.errors = sc::kAcknowledgeError;
       break;
-    }
     default:
-      status |= sc::kAcknowledgeError;  // invalid command
-      break;
+      status |= sc::kAcknowledgeError;  // invalid command: refused at once
+      store();
+      return;
   }
-  // The command bits read back only while the command runs: real ESCs show 0x8140 (busy, read)
-  // and then 0x0040 after FPWR 0x0502 = 0x0100 (replay-ek1100-el2828-el2889.pcapng).
-  if (command != sc::kCommandNop && hardware_.sii_busy_ns > 0) {
-    status |= static_cast<std::uint16_t>(sc::kBusy | command);
-    sii_busy_until_ns_ = now_ns_ + hardware_.sii_busy_ns;
+  if (nack) --sii_nacks_;
+  sii_pending_ = pending;
+  if (busy_ns > 0) {
+    sii_busy_until_ns_ = now_ns_ + busy_ns;
+    status = static_cast<std::uint16_t>(status | sc::kBusy | command);
+    store();
+  } else {
+    sii_busy_until_ns_ = now_ns_;
+    store();
+    sii_finish_if_due();
   }
-  status = static_cast<std::uint16_t>(status | (written & sc::kWriteEnable));
-  wire::store_le16(&memory_[reg::kSiiControl], status);
 }
 
 void Esc::sii_finish_if_due() {
-  if (sii_busy_until_ns_ != 0 && now_ns_ >= sii_busy_until_ns_) {
-    sii_busy_until_ns_ = 0;
-    wire::store_le16(
-        &memory_[reg::kSiiControl],
-        static_cast<std::uint16_t>(read_u16(reg::kSiiControl) &
-                                   ~(wire::sii_control::kBusy | wire::sii_control::kCommandMask)));
+  namespace sc = wire::sii_control;
+  if (!sii_pending_ || now_ns_ < sii_busy_until_ns_) return;
+  const SiiPending done = *sii_pending_;
+  sii_pending_.reset();
+  sii_busy_until_ns_ = 0;
+  std::uint16_t status = static_cast<std::uint16_t>(sii_status_ & ~(sc::kBusy | sc::kCommandMask));
+  status |= done.errors;
+  if (done.write_byte) {
+    eeprom_[*done.write_byte] = done.write_data[0];
+    eeprom_[*done.write_byte + 1] = done.write_data[1];
   }
+  if (done.command == sc::kCommandReload && done.errors == 0) {
+    const bool loaded = sii_load_configuration(false);
+    status = static_cast<std::uint16_t>((status & ~sc::kChecksumError) |
+                                        (loaded ? 0 : sc::kChecksumError));
+  }
+  sii_store_status(status);
+}
+
+void Esc::sii_store_status(std::uint16_t status) noexcept {
+  sii_status_ = status;
+  wire::store_le16(&memory_[reg::kSiiControl], status);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -40,8 +40,16 @@ struct EscHardware {
   wire::EscFeatures features{};
   bool sii_reads_8_bytes = true;  // SII data register holds 8 bytes (else 4)
   bool dc_supported = true;
-  // How long the SII interface stays busy after a command, in nanoseconds of segment time.
+  // How long the SII interface stays busy after a read or reload command, in nanoseconds of
+  // segment time.
   std::int64_t sii_busy_ns = 0;
+  // How long a write command keeps it busy: the EEPROM's internal write cycle. I2C EEPROMs of the
+  // 24Cxx class specify at most 5 ms per write (tWR); IgH waits 5 ms before it even looks at the
+  // busy bit after a write (fsm_sii.c SII_INHIBIT). Tests set it lower to stay fast.
+  std::int64_t sii_write_busy_ns = 5'000'000;
+  // 0x0502 bit 7 (EEPROM algorithm: two address bytes, EEPROMs above 16 kbit). Unset: from the
+  // size of the EEPROM image, as an ESC whose EEPROM size pin matches its EEPROM.
+  std::optional<bool> sii_two_address_bytes{};
 };
 
 // Per-frame facts the segment hands to each ESC: when the frame reached this ESC's ports and its
@@ -154,6 +162,18 @@ class Esc {
   void pdi_write_u16(std::uint16_t address, std::uint16_t value);
   // SII words the PDI may change (EEPROM emulation).
   std::vector<std::uint8_t>& pdi_eeprom() noexcept { return eeprom_; }
+  // The PDI takes the EEPROM (0x0501 bit 0) when the master offered it (0x0500 bit 0), or
+  // gives it back. While the PDI holds it, EEPROM commands from ECAT are ignored.
+  void pdi_take_eeprom(bool take);
+
+  // ---- SII fault injection (tests) ------------------------------------------------------------
+  // The next `count` EEPROM commands (read, write, reload) end with the acknowledge error (0x0502
+  // bit 13) and change nothing: an I2C EEPROM that does not acknowledge, as it does while its
+  // internal write cycle still runs. `writes_only`: only write commands count and fail.
+  void inject_sii_acknowledge_errors(unsigned count, bool writes_only = false) noexcept {
+    sii_nacks_ = count;
+    sii_nack_writes_only_ = writes_only;
+  }
 
  private:
   friend class DcUnit;
@@ -181,8 +201,19 @@ class Esc {
                             const std::array<std::uint8_t, 8>& sm_activate_before);
   void sync_manager_written(std::size_t index, bool was_enabled);
   void update_sm_status(std::size_t index);
-  void sii_command(std::uint16_t control);
+  // The master wrote bytes [first, last] that overlap 0x0502..0x0503 (control/status).
+  void sii_control_written(std::uint32_t first, std::uint32_t last);
+  // The master wrote 0x0500 (EEPROM configuration: offer to the PDI, force ECAT access).
+  void sii_access_written();
   void sii_finish_if_due();
+  // Loads the ESC configuration area (words 0..7) into the registers: at power-up everything,
+  // on a reload command all but the station alias and 0x0141 bits 1, 4..7. Returns whether the
+  // checksum matched (nothing is loaded when it did not).
+  bool sii_load_configuration(bool power_up);
+  std::uint16_t sii_fixed_bits() const noexcept;
+  // 0x0502 as the ESC keeps it (the register bytes are overwritten by a master's write before
+  // sii_control_written sees it).
+  void sii_store_status(std::uint16_t status) noexcept;
   int sm_index_for(std::uint32_t address) const noexcept;
 
   EscHardware hardware_;
@@ -194,6 +225,17 @@ class Esc {
   std::unique_ptr<DcUnit> dc_;
   std::int64_t now_ns_ = 0;
   std::int64_t sii_busy_until_ns_ = 0;
+  // What the running EEPROM command does when the busy time ends.
+  struct SiiPending {
+    std::uint16_t command = 0;
+    std::uint16_t errors = 0;               // error bits it ends with
+    std::optional<std::size_t> write_byte;  // write: the EEPROM byte offset and the word
+    std::array<std::uint8_t, 2> write_data{};
+  };
+  std::optional<SiiPending> sii_pending_;
+  unsigned sii_nacks_ = 0;
+  bool sii_nack_writes_only_ = false;
+  std::uint16_t sii_status_ = 0;
   bool dc_system_time_ = false;
   std::vector<std::uint8_t> last_mailbox_reply_;
   std::array<std::optional<std::uint16_t>, 16> al_refusals_{};  // by AL state code (4 bits)
