@@ -388,6 +388,16 @@ std::vector<MailboxMessage> Mailbox::unsolicited() {
   return out;
 }
 
+std::optional<MailboxMessage> Mailbox::take_unsolicited(const ReplyFilter& which) {
+  for (auto it = unsolicited_.begin(); it != unsolicited_.end(); ++it) {
+    if (!which(*it)) continue;
+    MailboxMessage out = std::move(*it);
+    unsolicited_.erase(it);
+    return out;
+  }
+  return std::nullopt;
+}
+
 void Mailbox::reset() noexcept {
   counter_ = 0;
   reply_counter_ = 0;

@@ -14,10 +14,13 @@
 #include <ecat/master/slave.hpp>
 #include <ecat/wire/bytes.hpp>
 
+#include "blocking.hpp"
 #include "master/event_hub.hpp"
 #include "slave_impl.hpp"
 
 namespace ecat::master {
+
+using detail::blocking;
 
 namespace reg = wire::reg;
 using namespace std::chrono_literals;
@@ -312,6 +315,16 @@ void Slave::Impl::record_al_error(const Error& error) {
 }
 
 exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_ptr<Session> keep) {
+  if (firmware_update) {
+    co_return Error(Errc::busy, fmt::format("{}: a firmware update is in progress; {} is refused "
+                                            "until it ends",
+                                            who(), wire::to_string(target)));
+  }
+  co_return co_await walk_to(target, std::move(keep));
+}
+
+exec::Task<Result<void>> Slave::Impl::walk_to(wire::AlState target,
+                                              std::shared_ptr<Session> keep) {
   (void)keep;
   auto& loop = session.loop;
   auto& bus = *session.bus;
@@ -363,11 +376,25 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
   // succeeds"): the steps on the way are the runtime's, and only where the diagram has no direct
   // edge (out of BOOTSTRAP, into BOOTSTRAP from OP) is the state changed step by step.
   const SlaveState final_state = slave_state_of(target);
+  wire::AlState at = from;
   for (auto step : *path) {
     if (step == wire::AlState::safeop) {
       if (auto synced = co_await apply_sync(); !synced) co_return synced.error();
     }
+    // BOOTSTRAP has its own mailbox (slave_foe.cpp): its SyncManagers before the step in, the
+    // standard mailbox's after the step out.
+    if (step == wire::AlState::bootstrap) {
+      if (auto boot = co_await enter_boot_mailbox(); !boot) co_return boot.error();
+    }
     auto stepped = co_await al_step(loop, bus, station, step, session.config.al);
+    if (!stepped && step == wire::AlState::bootstrap) (void)co_await leave_boot_mailbox();
+    if (stepped && at == wire::AlState::bootstrap) {
+      if (auto left = co_await leave_boot_mailbox(); !left) {
+        set_state(slave_state_of(step));
+        co_return left.error();
+      }
+    }
+    at = step;
     if (!stepped) {
       record_al_error(stepped.error());
       // What the slave is in now (it may have fallen back).
@@ -937,27 +964,6 @@ SlaveInfo Slave::info() const {
   out.dc_sync = impl_->dc_sync;
   return out;
 }
-
-namespace {
-
-template <class T>
-Result<T> blocking(Session& session, exec::Task<Result<T>> task, std::chrono::nanoseconds timeout,
-                   std::string_view what) {
-  if (session.loop.in_loop_thread()) {
-    return Error(Errc::wrong_state,
-                 fmt::format("{}: called on the control thread (it would wait for itself)", what));
-  }
-  auto result = exec::run_blocking(session.loop, std::move(task), timeout);
-  if (!result) {
-    return Error(
-        Errc::timeout,
-        fmt::format("{}: no answer within {} ms", what,
-                    std::chrono::duration_cast<std::chrono::milliseconds>(timeout).count()));
-  }
-  return std::move(*result);
-}
-
-}  // namespace
 
 Result<void> Slave::request(wire::AlState target, std::chrono::nanoseconds timeout) {
   auto keep = impl_->session.shared_from_this();

@@ -145,6 +145,22 @@ struct Slave::Impl {
   // PDO whose mapping object is missing is left to `known` (a fixed PDO the SII describes).
   exec::Task<Result<CoePdoConfiguration>> read_coe_pdos(const PdoLayout& known);
   exec::Task<Result<void>> go_to(wire::AlState target, std::shared_ptr<Session> keep);
+  // go_to's walk itself, for the firmware update that holds the slave (go_to refuses then).
+  exec::Task<Result<void>> walk_to(wire::AlState target, std::shared_ptr<Session> keep);
+
+  // ---- FoE and BOOTSTRAP (slave_foe.cpp) ----
+  // The mailbox of the SII's bootstrap mailbox while the slave is in BOOTSTRAP: go_to writes its
+  // SyncManagers before the step INIT -> BOOT and the standard mailbox's again after BOOT -> INIT.
+  std::unique_ptr<Mailbox> boot_mailbox;
+  // A firmware update holds the slave (loop thread): go_to refuses everyone else's requests, so
+  // the session's retries do not pull it out of BOOTSTRAP, and the health loop waits (busy).
+  bool firmware_update = false;
+  exec::Task<Result<void>> enter_boot_mailbox();
+  exec::Task<Result<void>> leave_boot_mailbox();
+  // The mailbox FoE uses now (standard in PREOP and above, bootstrap in BOOT), or why none.
+  Result<Mailbox*> foe_mailbox() const;
+  exec::Task<Result<void>> firmware_update_task(std::string name, std::vector<std::uint8_t> image,
+                                                FoeOptions options, std::shared_ptr<Session> keep);
   exec::Task<Result<void>> reconfigure(SlaveConfig next, std::shared_ptr<Session> keep);
   exec::Task<Result<void>> retry_configuration(std::shared_ptr<Session> keep);
   exec::Task<Result<std::vector<std::uint8_t>>> sdo_upload(std::uint16_t index,

@@ -66,6 +66,20 @@ StandardApplication::StandardApplication(StandardConfig config)
   od_ = config_.dictionary;
   if (config_.sii.standard_mailbox.present()) {
     coe_ = std::make_unique<CoeServer>(od_, config_.coe);
+    if ((config_.sii.mailbox_protocols & wire::mailbox_protocol::kFoe) != 0) {
+      foe_ = std::make_unique<FoeServer>(od_, config_.foe);
+      coe_->set_protocol_handler(
+          wire::MailboxType::foe,
+          [this](Esc& esc, const wire::MailboxHeader&, wire::Bytes data) {
+            return foe_->handle(esc, data);
+          });
+    }
+  }
+  if (coe_ && (config_.sii.mailbox_protocols & wire::mailbox_protocol::kSoe) != 0) {
+    soe_ = std::make_unique<SoeServer>(*coe_, config_.soe);
+    coe_->set_protocol_handler(wire::MailboxType::soe,
+                               [this](Esc& esc, const wire::MailboxHeader& header,
+                                      wire::Bytes data) { return soe_->handle(esc, header, data); });
   }
 }
 
@@ -82,9 +96,14 @@ void StandardApplication::restore_dictionary() {
 void StandardApplication::start(Esc& esc) {
   esc_ = &esc;
   restore_dictionary();
+  if (foe_) foe_->on_power_up();
   if (coe_) {
     coe_->reset();
     coe_->clear_faults();
+  }
+  if (soe_) {
+    soe_->power_up();
+    soe_->clear_faults();
   }
   layouts_.clear();
   valid_outputs_.clear();
@@ -223,6 +242,7 @@ void StandardApplication::enter(Esc& esc, AlState to) {
     watchdog_handled_ = false;
   }
   state_ = to;
+  if (foe_) foe_->on_state_changed(from, to);
   on_state_changed(from, to);
 }
 

@@ -123,13 +123,13 @@ TEST(Mailbox, AMailboxErrorReplyFailsTheExchangeWithItsCode) {
   auto f = bring_up();
   ASSERT_TRUE(f.bench);
   Mailbox mailbox(f.bench->loop, *f.bench->bus, 0x1001, f.config);
-  // The simulated slave speaks CoE only: a VoE request is refused with "unsupported protocol".
+  // The simulated slave does not speak AoE: an AoE request is refused with "unsupported protocol".
   auto reply = f.bench->run(
-      mailbox.request(wire::MailboxType::voe, Bytes{1, 2, 3, 4}, 1s, {}, "VoE request"));
+      mailbox.request(wire::MailboxType::aoe, Bytes{1, 2, 3, 4}, 1s, {}, "AoE request"));
   ASSERT_FALSE(reply.ok());
   EXPECT_EQ(reply.error().code(), Errc::mailbox_error);
   EXPECT_EQ(reply.error().message(),
-            "VoE request: slave 0x1001 answered with mailbox error 0x0002: " +
+            "AoE request: slave 0x1001 answered with mailbox error 0x0002: " +
                 wire::mailbox_error_text(0x0002));
   EXPECT_EQ(reply.error().code_value(Errc::mailbox_error), 0x0002u);
 }

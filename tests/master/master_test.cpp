@@ -618,15 +618,21 @@ TEST(MasterBootstrap, RequestWalksThroughInitToBootstrapAndBack) {
     image.bootstrap_mailbox = image.standard_mailbox;
   });
   ASSERT_FALSE(file.empty());
+  // The "mailbox" profile has a bootstrap mailbox of its own (FoE): the plain one is edited out.
+  const auto plain_file = edited_eeprom("mailbox", "no-bootstrap", [](wire::SiiImage& image) {
+    image.bootstrap_mailbox = {};
+  });
+  ASSERT_FALSE(plain_file.empty());
   auto server = test::make_sim_server(fmt::format(R"(version: 1
 simulator:
   slaves:
     - {{name: coupler, profile: EK1100}}
     - {{name: loader, profile: eeprom, file: "{}"}}
-    - {{name: plain, profile: mailbox}}
+    - {{name: plain, profile: eeprom, file: "{}"}}
 )",
-                                                  file.string()));
+                                                  file.string(), plain_file.string()));
   std::filesystem::remove(file);
+  std::filesystem::remove(plain_file);
   ASSERT_TRUE(server);
   auto link = server->serve_memory();
   ASSERT_TRUE(link);

@@ -154,6 +154,9 @@ class Mailbox {
   std::vector<wire::Emergency> emergencies();
   // The messages nobody waited for, oldest first; the queue is emptied.
   std::vector<MailboxMessage> unsolicited();
+  // The oldest queued message `which` accepts, taken out of the queue; the others stay (a
+  // protocol client takes its own messages without losing other protocols' ones).
+  std::optional<MailboxMessage> take_unsolicited(const ReplyFilter& which);
 
   // Forgets counters and received messages: after the slave's mailbox SyncManagers were
   // reconfigured (the slave starts counting again).

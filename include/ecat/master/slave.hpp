@@ -12,6 +12,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -27,9 +28,18 @@
 #include <ecat/wire/sdo_info.hpp>
 #include <ecat/wire/sii.hpp>
 
+namespace ecat::wire {
+struct VoeMessage;  // <ecat/wire/voe.hpp>: declared only, so the application's face stays small
+}  // namespace ecat::wire
+
 namespace ecat::master {
 
 struct Session;
+struct SoeNotification;  // <ecat/master/soe.hpp>
+// Options of the calls below that take them, declared only so that the application's face stays
+// small: callers that pass options include the header.
+struct FoeOptions;       // <ecat/master/foe.hpp>
+struct SiiWriteOptions;  // <ecat/master/sii_writer.hpp>
 namespace detail {
 class SlaveAccess;
 }
@@ -127,6 +137,66 @@ class Slave {
   Result<wire::EntryDescriptionResponse> describe_entry(std::uint16_t index, std::uint8_t subindex,
                                                         std::uint8_t value_info = 0,
                                                         SdoOptions options = {});
+
+  // FoE
+  // File access over EtherCAT (master/foe.hpp): Errc::unsupported when the slave's SII does not
+  // declare FoE, Errc::wrong_state unless the slave is in PREOP or higher, or in BOOTSTRAP (then
+  // over the bootstrap mailbox). FoeOptions::progress is called on the control thread.
+  Result<std::vector<std::uint8_t>> foe_read(std::string_view name);
+  Result<std::vector<std::uint8_t>> foe_read(std::string_view name, const FoeOptions& options);
+  Result<void> foe_write(std::string_view name, std::vector<std::uint8_t> data);
+  Result<void> foe_write(std::string_view name, std::vector<std::uint8_t> data,
+                         const FoeOptions& options);
+  // A firmware update as devices expect it: INIT, then BOOTSTRAP with the mailbox SyncManagers
+  // of the SII's bootstrap mailbox, the image written as file `name`, then INIT again (the device
+  // starts the new image) and PREOP, and the session brings the slave back to its target as
+  // after a rebuild. The session's retries and health checks leave the slave alone meanwhile.
+  // Errc::unsupported without FoE or a bootstrap mailbox; a failed write still ends in INIT.
+  Result<void> update_firmware(std::string_view name, std::vector<std::uint8_t> image);
+  Result<void> update_firmware(std::string_view name, std::vector<std::uint8_t> image,
+                               const FoeOptions& options);
+
+  // SII EEPROM (src/master/slave_sii.cpp; sii_writer.hpp for the options). Allowed in INIT and
+  // PREOP only (Errc::wrong_state otherwise); on success the session's copy of the SII and the
+  // slave's identity are read again from the EEPROM. The ESC loads the configuration area (the
+  // alias among it) at its next power-up.
+  // `image`: little-endian bytes from word 0; `words`: from `word_address` on.
+  Result<void> write_sii(std::span<const std::uint8_t> image);
+  Result<void> write_sii(std::span<const std::uint8_t> image, const SiiWriteOptions& options);
+  Result<void> write_sii(std::uint32_t word_address, std::vector<std::uint16_t> words);
+  Result<void> write_sii(std::uint32_t word_address, std::vector<std::uint16_t> words,
+                         const SiiWriteOptions& options);
+  // SII word 4 (and its checksum); with options.write_alias_register also 0x0012, which fails
+  // with Errc::unsupported naming the register when the ESC does not take it (real ESCs do not).
+  Result<void> write_alias(std::uint16_t alias);
+  Result<void> write_alias(std::uint16_t alias, const SiiWriteOptions& options);
+
+  // SoE
+  // IDN parameters of SERCOS drives (master/soe.hpp): Errc::unsupported when the slave's SII does
+  // not declare SoE, Errc::wrong_state below PREOP. `elements`: wire::kSoeElement* flags (0x40:
+  // the value); a read gives the elements' bytes in element order (master::split_soe_elements
+  // takes several apart), fragments reassembled. A drive's refusal is Errc::mailbox_error with
+  // its SoE error code in words (master::soe_error_code). `timeout`: for each response.
+  Result<std::vector<std::uint8_t>> soe_read(
+      std::uint8_t drive, std::uint16_t idn, std::uint8_t elements = 0x40,
+      std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  Result<void> soe_write(std::uint8_t drive, std::uint16_t idn, std::uint8_t elements,
+                         std::vector<std::uint8_t> data,
+                         std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  // Notifications and slave info the drive sent since the last call, oldest first (the mailbox is
+  // read first). SoeNotification is in <ecat/master/soe.hpp>.
+  Result<std::vector<SoeNotification>> soe_notifications(
+      std::chrono::nanoseconds timeout = std::chrono::seconds(2));
+
+  // VoE
+  // Vendor specific messages (master/voe.hpp): Errc::unsupported when the SII does not declare
+  // VoE, Errc::wrong_state below PREOP. voe_receive gives the oldest VoE message the mailbox
+  // queued, else waits for one (wire::VoeMessage is in <ecat/wire/voe.hpp>).
+  Result<void> voe_send(std::uint32_t vendor_id, std::uint16_t vendor_type,
+                        std::vector<std::uint8_t> data,
+                        std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  Result<wire::VoeMessage> voe_receive(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+
   // CoE emergencies the slave sent since the last call, oldest first (the mailbox is read first,
   // so an emergency waiting in it is included). Empty for a slave without a mailbox.
   Result<std::vector<wire::Emergency>> emergencies(

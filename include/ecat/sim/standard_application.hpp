@@ -45,8 +45,10 @@
 #include <ecat/result.hpp>
 #include <ecat/sim/coe_server.hpp>
 #include <ecat/sim/device.hpp>
+#include <ecat/sim/foe_server.hpp>
 #include <ecat/sim/object_dictionary.hpp>
 #include <ecat/sim/pdo_mapping.hpp>
+#include <ecat/sim/soe_server.hpp>
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/sii.hpp>
 
@@ -80,6 +82,8 @@ struct StandardConfig {
   wire::SiiImage sii{};
   ObjectDictionary dictionary{};
   CoeServerConfig coe{};  // used when the SII declares a standard mailbox
+  SoeServerConfig soe{};  // used when the SII's mailbox protocols also declare SoE
+  FoeServerConfig foe{};  // used when it also declares FoE (mailbox protocols)
   bool check_fmmus = false;
   bool require_valid_outputs = false;
   // Also a DC requirement: 0x1C32:01 (SM output parameter, synchronisation type) written to 2
@@ -112,6 +116,11 @@ class StandardApplication : public DeviceApplication {
   const ObjectDictionary& dictionary() const noexcept { return od_; }
   // The CoE server, or nullptr for devices without a mailbox.
   CoeServer* coe_server() noexcept { return coe_.get(); }
+  // The SoE server (plugged into the CoE server for mailbox type 5), or nullptr when the SII
+  // does not declare SoE.
+  SoeServer* soe_server() noexcept { return soe_.get(); }
+  // The FoE server, or nullptr unless the SII declares FoE (and a standard mailbox).
+  FoeServer* foe_server() noexcept { return foe_.get(); }
   const wire::SiiImage& sii() const noexcept { return config_.sii; }
   const std::vector<ProcessDataSyncManager>& process_data() const noexcept { return pd_sms_; }
   // The process data of SyncManager `sm` as the dictionary says now.
@@ -212,6 +221,8 @@ class StandardApplication : public DeviceApplication {
   StandardConfig config_;
   ObjectDictionary od_;
   std::unique_ptr<CoeServer> coe_;
+  std::unique_ptr<SoeServer> soe_;
+  std::unique_ptr<FoeServer> foe_;
   std::vector<ProcessDataSyncManager> pd_sms_;
   std::map<std::uint8_t, SyncManagerLayout> layouts_;  // frozen at PREOP -> SAFEOP
   std::vector<Binding> bindings_;

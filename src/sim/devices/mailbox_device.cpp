@@ -4,7 +4,8 @@
 //   0x2001:01 12-byte blob "hello-sim\0\0\0", 0x2002:01 80 bytes 0..79,
 //   0x2003:01 192 bytes 0..191, 0x2004:01 4096 bytes (byte i = i * 7 mod 256); all rw
 // Small process data: RxPDO 0x1600 led0, led1 (u8, SM2 0x1100, 2 bytes); TxPDO 0x1A00 button1
-// (u8, SM3 0x1180, 1 byte), which mirrors led0 unless forced.
+// (u8, SM3 0x1180, 1 byte), which mirrors led0 unless forced. VoE: every message is echoed with
+// vendor type + 1.
 #include <fmt/format.h>
 
 #include "sim/devices/profiles.hpp"
@@ -26,6 +27,10 @@ class MailboxDevice : public StandardApplication {
     add_entry_signal({"led_0", SignalDirection::output, "u8", ""}, 0x7000, 1);
     add_entry_signal({"led_1", SignalDirection::output, "u8", ""}, 0x7000, 2);
     add_entry_signal({"button_1", SignalDirection::input, "u8", ""}, 0x6000, 1);
+    // VoE (declared in the SII): every message echoed with vendor type + 1.
+    if (auto* coe = coe_server()) {
+      coe->set_protocol_handler(wire::MailboxType::voe, voe_handler(voe_echo));
+    }
   }
 
  protected:
@@ -43,7 +48,10 @@ Result<std::unique_ptr<Esc>> make_mailbox_device(const DeviceConfig& config) {
   wire::SiiImage sii;
   sii.identity = {kSimVendorId, 0x00001602, 0x00000001, 0x00000002};
   sii.standard_mailbox = {0x1000, 64, 0x1040, 64};
-  sii.mailbox_protocols = wire::mailbox_protocol::kCoe;
+  // FoE (a file store, firmware updates in BOOTSTRAP through a larger bootstrap mailbox).
+  sii.bootstrap_mailbox = {0x1200, 256, 0x1300, 256};
+  sii.mailbox_protocols = wire::mailbox_protocol::kCoe | wire::mailbox_protocol::kFoe |
+                          wire::mailbox_protocol::kVoe;
   SiiStrings strings(sii);
   wire::SiiGeneral general;
   general.order_index = strings.add("ECAT-MBX");

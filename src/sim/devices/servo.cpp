@@ -42,7 +42,9 @@ Result<std::unique_ptr<Esc>> make_servo(const DeviceConfig& config) {
   sii.pdi_control = 0x0C08;
   sii.identity = {kSimVendorId, 0x00002402, 0x00010000, 0x2001};
   sii.standard_mailbox = {0x1000, 128, 0x1080, 128};
-  sii.mailbox_protocols = wire::mailbox_protocol::kCoe;
+  // FoE (a file store, firmware updates in BOOTSTRAP through a larger bootstrap mailbox).
+  sii.bootstrap_mailbox = {0x1400, 512, 0x1600, 512};
+  sii.mailbox_protocols = wire::mailbox_protocol::kCoe | wire::mailbox_protocol::kFoe;
   SiiStrings strings(sii);
   wire::SiiGeneral general;
   general.order_index = strings.add("ECAT-SERVO");
