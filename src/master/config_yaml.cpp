@@ -78,7 +78,7 @@ class Reader {
             ctx_, node, path,
             {"backend", "cycle_priority", "cycle_cpu", "base_station", "frame_timeout_us",
              "scan_poll_ms", "scan_stable_ms", "scan_timeout_ms", "awaiting_preop_timeout_ms",
-             "retry_interval_ms", "link_recovery_window_ms"});
+             "retry_interval_ms", "link_recovery_window_ms", "control"});
         !r) {
       return r.error();
     }
@@ -89,6 +89,8 @@ class Reader {
         auto text = to_backend(v, p);
         if (!text) return text.error();
         config.backend = std::move(*text);
+      } else if (e.key == "control") {
+        if (auto r = control(v, p, config.control); !r) return r.error();
       } else if (e.key == "cycle_priority") {
         auto n = to_int(ctx_, v, p, 1, 99);
         if (!n) return n.error();
@@ -116,6 +118,49 @@ class Reader {
         if (e.key == "link_recovery_window_ms") config.link_recovery_window = *d;
       }
     }
+    return ok();
+  }
+
+  // control: NAME | {name: NAME, mode: "0660", writes: true}
+  Result<void> control(const SpecNode& node, const std::string& path,
+                       ControlEndpointConfig& config) {
+    const auto name = [&](const SpecNode& v, const std::string& p) -> Result<void> {
+      if (!v.is_scalar() || v.text.empty()) {
+        return spec_error(ctx_, v, p, "must be an endpoint name or a socket path");
+      }
+      if (v.text.size() > 100) {
+        return spec_error(ctx_, v, p, "is longer than 100 characters (a socket path's limit)");
+      }
+      config.name = v.text;
+      return ok();
+    };
+    if (node.is_scalar()) return name(node, path);
+    if (!node.is_mapping()) {
+      return spec_error(ctx_, node, path, "must be a name or a mapping {name, mode, writes}");
+    }
+    if (auto r = check_keys(ctx_, node, path, {"name", "mode", "writes"}); !r) return r.error();
+    for (const auto& e : node.entries) {
+      const auto p = join_path(path, e.key);
+      const SpecNode& v = e.value;
+      if (e.key == "name") {
+        if (auto r = name(v, p); !r) return r.error();
+      } else if (e.key == "mode") {
+        // Octal, as chmod takes it: "0660" or "660".
+        const std::string& t = v.text;
+        const bool octal = v.is_scalar() && !t.empty() && t.size() <= 4 &&
+                           t.find_first_not_of("01234567") == std::string::npos;
+        const auto mode = octal ? std::stoul(t, nullptr, 8) : 0x1000ul;
+        if (mode > 0777) {
+          return spec_error(ctx_, v, p, "must be an octal permission such as \"0660\"");
+        }
+        config.mode = static_cast<std::uint32_t>(mode);
+      } else if (e.key == "writes") {
+        auto b = to_bool(ctx_, v, p);
+        if (!b) return b.error();
+        config.allow_writes = *b;
+      }
+    }
+    if (config.name.empty()) return spec_error(ctx_, node, path, "needs a name");
     return ok();
   }
 

@@ -10,7 +10,9 @@
 #include <ecat/exec/quiesce.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/exec/transact.hpp>
+#include <ecat/ipc/line_server.hpp>
 #include <ecat/master/al_control.hpp>
+#include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/startup.hpp>
 
@@ -50,6 +52,72 @@ struct Master::Impl : DomainObserver {
 
   MasterConfig config;
   EventHub events;  // before the loop: it outlives every task that publishes
+
+  // The control endpoint (control_endpoint.hpp): from the first start() whose configuration
+  // names one until the master goes (or a start() names another). Its handler calls the
+  // Master's public API, so ~Master closes it before anything else goes.
+  struct Endpoint {
+    std::unique_ptr<ipc::LineServer> server;
+    ControlEndpointConfig config;
+    EventSubscriptionId events = 0;
+  };
+  Endpoint endpoint;
+  std::mutex endpoint_mutex;  // start() and ~Master (application threads)
+
+  Result<void> open_endpoint(Master& master) {
+    std::lock_guard lock(endpoint_mutex);
+    const ControlEndpointConfig& want = config.control;
+    if (endpoint.server && want.name == endpoint.config.name && want.mode == endpoint.config.mode &&
+        want.allow_writes == endpoint.config.allow_writes) {
+      return ok();
+    }
+    close_endpoint_locked();
+    if (want.name.empty()) return ok();
+    const ControlAccess access{want.allow_writes};
+    auto started = ipc::LineServer::start(
+        control_socket_path(want.name),
+        [&master, access](std::string_view line, const ipc::Peer&) {
+          bool follow = false;
+          std::string reply = handle_control_request(master, line, access, &follow);
+          return ipc::Reply{std::move(reply), follow};
+        },
+        // The server's own refusals (fixed texts without quotes): too many clients, or a line
+        // beyond the limit.
+        [](std::string_view message) {
+          const bool busy = message.starts_with("too many");
+          return fmt::format(R"({{"ok":false,"error":"{}","code":"{}"}})", message,
+                             busy ? "busy" : "out_of_range");
+        },
+        {.mode = want.mode, .what = "master"});
+    if (!started) {
+      return started.error().context(
+          started.error().code(),
+          fmt::format("opening the control endpoint '{}' (master: control:)", want.name));
+    }
+    endpoint.server = std::move(*started);
+    endpoint.config = want;
+    ipc::LineServer* server = endpoint.server.get();
+    endpoint.events = events.subscribe([server](const Event& e, std::uint64_t missed) {
+      if (missed != 0) {
+        server->publish(fmt::format(R"({{"event":"events.missed","count":{}}})", missed));
+      }
+      server->publish(event_json(e));
+    });
+    return ok();
+  }
+
+  void close_endpoint_locked() {
+    if (!endpoint.server) return;
+    (void)events.unsubscribe(endpoint.events);
+    endpoint.server->stop();
+    endpoint.server.reset();
+    endpoint.config = {};
+  }
+
+  void close_endpoint() {
+    std::lock_guard lock(endpoint_mutex);
+    close_endpoint_locked();
+  }
   exec::EventLoop loop;
   std::shared_ptr<Session> session;  // loop thread writes; guarded by `mutex` for readers
 
@@ -1155,7 +1223,10 @@ struct Master::Impl : DomainObserver {
 
 Master::Master(MasterConfig config) : impl_(std::make_unique<Impl>(std::move(config))) {}
 
-Master::~Master() = default;
+Master::~Master() {
+  // The endpoint's requests call this Master: none may run once its parts start to go.
+  impl_->close_endpoint();
+}
 
 Result<void> Master::start(std::unique_ptr<link::Link> link, MasterConfig config) {
   if (state() != MasterState::idle) {
@@ -1169,6 +1240,9 @@ Result<void> Master::start(std::unique_ptr<link::Link> link, MasterConfig config
 Result<void> Master::start(std::unique_ptr<link::Link> link) {
   if (!link) return Error(Errc::invalid_argument, "start: no link given");
   if (auto valid = validate(impl_->config); !valid) return valid.error();
+  if (state() == MasterState::idle) {
+    if (auto opened = impl_->open_endpoint(*this); !opened) return opened.error();
+  }
   auto started = exec::run_blocking(
       impl_->loop,
       [](Impl& impl, std::unique_ptr<link::Link> l) -> exec::Task<Result<void>> {

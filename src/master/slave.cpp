@@ -935,6 +935,12 @@ Result<wire::SiiIdentity> Slave::identity() const {
   return *impl_->known_identity;
 }
 
+Result<std::vector<std::uint8_t>> Slave::sii_image() const {
+  std::lock_guard lock(impl_->mutex);
+  if (!impl_->sii) return Error(Errc::not_ready, fmt::format("{}: SII not read yet", impl_->who()));
+  return impl_->sii->bytes;
+}
+
 SlaveInfo Slave::info() const {
   std::lock_guard lock(impl_->mutex);
   SlaveInfo out;

@@ -19,6 +19,7 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <ecat/ipc/line_server.hpp>
 #include <ecat/sim/control.hpp>
 #include <ecat/sim/faults.hpp>
 
@@ -381,157 +382,8 @@ std::string handle_control_request(SimServer& server, std::string_view request) 
 
 // ---- The socket -----------------------------------------------------------------------------
 
-namespace {
-
-constexpr std::size_t kMaxClients = 16;
-constexpr std::size_t kMaxPendingOutput = 4u << 20;
-
-Result<sockaddr_un> unix_address(const std::string& path) {
-  sockaddr_un address{};
-  address.sun_family = AF_UNIX;
-  if (path.empty() || path.size() >= sizeof address.sun_path) {
-    return Error(Errc::invalid_argument,
-                 fmt::format("control socket path '{}' must be 1 to {} bytes long", path,
-                             sizeof address.sun_path - 1));
-  }
-  std::memcpy(address.sun_path, path.data(), path.size());
-  return address;
-}
-
-bool someone_listens(const std::string& path) {
-  auto address = unix_address(path);
-  if (!address) return false;
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  if (fd < 0) return false;
-  const bool ok = ::connect(fd, reinterpret_cast<const sockaddr*>(&*address), sizeof *address) == 0;
-  ::close(fd);
-  return ok;
-}
-
-}  // namespace
-
 struct ControlServer::Impl {
-  struct Client {
-    int fd = -1;
-    std::string input;
-    std::string output;
-    bool closing = false;  // close once the output is flushed
-  };
-
-  SimServer* server = nullptr;
-  std::string path;
-  int listen_fd = -1;
-  int wake[2] = {-1, -1};
-  std::thread thread;
-  std::atomic<bool> stopping{false};
-  std::vector<Client> clients;
-
-  ~Impl() {
-    for (auto& c : clients)
-      ::close(c.fd);
-    if (listen_fd >= 0) ::close(listen_fd);
-    for (int fd : wake) {
-      if (fd >= 0) ::close(fd);
-    }
-  }
-
-  void flush(Client& c) {
-    while (!c.output.empty()) {
-      const ssize_t n = ::send(c.fd, c.output.data(), c.output.size(), MSG_DONTWAIT | MSG_NOSIGNAL);
-      if (n > 0) {
-        c.output.erase(0, static_cast<std::size_t>(n));
-        continue;
-      }
-      if (n < 0 && errno == EINTR) continue;
-      if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return;
-      c.output.clear();
-      c.closing = true;
-      c.input.clear();
-      return;
-    }
-  }
-
-  // Returns false when the client is gone.
-  bool read_client(Client& c) {
-    char chunk[4096];
-    const ssize_t n = ::recv(c.fd, chunk, sizeof chunk, MSG_DONTWAIT);
-    if (n == 0) return false;
-    if (n < 0) return errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR;
-    if (c.closing) return true;
-    c.input.append(chunk, static_cast<std::size_t>(n));
-    std::size_t start = 0;
-    while (true) {
-      const auto newline = c.input.find('\n', start);
-      if (newline == std::string::npos) break;
-      const std::string_view line(c.input.data() + start, newline - start);
-      if (!line.empty() && line.find_first_not_of(" \t\r") != std::string_view::npos) {
-        c.output += handle_control_request(*server, line);
-        c.output += '\n';
-      }
-      start = newline + 1;
-    }
-    c.input.erase(0, start);
-    if (c.input.size() > kMaxControlLine) {
-      c.output +=
-          error_reply(fmt::format("request: line longer than {} bytes; closing", kMaxControlLine));
-      c.output += '\n';
-      c.input.clear();
-      c.closing = true;
-    }
-    if (c.output.size() > kMaxPendingOutput) return false;  // a client that never reads
-    return true;
-  }
-
-  void run() {
-    std::vector<pollfd> fds;
-    while (!stopping.load()) {
-      fds.clear();
-      fds.push_back({wake[0], POLLIN, 0});
-      fds.push_back({listen_fd, POLLIN, 0});
-      for (const auto& c : clients) {
-        short events = POLLIN;
-        if (!c.output.empty()) events |= POLLOUT;
-        fds.push_back({c.fd, events, 0});
-      }
-      if (::poll(fds.data(), fds.size(), -1) < 0) {
-        if (errno == EINTR) continue;
-        break;
-      }
-      if (fds[0].revents != 0) break;
-      if ((fds[1].revents & POLLIN) != 0) {
-        const int fd = ::accept4(listen_fd, nullptr, nullptr, SOCK_CLOEXEC | SOCK_NONBLOCK);
-        if (fd >= 0) {
-          if (clients.size() >= kMaxClients) {
-            const std::string busy =
-                error_reply(fmt::format("too many control clients (at most {})", kMaxClients)) +
-                "\n";
-            (void)::send(fd, busy.data(), busy.size(), MSG_DONTWAIT | MSG_NOSIGNAL);
-            ::close(fd);
-          } else {
-            clients.push_back(Client{fd, {}, {}, false});
-          }
-        }
-      }
-      // fds[2 + i] belongs to clients[i] as they were before accepting.
-      const std::size_t polled = fds.size() - 2;
-      std::vector<std::size_t> gone;
-      for (std::size_t i = 0; i < polled; ++i) {
-        Client& c = clients[i];
-        const short revents = fds[2 + i].revents;
-        bool alive = true;
-        if ((revents & POLLIN) != 0) alive = read_client(c);
-        if (alive && (revents & (POLLERR | POLLNVAL)) != 0) alive = false;
-        if (alive && (revents & POLLHUP) != 0 && (revents & POLLIN) == 0) alive = false;
-        if (alive) flush(c);
-        if (alive && c.closing && c.output.empty()) alive = false;
-        if (!alive) gone.push_back(i);
-      }
-      for (auto it = gone.rbegin(); it != gone.rend(); ++it) {
-        ::close(clients[*it].fd);
-        clients.erase(clients.begin() + static_cast<std::ptrdiff_t>(*it));
-      }
-    }
-  }
+  std::unique_ptr<ipc::LineServer> server;
 };
 
 ControlServer::ControlServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -541,97 +393,38 @@ ControlServer::~ControlServer() {
 }
 
 const std::string& ControlServer::path() const noexcept {
-  return impl_->path;
+  return impl_->server->path();
 }
 
 Result<std::unique_ptr<ControlServer>> ControlServer::start(SimServer& server, std::string path) {
-  auto address = unix_address(path);
-  if (!address) return std::move(address).error();
-  struct stat info {};
-  if (::lstat(path.c_str(), &info) == 0) {
-    if (!S_ISSOCK(info.st_mode)) {
-      return Error(Errc::busy,
-                   fmt::format("control socket path '{}' exists and is not a socket", path));
-    }
-    if (someone_listens(path)) {
-      return Error(Errc::busy, fmt::format("another simulator already listens on '{}'", path));
-    }
-    ::unlink(path.c_str());
-  }
   auto impl = std::make_unique<Impl>();
-  impl->server = &server;
-  impl->path = path;
-  impl->listen_fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  if (impl->listen_fd < 0) {
-    return Error(Errc::io_error, fmt::format("control socket: {}", std::strerror(errno)));
-  }
-  // Owner only: the channel can power-cycle slaves and inject faults.
-  const mode_t old_mask = ::umask(0077);
-  const int bound =
-      ::bind(impl->listen_fd, reinterpret_cast<const sockaddr*>(&*address), sizeof *address);
-  const int bind_errno = errno;
-  ::umask(old_mask);
-  if (bound != 0) {
-    return Error(
-        bind_errno == EACCES ? Errc::permission_denied : Errc::io_error,
-        fmt::format("cannot bind the control socket '{}': {}", path, std::strerror(bind_errno)));
-  }
-  if (::listen(impl->listen_fd, 8) != 0 || ::pipe2(impl->wake, O_CLOEXEC | O_NONBLOCK) != 0) {
-    const int err = errno;
-    ::unlink(path.c_str());
-    return Error(Errc::io_error, fmt::format("control socket '{}': {}", path, std::strerror(err)));
-  }
-  Impl* raw = impl.get();
-  impl->thread = std::thread([raw] { raw->run(); });
+  // Owner only (the default mode): the channel can power-cycle slaves and inject faults.
+  auto started = ipc::LineServer::start(
+      std::move(path),
+      [&server](std::string_view line, const ipc::Peer&) {
+        return ipc::Reply{handle_control_request(server, line)};
+      },
+      [](std::string_view message) { return error_reply(message); },
+      {.max_line = kMaxControlLine, .what = "simulator"});
+  if (!started) return std::move(started).error();
+  impl->server = std::move(*started);
   return std::unique_ptr<ControlServer>(new ControlServer(std::move(impl)));
 }
 
 void ControlServer::stop() {
-  if (!impl_ || !impl_->thread.joinable()) return;
-  impl_->stopping = true;
-  const char byte = 1;
-  (void)!::write(impl_->wake[1], &byte, 1);
-  impl_->thread.join();
-  ::unlink(impl_->path.c_str());
+  if (impl_ && impl_->server) impl_->server->stop();
 }
 
 std::string default_control_path() {
-  const char* runtime = std::getenv("XDG_RUNTIME_DIR");
-  const std::string dir = runtime != nullptr && *runtime != '\0' ? runtime : "/tmp";
-  return fmt::format("{}/ecat-sim-{}.sock", dir, ::getpid());
+  return fmt::format("{}/ecat-sim-{}.sock", ipc::runtime_dir(), ::getpid());
 }
 
 Result<std::string> find_control_socket() {
-  std::vector<std::string> dirs;
-  if (const char* runtime = std::getenv("XDG_RUNTIME_DIR"); runtime != nullptr && *runtime) {
-    dirs.emplace_back(runtime);
-  }
-  dirs.emplace_back("/tmp");
-  std::vector<std::string> alive;
-  for (const auto& dir : dirs) {
-    std::error_code ec;
-    for (std::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-      const std::string name = it->path().filename().string();
-      if (name.rfind("ecat-sim-", 0) != 0 || name.size() < 5 ||
-          name.substr(name.size() - 5) != ".sock") {
-        continue;
-      }
-      const std::string path = it->path().string();
-      // Only this user's own sockets: another user's simulator (or a socket planted in /tmp under
-      // a matching name) is never talked to unless named with --control.
-      struct stat st {};
-      if (::lstat(path.c_str(), &st) != 0 || !S_ISSOCK(st.st_mode) || st.st_uid != ::geteuid()) {
-        continue;
-      }
-      if (std::find(alive.begin(), alive.end(), path) == alive.end() && someone_listens(path)) {
-        alive.push_back(path);
-      }
-    }
-  }
+  const auto alive = ipc::find_sockets("ecat-sim-");
   if (alive.size() == 1) return alive.front();
-  std::string where;
-  for (const auto& d : dirs)
-    where += (where.empty() ? "" : " and ") + d;
+  std::string where = std::getenv("XDG_RUNTIME_DIR") != nullptr && *std::getenv("XDG_RUNTIME_DIR")
+                          ? std::string(std::getenv("XDG_RUNTIME_DIR")) + " and /tmp"
+                          : std::string("/tmp");
   if (alive.empty()) {
     return Error(Errc::not_found,
                  fmt::format("no running simulator found (no live ecat-sim-*.sock of yours in {}); "
@@ -648,64 +441,7 @@ Result<std::string> find_control_socket() {
 
 Result<std::string> control_call(const std::string& path, std::string_view request,
                                  std::chrono::milliseconds timeout) {
-  auto address = unix_address(path);
-  if (!address) return std::move(address).error();
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  if (fd < 0) return Error(Errc::io_error, fmt::format("socket: {}", std::strerror(errno)));
-  struct Closer {
-    int fd;
-    ~Closer() { ::close(fd); }
-  } closer{fd};
-  if (::connect(fd, reinterpret_cast<const sockaddr*>(&*address), sizeof *address) != 0) {
-    const int err = errno;
-    return Error(err == ENOENT || err == ECONNREFUSED ? Errc::not_found : Errc::io_error,
-                 fmt::format("cannot reach the simulator at '{}': {}", path, std::strerror(err)));
-  }
-  std::string line(request);
-  while (!line.empty() && (line.back() == '\n' || line.back() == '\r'))
-    line.pop_back();
-  if (line.find('\n') != std::string::npos) {
-    return Error(Errc::invalid_argument, "a control request is one line");
-  }
-  line += '\n';
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  const auto remaining_ms = [&] {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-        deadline - std::chrono::steady_clock::now());
-    return static_cast<int>(std::max<std::int64_t>(0, left.count()));
-  };
-  for (std::size_t sent = 0; sent < line.size();) {
-    const ssize_t n = ::send(fd, line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return Error(Errc::io_error, fmt::format("sending to '{}': {}", path, std::strerror(errno)));
-    }
-    sent += static_cast<std::size_t>(n);
-  }
-  std::string reply;
-  char chunk[8192];
-  while (true) {
-    pollfd p{fd, POLLIN, 0};
-    const int ready = ::poll(&p, 1, remaining_ms());
-    if (ready < 0 && errno == EINTR) continue;
-    if (ready <= 0) {
-      return Error(Errc::timeout, fmt::format("no reply from the simulator at '{}' within {} ms",
-                                              path, timeout.count()));
-    }
-    const ssize_t n = ::recv(fd, chunk, sizeof chunk, 0);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      return Error(Errc::closed, fmt::format("the simulator at '{}' closed the connection", path));
-    }
-    reply.append(chunk, static_cast<std::size_t>(n));
-    if (const auto newline = reply.find('\n'); newline != std::string::npos) {
-      reply.resize(newline);
-      return reply;
-    }
-    if (reply.size() > (64u << 20)) {
-      return Error(Errc::malformed, "the simulator's reply is longer than 64 MiB");
-    }
-  }
+  return ipc::call(path, request, timeout, "simulator");
 }
 
 }  // namespace ecat::sim

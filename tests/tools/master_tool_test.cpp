@@ -102,7 +102,7 @@ TEST(MasterTool, SlavesJsonListsIdentityAndPorts) {
   ToolRunner tool("slaves");
   const auto r = tool.run("slaves --backend 'sim:" + default_ring() + "' --json");
   ASSERT_EQ(r.status, 0) << r.out << r.err;
-  const auto list = json::parse(r.out);
+  const auto list = json::parse(r.out)["slaves"];
   ASSERT_TRUE(list.is_array());
   ASSERT_EQ(list.size(), 5u);
   const auto& inputs = list[1];

@@ -3,7 +3,7 @@
 //
 //   ecat run examples/default.yaml --duration 3
 //   ecat run my-line.yaml --backend raw:eth0
-//   ecat slaves --backend udp:127.0.0.1:34980     (dynamic session: every slave held in PREOP)
+//   ecat run my-line.yaml --chase                (writes outputs: a lit bit walks over them)
 //
 // Backends are written raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Ctrl-C (or the end of
 // --duration) takes every slave back to INIT before the command exits.
@@ -49,60 +49,11 @@ struct Options {
   double duration_s = 2.0;
   double timeout_s = 20.0;
   bool json = false;
-  bool chase = true;
+  bool chase = false;  // outputs are written only when asked (--chase)
   bool events = false;
 };
 
-// The link and configuration a run uses.
-struct Setup {
-  std::unique_ptr<ecat::link::Link> link;
-  MasterConfig config;
-  std::string link_name;
-};
-
-std::optional<Setup> prepare(const Options& options, bool dynamic) {
-  Setup setup;
-  std::string spec = options.link;
-  if (!options.ring.empty()) {
-    auto config = ecat::master::load_master_config(options.ring);
-    if (!config) {
-      fmt::print(stderr, "ecat: {}\n", config.error().describe());
-      return std::nullopt;
-    }
-    setup.config = std::move(*config);
-    if (spec.empty()) spec = setup.config.backend;
-    if (spec.empty()) {
-      auto ring = ecat::sim::load_ring(options.ring);
-      if (!ring) {
-        fmt::print(stderr, "ecat: {}\n", ring.error().describe());
-        return std::nullopt;
-      }
-      if (ring->slaves.empty()) {
-        fmt::print(stderr,
-                   "ecat: {} has no simulator section: give the master's link with --backend\n",
-                   options.ring);
-        return std::nullopt;
-      }
-      spec = "sim:" + options.ring;
-    }
-  }
-  if (spec.empty()) {
-    fmt::print(stderr, "ecat: give a ring file (a simulated ring) or --backend SPEC\n");
-    return std::nullopt;
-  }
-  if (dynamic) {
-    setup.config.slaves.clear();
-    setup.config.domains.clear();
-  }
-  auto backend = ecat::sim::open_backend(spec);
-  if (!backend) {
-    fmt::print(stderr, "ecat: {}\n", backend.error().describe());
-    return std::nullopt;
-  }
-  setup.link = std::move(backend->link);
-  setup.link_name = spec;
-  return setup;
-}
+using ecat::tool::prepare;
 
 // Walks a lit bit over every boolean output the session has, so the run shows process data
 // moving (on the default ring the EL2809 outputs are wired to the EL1809 inputs).
@@ -134,7 +85,7 @@ struct Chase {
 
 int run_session(const Options& options) {
   ecat::tool::catch_interrupts();
-  auto setup = prepare(options, false);
+  auto setup = prepare(options.ring, options.link, false);
   if (!setup) return 2;
   Master master(setup->config);
   if (options.events) {
@@ -230,33 +181,6 @@ int run_session(const Options& options) {
   return operational ? 0 : 1;
 }
 
-int list_slaves(const Options& options) {
-  auto setup = prepare(options, true);
-  if (!setup) return 2;
-  Master master(setup->config);
-  if (auto started = master.start(std::move(setup->link)); !started) {
-    fmt::print(stderr, "ecat: {}\n", started.error().describe());
-    return 1;
-  }
-  const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(
-      std::chrono::duration<double>(options.timeout_s));
-  if (auto running = master.await_running(timeout); !running) {
-    return report_failure(master, running.error());
-  }
-  if (options.json) {
-    json list = json::array();
-    for (const auto& s : master.slaves()) {
-      auto slave = master.slave(s.name);
-      if (slave) list.push_back(ecat::tool::slave_json((*slave)->info()));
-    }
-    fmt::print("{}\n", list.dump(2, ' ', false, json::error_handler_t::replace));
-  } else {
-    print_slaves(master, true);
-  }
-  (void)master.stop();
-  return 0;
-}
-
 void add_common(CLI::App* app, Options& o) {
   app->add_option("RING,--ring", o.ring,
                   "Ring file: the master's sections, and with a simulator section the simulated "
@@ -274,21 +198,13 @@ ecat::tool::Command setup_run(CLI::App& parent) {
   add_common(app, *options);
   app->add_option("--duration", options->duration_s, "Seconds to run once operational")
       ->check(ecat::tool::run_seconds());
-  app->add_flag("!--no-chase", options->chase, "Do not walk a lit bit over the boolean outputs");
+  app->add_flag("--chase,!--no-chase", options->chase,
+                "Walk a lit bit over every boolean output (writes outputs: off by default)");
   app->add_flag("--events", options->events,
                 "Print the master's event stream live (with --json: one JSON object per line)");
   return {app, [options] { return run_session(*options); }};
 }
 
-ecat::tool::Command setup_slaves(CLI::App& parent) {
-  auto* app = parent.add_subcommand(
-      "slaves", "Discover the ring and list its slaves (every slave held in PREOP)");
-  auto options = std::make_shared<Options>();
-  add_common(app, *options);
-  return {app, [options] { return list_slaves(*options); }};
-}
-
 const bool registered_run = ecat::tool::register_command(&setup_run);
-const bool registered_slaves = ecat::tool::register_command(&setup_slaves);
 
 }  // namespace

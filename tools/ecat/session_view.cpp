@@ -4,6 +4,11 @@
 
 #include <fmt/format.h>
 
+#include <ecat/sim/backend.hpp>
+#include <ecat/sim/ring.hpp>
+
+#include "master/json_view.hpp"
+
 namespace ecat::tool {
 namespace {
 
@@ -89,68 +94,57 @@ void print_dc(master::Master& master) {
   }
 }
 
-json slave_json(const master::SlaveInfo& info) {
-  json j{{"position", info.position}, {"station", info.station},
-         {"name", info.name},         {"state", std::string(to_string(info.state))},
-         {"driver", info.driver},     {"device", info.device_name}};
-  if (info.identity) {
-    j["identity"] = {{"vendor_id", info.identity->vendor_id},
-                     {"product_code", info.identity->product_code},
-                     {"revision", info.identity->revision},
-                     {"serial", info.identity->serial}};
-  } else {
-    j["identity"] = nullptr;
-  }
-  j["ports"] = json::array();
-  if (info.dl_status) {
-    for (const auto& port : info.dl_status->ports) {
-      j["ports"].push_back({{"link", port.physical_link},
-                            {"loop_closed", port.loop_closed},
-                            {"communication", port.communication}});
-    }
-  }
-  if (info.configuration_error) j["configuration_error"] = *info.configuration_error;
-  j["signals"] = json::array();
-  for (const auto& sig : info.signals)
-    j["signals"].push_back(sig.name);
-  return j;
+nlohmann::ordered_json slave_json(const master::SlaveInfo& info) {
+  return master::detail::slave_json(info);
 }
 
-json status_json(master::Master& master) {
-  json out;
-  out["state"] = std::string(to_string(master.state()));
-  out["slaves"] = json::array();
-  for (const auto& s : master.slaves()) {
-    auto slave = master.slave(s.name);
-    if (slave) out["slaves"].push_back(slave_json((*slave)->info()));
+nlohmann::ordered_json status_json(master::Master& master) {
+  return master::detail::status_json(master);
+}
+
+std::optional<Setup> prepare(const std::string& ring_file, const std::string& backend,
+                             bool dynamic) {
+  Setup setup;
+  std::string spec = backend;
+  if (!ring_file.empty()) {
+    auto config = ecat::master::load_master_config(ring_file);
+    if (!config) {
+      fmt::print(stderr, "ecat: {}\n", config.error().describe());
+      return std::nullopt;
+    }
+    setup.config = std::move(*config);
+    if (spec.empty()) spec = setup.config.backend;
+    if (spec.empty()) {
+      auto ring = ecat::sim::load_ring(ring_file);
+      if (!ring) {
+        fmt::print(stderr, "ecat: {}\n", ring.error().describe());
+        return std::nullopt;
+      }
+      if (ring->slaves.empty()) {
+        fmt::print(stderr,
+                   "ecat: {} has no simulator section: give the master's link with --backend\n",
+                   ring_file);
+        return std::nullopt;
+      }
+      spec = "sim:" + ring_file;
+    }
   }
-  out["domains"] = json::array();
-  for (const auto& d : master.domains()) {
-    out["domains"].push_back({{"id", d.id},
-                              {"state", d.state},
-                              {"period_ns", d.period.count()},
-                              {"image_size", d.image_size},
-                              {"expected_wkc", d.expected_wkc},
-                              {"cycles", d.cycles},
-                              {"misses", d.total_misses},
-                              {"healthy", d.healthy}});
+  if (spec.empty()) {
+    fmt::print(stderr, "ecat: give a ring file (a simulated ring) or --backend SPEC\n");
+    return std::nullopt;
   }
-  if (auto dc = master.dc_status()) {
-    out["dc"] = {{"locked", dc->locked},
-                 {"reference_station", dc->reference_station},
-                 {"max_difference_ns", dc->max_difference_ns},
-                 {"phase_error_ns", dc->phase_error_ns},
-                 {"phase_target_ns", dc->phase_target_ns},
-                 {"follows_reference", dc->follows_reference},
-                 {"phase_settled", dc->phase_settled},
-                 {"cycle_rate_ppm", dc->cycle_rate_ppm},
-                 {"reference_drift_ppm", dc->reference_drift_ppm},
-                 {"lock_count", dc->lock_count},
-                 {"unlock_count", dc->unlock_count}};
-  } else {
-    out["dc"] = {{"error", dc.error().message()}};
+  if (dynamic) {
+    setup.config.slaves.clear();
+    setup.config.domains.clear();
   }
-  return out;
+  auto opened = ecat::sim::open_backend(spec);
+  if (!opened) {
+    fmt::print(stderr, "ecat: {}\n", opened.error().describe());
+    return std::nullopt;
+  }
+  setup.link = std::move(opened->link);
+  setup.link_name = spec;
+  return setup;
 }
 
 int report_failure(master::Master& master, const Error& error) {

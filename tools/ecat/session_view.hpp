@@ -1,11 +1,28 @@
 // How the `ecat` subcommands that run a master session (run, slaves, demo) show it.
 #pragma once
 
+#include <memory>
+#include <optional>
+#include <string>
+
 #include <nlohmann/json.hpp>
 
+#include <ecat/link/link.hpp>
 #include <ecat/master/master.hpp>
 
 namespace ecat::tool {
+
+// The link and configuration a command's own session uses.
+struct Setup {
+  std::unique_ptr<ecat::link::Link> link;
+  master::MasterConfig config;
+  std::string link_name;
+};
+// From a ring file (its master sections; its simulator section when it names no backend) and/or
+// a backend spec (raw:IFACE, udp:HOST:PORT, sim:RING.yaml). `dynamic`: every slave found, held in
+// PREOP, no process data (the file's slaves and domains are dropped). Prints why not and returns
+// nullopt on a bad file or backend.
+std::optional<Setup> prepare(const std::string& ring, const std::string& backend, bool dynamic);
 
 // One line per slave (position, station, name, state, driver, identity, device name), with its
 // retained configuration error and, when asked, its signal names.
@@ -14,10 +31,10 @@ void print_domains(master::Master& master);
 // One line on the distributed clocks (reference, lock, differences), or why they do not run.
 void print_dc(master::Master& master);
 // The whole session as a JSON document: state, slaves, domains.
-nlohmann::json status_json(master::Master& master);
+nlohmann::ordered_json status_json(master::Master& master);
 // A slave as `ecat slaves --json` lists it: position, station, name, state, identity {vendor_id,
 // product_code, revision, serial}, ports.
-nlohmann::json slave_json(const master::SlaveInfo& info);
+nlohmann::ordered_json slave_json(const master::SlaveInfo& info);
 // Prints why the session did not get running (activation failures, last failure); returns 1.
 int report_failure(master::Master& master, const Error& error);
 

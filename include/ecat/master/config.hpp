@@ -435,10 +435,25 @@ struct CycleThreadOptions {
 // MasterConfig::drivers starts with.
 DriverRegistry builtin_drivers();
 
+// A master's control endpoint (master/control_endpoint.hpp): a local Unix socket through which
+// another process (`ecat ... --attach`, scripts, dashboards) looks at the running master and,
+// when writes are allowed, changes what it does. Off unless `name` is set.
+struct ControlEndpointConfig {
+  // A name ("line1": $XDG_RUNTIME_DIR/ecat-master-line1.sock, or /tmp/... without
+  // XDG_RUNTIME_DIR) or a path (anything with a '/'). Empty: no endpoint.
+  std::string name{};
+  // Permissions of the socket file: who may connect (owner only by default).
+  std::uint32_t mode = 0600;
+  // Requests that change what the master does (stage outputs, request states, SDO downloads,
+  // register and EEPROM writes) are refused unless this is set.
+  bool allow_writes = false;
+};
+
 struct MasterConfig {
   // What the master talks to when the caller does not say (ring files: `master: backend:`):
   // raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Master::start takes a link; tools open this one.
   std::string backend{};
+  ControlEndpointConfig control{};
   CycleThreadOptions cycle_thread{};
   std::uint16_t base_station = 0x1000;
   // Empty: every slave found is managed, held in PREOP with no process data: the dynamic,

@@ -108,6 +108,9 @@ class Slave {
   std::optional<std::uint16_t> error() const;
   // Vendor, product, revision, serial (from the SII); Errc::not_ready before it was read.
   Result<wire::SiiIdentity> identity() const;
+  // The SII EEPROM image as read when the slave was brought up (words 0 up to the end marker);
+  // Errc::not_ready before it was read.
+  Result<std::vector<std::uint8_t>> sii_image() const;
   SlaveInfo info() const;
 
   // Walks the AL state machine to `target` (intermediate states included). Errc::al_error with

@@ -1,0 +1,461 @@
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include <ecat/bus/bus.hpp>
+#include <ecat/ipc/line_server.hpp>
+#include <ecat/master/control_endpoint.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/master/master.hpp>
+#include <ecat/master/slave.hpp>
+#include <ecat/version.hpp>
+
+#include "master/json_view.hpp"
+
+namespace ecat::master {
+
+namespace {
+
+using detail::Json;
+
+constexpr std::array<std::string_view, 20> kOps{
+    "ping",         "status",       "slaves",        "slave",         "domains",
+    "domain.data",  "dc",           "counters",      "events.follow", "sdo.upload",
+    "sdo.list",     "sdo.describe", "signal.read",   "reg.read",      "sii.read",
+    "sdo.download", "output.write", "state.request", "reg.write",     "help"};
+constexpr std::array<std::string_view, 5> kWriteOps{"sdo.download", "output.write", "state.request",
+                                                    "reg.write"};
+
+// Largest register range one reg.read / reg.write moves (one datagram of a standard frame).
+constexpr std::size_t kMaxRegisterBytes = 1486;
+
+}  // namespace
+
+std::string control_error_code(Errc code) {
+  std::string name(to_string(code));
+  std::replace(name.begin(), name.end(), ' ', '_');
+  return name;
+}
+
+namespace {
+
+std::string error_line(std::string_view message, Errc code, const std::optional<Json>& id) {
+  Json out{{"ok", false}};
+  if (id) out["id"] = *id;
+  out["error"] = message;
+  out["code"] = control_error_code(code);
+  return out.dump(-1, ' ', false, Json::error_handler_t::replace);
+}
+
+// The fields of one request, each read with the error a caller can act on.
+class Request {
+ public:
+  explicit Request(const Json& json) : json_(json) {}
+
+  Result<std::string> text(const char* key) const {
+    auto it = json_.find(key);
+    if (it == json_.end()) return missing(key);
+    if (!it->is_string()) return wrong(key, "a string");
+    return it->get<std::string>();
+  }
+  std::optional<std::string> optional_text(const char* key) const {
+    auto it = json_.find(key);
+    if (it == json_.end() || !it->is_string()) return std::nullopt;
+    return it->get<std::string>();
+  }
+  // A non-negative integer up to `max`: a JSON number or a string ("0x6041" or decimal).
+  Result<std::uint64_t> number(const char* key, std::uint64_t max) const {
+    auto it = json_.find(key);
+    if (it == json_.end()) return missing(key);
+    std::optional<std::uint64_t> value;
+    if (it->is_number_unsigned()) {
+      value = it->get<std::uint64_t>();
+    } else if (it->is_number_integer() && it->get<std::int64_t>() >= 0) {
+      value = static_cast<std::uint64_t>(it->get<std::int64_t>());
+    } else if (it->is_string()) {
+      const std::string t = it->get<std::string>();
+      const bool hex = t.size() > 2 && (t.starts_with("0x") || t.starts_with("0X"));
+      const std::string digits = hex ? t.substr(2) : t;
+      const char* allowed = hex ? "0123456789abcdefABCDEF" : "0123456789";
+      if (!digits.empty() && digits.size() <= 16 &&
+          digits.find_first_not_of(allowed) == std::string::npos) {
+        value = std::stoull(digits, nullptr, hex ? 16 : 10);
+      }
+    }
+    if (!value || *value > max) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("{}: must be a number from 0 to {} (0x{:x})", key, max, max));
+    }
+    return *value;
+  }
+  bool flag(const char* key) const {
+    auto it = json_.find(key);
+    return it != json_.end() && it->is_boolean() && it->get<bool>();
+  }
+  Result<std::vector<std::uint8_t>> bytes(const char* key) const {
+    auto t = text(key);
+    if (!t) return t.error();
+    std::string digits;
+    for (char c : *t) {
+      if (c != ' ' && c != ':') digits += c;
+    }
+    if (digits.size() % 2 != 0 ||
+        digits.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("{}: must be hex bytes (\"0a1b\" or \"0a 1b\")", key));
+    }
+    std::vector<std::uint8_t> out;
+    for (std::size_t i = 0; i < digits.size(); i += 2)
+      out.push_back(static_cast<std::uint8_t>(std::stoul(digits.substr(i, 2), nullptr, 16)));
+    return out;
+  }
+  const Json& json() const { return json_; }
+
+ private:
+  static Error missing(const char* key) {
+    return Error(Errc::invalid_argument, fmt::format("{}: missing", key));
+  }
+  static Error wrong(const char* key, const char* what) {
+    return Error(Errc::invalid_argument, fmt::format("{}: must be {}", key, what));
+  }
+  const Json& json_;
+};
+
+Result<Slave*> find_slave(Master& master, const Request& r) {
+  auto name = r.text("slave");
+  if (!name) return name.error();
+  return master.slave(*name);
+}
+
+std::optional<wire::AlState> al_state_named(std::string_view name) {
+  for (const auto s : {wire::AlState::init, wire::AlState::preop, wire::AlState::bootstrap,
+                       wire::AlState::safeop, wire::AlState::op}) {
+    if (wire::to_string(s) == name) return s;
+  }
+  if (name == "boot") return wire::AlState::bootstrap;
+  return std::nullopt;
+}
+
+// A JSON value as a signal value: booleans, integers, reals, "hex bytes" for byte signals.
+Result<Value> signal_value(const Json& v) {
+  if (v.is_boolean()) return Value(v.get<bool>());
+  if (v.is_number_unsigned()) return Value(v.get<std::uint64_t>());
+  if (v.is_number_integer()) return Value(v.get<std::int64_t>());
+  if (v.is_number_float()) return Value(v.get<double>());
+  return Error(Errc::invalid_argument, "value: must be a boolean or a number");
+}
+
+Json value_json(const Value& value) {
+  return std::visit(
+      [](const auto& v) -> Json {
+        using T = std::decay_t<decltype(v)>;
+        if constexpr (std::is_same_v<T, std::vector<std::uint8_t>>) {
+          return detail::hex(v);
+        } else {
+          return v;
+        }
+      },
+      value);
+}
+
+// Every registration's bytes at its offset: the process image as the application sees it
+// (inputs of the latest valid cycle, outputs as staged).
+Result<std::vector<std::uint8_t>> domain_image(Domain& domain) {
+  const auto info = domain.info();
+  std::vector<std::uint8_t> image(info.image_size, 0);
+  for (const auto& reg : info.registrations) {
+    auto bytes = domain.read(reg.key);
+    if (!bytes) continue;  // not ready yet (no valid cycle, output never written): zeros
+    std::copy_n(bytes->begin(), std::min<std::size_t>(bytes->size(), reg.size),
+                image.begin() + reg.offset);
+  }
+  return image;
+}
+
+Result<Json> dispatch(Master& master, const Request& r, const std::string& op, bool* follow) {
+  if (op == "ping") {
+    return Json{{"version", ECAT_VERSION_STRING}};
+  }
+  if (op == "help") {
+    Json ops = Json::array();
+    for (auto o : kOps)
+      ops.push_back(o);
+    return Json{{"ops", ops}};
+  }
+  if (op == "status") return detail::status_json(master);
+  if (op == "counters") return detail::counters_json(master.counters());
+  if (op == "dc") return detail::dc_json(master);
+  if (op == "slaves") {
+    const bool verbose = r.flag("verbose");
+    Json list = Json::array();
+    for (const auto& s : master.slaves()) {
+      auto slave = master.slave(s.name);
+      if (slave) list.push_back(detail::slave_json((*slave)->info(), verbose));
+    }
+    return Json{{"slaves", std::move(list)}};
+  }
+  if (op == "slave") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    return Json{{"slave", detail::slave_json((*slave)->info(), true)}};
+  }
+  if (op == "domains") {
+    const bool data = r.flag("data");
+    Json list = Json::array();
+    for (const auto& d : master.domains()) {
+      Json j = detail::domain_json(d);
+      if (data) {
+        if (auto domain = master.domain(d.id)) {
+          if (auto image = domain_image(**domain)) j["data"] = detail::hex(*image);
+        }
+      }
+      list.push_back(std::move(j));
+    }
+    return Json{{"domains", std::move(list)}};
+  }
+  if (op == "domain.data") {
+    auto id = r.text("domain");
+    if (!id) return id.error();
+    auto domain = master.domain(*id);
+    if (!domain) return domain.error();
+    auto image = domain_image(**domain);
+    if (!image) return image.error();
+    return Json{{"domain", *id}, {"size", image->size()}, {"data", detail::hex(*image)}};
+  }
+  if (op == "events.follow") {
+    if (follow != nullptr) *follow = true;
+    return Json{{"following", true}};
+  }
+  if (op == "sdo.upload" || op == "sdo.download") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto index = r.number("index", 0xFFFF);
+    if (!index) return index.error();
+    auto subindex = r.number("subindex", 0xFF);
+    if (!subindex) return subindex.error();
+    SdoOptions options;
+    options.complete_access = r.flag("complete_access");
+    if (op == "sdo.upload") {
+      auto data = (*slave)->upload_sdo(static_cast<std::uint16_t>(*index),
+                                       static_cast<std::uint8_t>(*subindex), options);
+      if (!data) return data.error();
+      return Json{{"size", data->size()}, {"data", detail::hex(*data)}};
+    }
+    auto data = r.bytes("data");
+    if (!data) return data.error();
+    if (data->empty()) return Error(Errc::invalid_argument, "data: at least one byte");
+    auto done =
+        (*slave)->download_sdo(static_cast<std::uint16_t>(*index),
+                               static_cast<std::uint8_t>(*subindex), std::move(*data), options);
+    if (!done) return done.error();
+    return Json::object();
+  }
+  if (op == "sdo.list") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto list = (*slave)->object_list();
+    if (!list) return list.error();
+    Json indices = Json::array();
+    for (auto i : *list)
+      indices.push_back(fmt::format("0x{:04x}", i));
+    return Json{{"objects", std::move(indices)}};
+  }
+  if (op == "sdo.describe") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto index = r.number("index", 0xFFFF);
+    if (!index) return index.error();
+    auto d = (*slave)->describe_object(static_cast<std::uint16_t>(*index));
+    if (!d) return d.error();
+    return Json{{"index", fmt::format("0x{:04x}", d->index)},
+                {"name", d->name},
+                {"data_type", d->data_type},
+                {"max_subindex", d->max_subindex},
+                {"object_code", static_cast<unsigned>(d->object_code)}};
+  }
+  if (op == "signal.read") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto signal = r.text("signal");
+    if (!signal) return signal.error();
+    auto value = (*slave)->read_input(*signal);
+    if (!value) return value.error();
+    return Json{{"value", value_json(*value)}};
+  }
+  if (op == "output.write") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto signal = r.text("signal");
+    if (!signal) return signal.error();
+    auto it = r.json().find("value");
+    if (it == r.json().end()) return Error(Errc::invalid_argument, "value: missing");
+    auto value = signal_value(*it);
+    if (!value) return value.error();
+    if (auto done = (*slave)->write_output(*signal, *value); !done) return done.error();
+    return Json::object();
+  }
+  if (op == "state.request") {
+    auto state = r.text("state");
+    if (!state) return state.error();
+    if (!r.optional_text("slave")) {
+      Result<void> done = ok();
+      if (*state == "op") {
+        done = master.activate();
+      } else if (*state == "safeop") {
+        done = master.deactivate(TargetState::safeop);
+      } else if (*state == "preop") {
+        done = master.deactivate(TargetState::preop);
+      } else {
+        return Error(
+            Errc::invalid_argument,
+            fmt::format("state: '{}' is not a session target (op, safeop, preop)", *state));
+      }
+      if (!done) return done.error();
+      return Json{{"state", std::string(to_string(master.state()))}};
+    }
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    const auto target = al_state_named(*state);
+    if (!target) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("state: '{}' is not an AL state (init, preop, bootstrap, safeop, "
+                               "op)",
+                               *state));
+    }
+    if (auto done = (*slave)->request(*target); !done) return done.error();
+    return Json{{"state", std::string(to_string((*slave)->state()))}};
+  }
+  if (op == "reg.read" || op == "reg.write") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto address = r.number("address", 0xFFFF);
+    if (!address) return address.error();
+    bus::Bus* bus = master.bus();
+    if (bus == nullptr) return Error(Errc::not_ready, "no session runs");
+    bus::Transaction tx;
+    const auto station = (*slave)->station();
+    if (op == "reg.read") {
+      auto length = r.number("length", kMaxRegisterBytes);
+      if (!length) return length.error();
+      if (*length == 0) return Error(Errc::invalid_argument, "length: at least 1");
+      if (*address + *length > 0x10000) {
+        return Error(Errc::invalid_argument, "address + length: beyond the 64 KiB register space");
+      }
+      tx.fprd(station, static_cast<std::uint16_t>(*address), static_cast<std::uint16_t>(*length));
+    } else {
+      auto data = r.bytes("data");
+      if (!data) return data.error();
+      if (data->empty() || data->size() > kMaxRegisterBytes) {
+        return Error(Errc::invalid_argument, fmt::format("data: 1 to {} bytes", kMaxRegisterBytes));
+      }
+      if (*address + data->size() > 0x10000) {
+        return Error(Errc::invalid_argument, "address + length: beyond the 64 KiB register space");
+      }
+      tx.fpwr(station, static_cast<std::uint16_t>(*address), *data);
+    }
+    auto result = bus->transact(std::move(tx));
+    if (!result) return result.error();
+    const bus::DatagramResult d = (*result)[0];
+    if (d.wkc != 1) {
+      return Error(
+          Errc::wkc_mismatch,
+          fmt::format("slave {} (station 0x{:04x}) did not answer the {} (working "
+                      "counter {})",
+                      (*slave)->name(), station, op == "reg.read" ? "read" : "write", d.wkc));
+    }
+    Json out{{"wkc", static_cast<unsigned>(d.wkc)}};
+    if (op == "reg.read") out["data"] = detail::hex(d.data);
+    return out;
+  }
+  if (op == "sii.read") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto image = (*slave)->sii_image();
+    if (!image) return image.error();
+    return Json{{"size", image->size()}, {"data", detail::hex(*image)}};
+  }
+  std::string known;
+  for (auto o : kOps)
+    known += (known.empty() ? "" : ", ") + std::string(o);
+  return Error(Errc::invalid_argument, fmt::format("op: unknown op '{}' (known: {})", op, known));
+}
+
+}  // namespace
+
+std::string control_socket_path(std::string_view name) {
+  if (name.find('/') != std::string_view::npos) return std::string(name);
+  return fmt::format("{}/ecat-master-{}.sock", ipc::runtime_dir(), name);
+}
+
+Result<std::string> find_control_endpoint(std::string_view name) {
+  if (!name.empty()) {
+    const std::string path = control_socket_path(name);
+    if (ipc::someone_listens(path)) return path;
+    return Error(Errc::not_found,
+                 fmt::format("no master listens on '{}' (is it running, with a control endpoint "
+                             "named '{}'? `ecat serve` has one)",
+                             path, name));
+  }
+  const auto alive = ipc::find_sockets("ecat-master-");
+  if (alive.size() == 1) return alive.front();
+  if (alive.empty()) {
+    return Error(Errc::not_found,
+                 fmt::format("no running master with a control endpoint found (no live "
+                             "ecat-master-*.sock of yours in {}); start one with `ecat serve`",
+                             ipc::runtime_dir()));
+  }
+  std::string list;
+  for (const auto& p : alive)
+    list += (list.empty() ? "" : ", ") + p;
+  return Error(Errc::invalid_argument,
+               fmt::format("several masters are running ({}); name one with --attach", list));
+}
+
+std::string handle_control_request(Master& master, std::string_view request,
+                                   const ControlAccess& access, bool* follow) {
+  const Json parsed = Json::parse(request, nullptr, false);
+  if (parsed.is_discarded() || !parsed.is_object()) {
+    return error_line("request: not a JSON object", Errc::malformed, std::nullopt);
+  }
+  std::optional<Json> id;
+  if (auto it = parsed.find("id"); it != parsed.end()) {
+    if (!it->is_primitive()) {
+      return error_line("id: must be a string, number, boolean or null", Errc::invalid_argument,
+                        std::nullopt);
+    }
+    id = *it;
+  }
+  auto op_it = parsed.find("op");
+  if (op_it == parsed.end() || !op_it->is_string()) {
+    return error_line("op: missing (a string such as \"status\")", Errc::invalid_argument, id);
+  }
+  const std::string op = op_it->get<std::string>();
+  if (std::find(kWriteOps.begin(), kWriteOps.end(), op) != kWriteOps.end() &&
+      !access.allow_writes) {
+    return error_line(fmt::format("{}: this endpoint is read-only (the master's control endpoint "
+                                  "allows writes only when configured so: control.writes: true, "
+                                  "`ecat serve --writes`)",
+                                  op),
+                      Errc::permission_denied, id);
+  }
+  Result<Json> result = Error(Errc::internal, "not handled");
+  try {
+    result = dispatch(master, Request(parsed), op, follow);
+  } catch (const std::exception& e) {
+    // Nothing here throws by design; a JSON type error that slipped through is still an answer.
+    result = Error(Errc::internal, fmt::format("{}: {}", op, e.what()));
+  }
+  if (!result) return error_line(result.error().describe(), result.error().code(), id);
+  Json out{{"ok", true}};
+  if (id) out["id"] = *id;
+  for (auto& [key, value] : result->items())
+    out[key] = value;
+  return out.dump(-1, ' ', false, Json::error_handler_t::replace);
+}
+
+}  // namespace ecat::master

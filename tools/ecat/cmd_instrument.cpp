@@ -1,0 +1,919 @@
+// The engineer's instrument: commands that look at a ring and its slaves (and, when asked, change
+// them), each working two ways:
+//   attached    --attach [NAME|PATH]  talks to a running master's control endpoint
+//                                     (`ecat serve`, or any application with `master: control:`)
+//   standalone  --ring FILE / --backend SPEC  runs a short session of its own, every slave held in
+//                                     PREOP: nothing moves (domains are laid out but do not
+//                                     cycle; attach to a running master for live process data)
+// Both ways send the same requests (master/control_endpoint.hpp): standalone, to the master in
+// this process, attached, through the socket; so both print the same.
+//
+//   ecat slaves --attach line1 -v
+//   ecat upload --ring examples/default.yaml --name drive 0x6041 0 --type uint16
+//   ecat download --attach --name drive 0x6060 0 8 --type int8
+//   ecat reg_read --backend raw:eth0 -p 1 0x0130 2
+//   ecat events --attach line1 --json
+//
+// Exit codes: 0 done; 1 the operation failed (the error says why); 2 bad arguments.
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <ecat/ipc/line_server.hpp>
+#include <ecat/master/control_endpoint.hpp>
+#include <ecat/master/master.hpp>
+
+#include "command.hpp"
+#include "interrupt.hpp"
+#include "session_view.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+using Json = nlohmann::ordered_json;
+using ecat::Errc;
+using ecat::Error;
+using ecat::Result;
+
+// ---- Where the requests go --------------------------------------------------------------------
+
+struct Target {
+  std::optional<std::string> attach;  // set (maybe empty: the one running) when attached
+  std::string ring;
+  std::string backend;
+  double timeout_s = 20.0;
+  bool json = false;
+};
+
+class Connection {
+ public:
+  // Prints why not (as JSON with --json) and returns nullptr.
+  // Why not goes to `exit_code`: 2 for bad arguments or files, 1 for a session that failed.
+  static std::unique_ptr<Connection> open(const Target& target, int* exit_code = nullptr) {
+    int ignored = 0;
+    int& code = exit_code != nullptr ? *exit_code : ignored;
+    code = 1;
+    auto c = std::unique_ptr<Connection>(new Connection());
+    if (target.attach) {
+      auto path = ecat::master::find_control_endpoint(*target.attach);
+      if (!path) return c->fail(path.error(), target.json);
+      c->path_ = *path;
+      return c;
+    }
+    if (target.ring.empty() && target.backend.empty()) {
+      code = 2;
+      return c->fail(Error(Errc::invalid_argument,
+                           "give --attach [NAME] (a running master), or --ring FILE / --backend "
+                           "SPEC (a session of this command's own)"),
+                     target.json);
+    }
+    // A ring file's slaves keep their names and configuration, held in PREOP; a bare backend
+    // gives the dynamic session (every slave found, named by position, in PREOP). (SAFEOP for the
+    // process-data commands would let inputs move, but a session whose every slave targets
+    // SAFEOP has no drawn way out of awaiting_preop: the seed's diagram goes from there to
+    // preop_ready, operational or activation_blocked only.)
+    auto setup = ecat::tool::prepare(target.ring, target.backend, target.ring.empty());
+    if (!setup) {
+      code = 2;
+      return nullptr;
+    }
+    for (auto& slave : setup->config.slaves)
+      slave.target = ecat::master::TargetState::preop;
+    c->master_ = std::make_unique<ecat::master::Master>(setup->config);
+    if (auto started = c->master_->start(std::move(setup->link)); !started) {
+      return c->fail(started.error(), target.json);
+    }
+    const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(
+        std::chrono::duration<double>(target.timeout_s));
+    if (auto running = c->master_->await_running(timeout); !running) {
+      if (target.json) return c->fail(running.error(), true);
+      (void)ecat::tool::report_failure(*c->master_, running.error());
+      return nullptr;
+    }
+    return c;
+  }
+
+  ~Connection() {
+    if (master_) (void)master_->stop();
+  }
+
+  // The reply's fields (without "ok"), or the error it carries.
+  Result<Json> call(const Json& request) {
+    std::string reply;
+    if (master_) {
+      // The user asked for this very command: standalone, writes are theirs to make.
+      reply = ecat::master::handle_control_request(*master_, request.dump(),
+                                                   ecat::master::ControlAccess{true});
+    } else {
+      auto answered = ecat::ipc::call(path_, request.dump(), 60s, "master");
+      if (!answered) return answered.error();
+      reply = std::move(*answered);
+    }
+    Json parsed = Json::parse(reply, nullptr, false);
+    if (parsed.is_discarded() || !parsed.is_object()) {
+      return Error(Errc::malformed, fmt::format("the master's reply is not JSON: {}", reply));
+    }
+    if (!parsed.value("ok", false)) {
+      const std::string code = parsed.value("code", "internal");
+      Errc errc = Errc::internal;
+      for (int i = 0; i <= static_cast<int>(Errc::internal); ++i) {
+        if (ecat::master::control_error_code(static_cast<Errc>(i)) == code) {
+          errc = static_cast<Errc>(i);
+        }
+      }
+      return Error(errc, parsed.value("error", std::string("failed")));
+    }
+    parsed.erase("ok");
+    return parsed;
+  }
+
+  const std::string& path() const { return path_; }
+
+ private:
+  Connection() = default;
+  std::unique_ptr<Connection> fail(const Error& error, bool json) {
+    print_error(error, json);
+    return nullptr;
+  }
+
+ public:
+  static void print_error(const Error& error, bool json) {
+    if (json) {
+      const Json out{{"ok", false},
+                     {"error", error.describe()},
+                     {"code", ecat::master::control_error_code(error.code())}};
+      fmt::print("{}\n", out.dump(-1, ' ', false, Json::error_handler_t::replace));
+    } else {
+      fmt::print(stderr, "ecat: {}\n", error.describe());
+    }
+  }
+
+ private:
+  std::string path_;
+  std::unique_ptr<ecat::master::Master> master_;
+};
+
+void add_target(CLI::App* app, Target& t) {
+  app->add_option("--attach", t.attach,
+                  "Talk to a running master: its control endpoint NAME or socket PATH (empty: "
+                  "the one running)")
+      ->expected(0, 1);
+  app->add_option("--ring", t.ring, "Run a session of this command's own from this ring file");
+  app->add_option("--backend,--link", t.backend,
+                  "... or on this link: raw:IFACE, udp:HOST:PORT or sim:RING.yaml");
+  app->add_option("--timeout", t.timeout_s, "Seconds the own session may take to get running")
+      ->check(ecat::tool::timeout_seconds());
+  app->add_flag("--json", t.json, "Print JSON (errors too)");
+}
+
+int finish(const Result<Json>& result, bool json, const std::function<void(const Json&)>& text) {
+  if (!result) {
+    Connection::print_error(result.error(), json);
+    return 1;
+  }
+  if (json) {
+    Json out{{"ok", true}};
+    for (const auto& [k, v] : result->items())
+      out[k] = v;
+    fmt::print("{}\n", out.dump(2, ' ', false, Json::error_handler_t::replace));
+  } else {
+    text(*result);
+  }
+  return 0;
+}
+
+// ---- Slave selection --------------------------------------------------------------------------
+
+struct SlaveChoice {
+  std::optional<unsigned> position;
+  std::string name;
+};
+
+void add_slave_choice(CLI::App* app, SlaveChoice& s, bool required) {
+  auto* p = app->add_option("-p,--position", s.position, "The slave at this ring position");
+  auto* n = app->add_option("--name", s.name, "The slave with this name");
+  p->excludes(n);
+  if (required) {
+    app->callback([app, p, n] {
+      if (p->count() == 0 && n->count() == 0) {
+        throw CLI::RequiredError("-p POSITION or --name NAME");
+      }
+    });
+    (void)app;
+  }
+}
+
+// The name the endpoint knows the chosen slave by.
+Result<std::string> slave_name(Connection& c, const SlaveChoice& s) {
+  if (!s.name.empty()) return s.name;
+  if (!s.position) return Error(Errc::invalid_argument, "give -p POSITION or --name NAME");
+  auto slaves = c.call(Json{{"op", "slaves"}});
+  if (!slaves) return slaves.error();
+  for (const auto& j : (*slaves)["slaves"]) {
+    if (j.value("position", -1) == static_cast<int>(*s.position)) return j.value("name", "");
+  }
+  return Error(Errc::not_found, fmt::format("no slave at position {}", *s.position));
+}
+
+// ---- Typed values -----------------------------------------------------------------------------
+
+constexpr const char* kTypes =
+    "uint8, uint16, uint32, uint64, int8, int16, int32, int64, float, double, string, octets";
+
+std::optional<std::size_t> type_size(const std::string& type) {
+  if (type == "uint8" || type == "int8") return 1;
+  if (type == "uint16" || type == "int16") return 2;
+  if (type == "uint32" || type == "int32" || type == "float") return 4;
+  if (type == "uint64" || type == "int64" || type == "double") return 8;
+  return std::nullopt;
+}
+
+std::vector<std::uint8_t> from_hex(const std::string& hex) {
+  std::vector<std::uint8_t> out;
+  for (std::size_t i = 0; i + 1 < hex.size(); i += 2)
+    out.push_back(static_cast<std::uint8_t>(std::stoul(hex.substr(i, 2), nullptr, 16)));
+  return out;
+}
+
+std::string to_hex(const std::vector<std::uint8_t>& bytes, const char* separator = "") {
+  std::string out;
+  for (std::size_t i = 0; i < bytes.size(); ++i)
+    out += fmt::format("{}{:02x}", i == 0 ? "" : separator, bytes[i]);
+  return out;
+}
+
+// Little endian, exactly the type's size; octets as hex; a string as its bytes.
+Result<std::vector<std::uint8_t>> encode_typed(const std::string& type, const std::string& text) {
+  if (type == "octets") {
+    std::string digits;
+    for (char ch : text) {
+      if (ch != ' ' && ch != ':') digits += ch;
+    }
+    if (digits.empty() || digits.size() % 2 != 0 ||
+        digits.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("value '{}' is not hex octets (\"0a1b\" or \"0a:1b\")", text));
+    }
+    return from_hex(digits);
+  }
+  if (type == "string") return std::vector<std::uint8_t>(text.begin(), text.end());
+  const auto size = type_size(type);
+  if (!size) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("--type '{}' is not a type ({})", type, kTypes));
+  }
+  std::uint64_t raw = 0;
+  const bool is_float = type == "float" || type == "double";
+  if (is_float) {
+    char* end = nullptr;
+    const double d = std::strtod(text.c_str(), &end);
+    if (text.empty() || *end != '\0' || !std::isfinite(d)) {
+      return Error(Errc::invalid_argument, fmt::format("value '{}' is not a number", text));
+    }
+    if (type == "float") {
+      const float f = static_cast<float>(d);
+      std::uint32_t bits = 0;
+      std::memcpy(&bits, &f, 4);
+      raw = bits;
+    } else {
+      std::memcpy(&raw, &d, 8);
+    }
+  } else {
+    const bool is_signed = type[0] == 'i';
+    const unsigned bits = static_cast<unsigned>(*size * 8);
+    errno = 0;
+    char* end = nullptr;
+    const int base = text.starts_with("0x") || text.starts_with("0X") ? 16 : 10;
+    if (is_signed) {
+      const long long v = std::strtoll(text.c_str(), &end, base);
+      const long long min =
+          bits == 64 ? std::numeric_limits<long long>::min() : -(1LL << (bits - 1));
+      const long long max =
+          bits == 64 ? std::numeric_limits<long long>::max() : (1LL << (bits - 1)) - 1;
+      if (text.empty() || *end != '\0' || errno != 0 || v < min || v > max) {
+        return Error(Errc::invalid_argument,
+                     fmt::format("value '{}' is not an {} ({} .. {})", text, type, min, max));
+      }
+      raw = static_cast<std::uint64_t>(v);
+    } else {
+      const unsigned long long v = std::strtoull(text.c_str(), &end, base);
+      const unsigned long long max =
+          bits == 64 ? std::numeric_limits<unsigned long long>::max() : (1ULL << bits) - 1;
+      if (text.empty() || text[0] == '-' || *end != '\0' || errno != 0 || v > max) {
+        return Error(Errc::invalid_argument,
+                     fmt::format("value '{}' is not a {} (0 .. {})", text, type, max));
+      }
+      raw = v;
+    }
+  }
+  std::vector<std::uint8_t> out(*size);
+  for (std::size_t i = 0; i < *size; ++i)
+    out[i] = static_cast<std::uint8_t>(raw >> (8 * i));
+  return out;
+}
+
+// The bytes as the type, or why they are not one.
+Result<Json> decode_typed(const std::string& type, const std::vector<std::uint8_t>& bytes) {
+  if (type.empty() || type == "octets") return Json(to_hex(bytes, " "));
+  if (type == "string") {
+    std::string text(bytes.begin(), bytes.end());
+    if (auto nul = text.find('\0'); nul != std::string::npos) text.resize(nul);
+    return Json(text);
+  }
+  const auto size = type_size(type);
+  if (!size) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("--type '{}' is not a type ({})", type, kTypes));
+  }
+  if (bytes.size() != *size) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("the value has {} bytes, a {} has {} (raw: {})", bytes.size(), type,
+                             *size, to_hex(bytes, " ")));
+  }
+  std::uint64_t raw = 0;
+  for (std::size_t i = 0; i < *size; ++i)
+    raw |= std::uint64_t{bytes[i]} << (8 * i);
+  if (type == "float") {
+    float f = 0;
+    const auto bits = static_cast<std::uint32_t>(raw);
+    std::memcpy(&f, &bits, 4);
+    return Json(static_cast<double>(f));
+  }
+  if (type == "double") {
+    double d = 0;
+    std::memcpy(&d, &raw, 8);
+    return Json(d);
+  }
+  if (type[0] == 'i') {
+    const unsigned bits = static_cast<unsigned>(*size * 8);
+    std::int64_t v = static_cast<std::int64_t>(raw);
+    if (bits < 64 && (raw >> (bits - 1)) != 0) v -= static_cast<std::int64_t>(1ULL << bits);
+    return Json(v);
+  }
+  return Json(raw);
+}
+
+std::string show(const Json& value) {
+  return value.is_string() ? value.get<std::string>() : value.dump();
+}
+
+// ---- Commands ---------------------------------------------------------------------------------
+
+struct Common {
+  Target target;
+  SlaveChoice slave;
+  bool verbose = false;
+};
+
+int cmd_slaves(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto r = c->call(Json{{"op", "slaves"}, {"verbose", o.verbose}});
+  if (r && (o.slave.position || !o.slave.name.empty())) {
+    Json kept = Json::array();
+    for (const auto& j : (*r)["slaves"]) {
+      if ((o.slave.position && j.value("position", -1) == static_cast<int>(*o.slave.position)) ||
+          (!o.slave.name.empty() && j.value("name", "") == o.slave.name)) {
+        kept.push_back(j);
+      }
+    }
+    if (kept.empty())
+      r = Error(Errc::not_found, "no such slave");
+    else
+      (*r)["slaves"] = kept;
+  }
+  return finish(r, o.target.json, [&](const Json& j) {
+    fmt::print("{:>3}  {:<7} {:<14} {:<9} {:<36} {}\n", "pos", "station", "name", "state",
+               "identity (vendor:product rev)", "device");
+    for (const auto& s : j["slaves"]) {
+      std::string identity = "-";
+      if (s["identity"].is_object()) {
+        identity = fmt::format("{:08x}:{:08x} rev {:08x}", s["identity"].value("vendor_id", 0u),
+                               s["identity"].value("product_code", 0u),
+                               s["identity"].value("revision", 0u));
+      }
+      fmt::print("{:>3}  0x{:04x}  {:<14} {:<9} {:<36} {}\n", s.value("position", 0),
+                 s.value("station", 0), s.value("name", ""), s.value("state", ""), identity,
+                 s.value("device", ""));
+      if (s.contains("fault")) fmt::print("       fault: {}\n", show(s["fault"]));
+      if (s.contains("configuration_error")) {
+        fmt::print("       ! {}\n", show(s["configuration_error"]));
+      }
+      if (!o.verbose) continue;
+      const auto& esc = s["esc"];
+      fmt::print(
+          "       ESC type 0x{:02x} rev {} build {}, {} FMMUs, {} SMs, {} KiB RAM, DC {}\n",
+          esc.value("type", 0), esc.value("revision", 0), esc.value("build", 0),
+          esc.value("fmmus", 0), esc.value("sync_managers", 0), esc.value("ram_kib", 0),
+          esc.value("dc", false) ? (esc.value("dc_64bit", false) ? "64-bit" : "32-bit") : "no");
+      std::string ports;
+      for (std::size_t p = 0; p < s["ports"].size(); ++p) {
+        const auto& port = s["ports"][p];
+        ports += fmt::format(" {}:{}", p,
+                             port.value("communication", false) ? "up"
+                             : port.value("link", false)        ? "link"
+                                                                : "-");
+      }
+      fmt::print("       ports{}; mailbox {}{}\n", ports,
+                 s["mailbox"].value("present", false) ? "yes" : "no",
+                 s["mailbox"].value("coe", false) ? " (CoE)" : "");
+      for (const auto& a : s["attachments"]) {
+        fmt::print("       SM{} {} {} bytes -> domain {} at 0x{:08x}\n", a.value("sync_manager", 0),
+                   a.value("direction", ""), a.value("size", 0), a.value("domain", ""),
+                   a.value("logical", 0u));
+      }
+      for (const auto& sig : s["signals"]) {
+        fmt::print("       {} {} {} ({} bits)\n", sig.value("direction", ""), sig.value("name", ""),
+                   sig.value("type", ""), sig.value("bit_length", 0));
+      }
+    }
+  });
+}
+
+int cmd_master(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto status = c->call(Json{{"op", "status"}});
+  if (status) {
+    auto counters = c->call(Json{{"op", "counters"}});
+    if (!counters) {
+      status = counters.error();
+    } else {
+      (*status)["counters"] = *counters;
+    }
+  }
+  return finish(status, o.target.json, [&](const Json& j) {
+    fmt::print("state: {} (desired {})\nlink: {}\nslaves: {}\n", j.value("state", ""),
+               j.value("desired_target", ""), j.value("link", ""), j.value("slave_count", 0));
+    for (const auto& d : j["domains"]) {
+      fmt::print("domain {}: {} every {} us, {} bytes, {} cycles, {} missed\n", d.value("id", ""),
+                 d.value("state", ""), d.value("period_ns", 0) / 1000, d.value("image_size", 0),
+                 d.value("cycles", 0), d.value("misses", 0));
+    }
+    const auto& k = j["counters"];
+    fmt::print(
+        "frames: {} sent, {} received, {} lost; {} transaction time-outs, {} retries; {} cycle "
+        "deadlines missed\n",
+        k.value("frames_sent", 0), k.value("frames_received", 0), k.value("frames_lost", 0),
+        k.value("transaction_timeouts", 0), k.value("retries", 0),
+        k.value("cycle_deadlines_missed", 0));
+    for (const auto& f : j["activation_failures"])
+      fmt::print("activation failure: {}: {}\n", f.value("slave", ""), f.value("error", ""));
+    for (const auto& f : j["runtime_faults"])
+      fmt::print("runtime fault: {}\n", show(f));
+    if (j["last_failure"].is_object()) {
+      fmt::print("last failure ({}): {}\n", j["last_failure"].value("kind", ""),
+                 j["last_failure"].value("error", ""));
+    }
+  });
+}
+
+int cmd_domains(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto r = c->call(Json{{"op", "domains"}, {"data", o.verbose}});
+  return finish(r, o.target.json, [&](const Json& j) {
+    for (const auto& d : j["domains"]) {
+      fmt::print(
+          "domain {}: {} every {} us, {} bytes at 0x{:08x}, expected wkc {}, {} cycles, "
+          "{} missed, {}\n",
+          d.value("id", ""), d.value("state", ""), d.value("period_ns", 0) / 1000,
+          d.value("image_size", 0), d.value("logical_base", 0u), d.value("expected_wkc", 0),
+          d.value("cycles", 0), d.value("misses", 0),
+          d.value("healthy", false) ? "healthy" : "unhealthy");
+      if (!o.verbose || !d.contains("data")) continue;
+      const auto bytes = from_hex(d.value("data", ""));
+      for (std::size_t i = 0; i < bytes.size(); i += 16) {
+        std::vector<std::uint8_t> row(
+            bytes.begin() + static_cast<std::ptrdiff_t>(i),
+            bytes.begin() + static_cast<std::ptrdiff_t>(std::min(bytes.size(), i + 16)));
+        fmt::print("  {:04x}  {}\n", i, to_hex(row, " "));
+      }
+    }
+  });
+}
+
+struct DataOptions {
+  Common common;
+  std::string domain;
+};
+
+int cmd_data(const DataOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  std::string id = o.domain;
+  if (id.empty()) {
+    auto list = c->call(Json{{"op", "domains"}});
+    if (!list) return finish(list, o.common.target.json, {});
+    if ((*list)["domains"].size() != 1) {
+      return finish(Error(Errc::invalid_argument,
+                          fmt::format("the master has {} domains: name one with --domain",
+                                      (*list)["domains"].size())),
+                    o.common.target.json, {});
+    }
+    id = (*list)["domains"][0].value("id", "");
+  }
+  auto r = c->call(Json{{"op", "domain.data"}, {"domain", id}});
+  return finish(r, o.common.target.json, [](const Json& j) {
+    // Raw bytes, for a pipe into xxd, od or a file.
+    const auto bytes = from_hex(j.value("data", ""));
+    std::fwrite(bytes.data(), 1, bytes.size(), stdout);
+  });
+}
+
+struct SdoOptions {
+  Common common;
+  std::string index;
+  std::string subindex;
+  std::string value;
+  std::string type;
+  bool complete_access = false;
+};
+
+int cmd_upload(const SdoOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(Json{{"op", "sdo.upload"},
+                        {"slave", *name},
+                        {"index", o.index},
+                        {"subindex", o.subindex},
+                        {"complete_access", o.complete_access}});
+  if (r) {
+    auto value = decode_typed(o.type, from_hex(r->value("data", "")));
+    if (!value) {
+      r = value.error();
+    } else {
+      (*r)["value"] = *value;
+    }
+  }
+  return finish(r, o.common.target.json,
+                [](const Json& j) { fmt::print("{}\n", show(j["value"])); });
+}
+
+int cmd_download(const SdoOptions& o) {
+  const std::string type = o.type.empty() ? "octets" : o.type;
+  auto bytes = encode_typed(type, o.value);
+  if (!bytes) {
+    Connection::print_error(bytes.error(), o.common.target.json);
+    return 2;
+  }
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(Json{{"op", "sdo.download"},
+                        {"slave", *name},
+                        {"index", o.index},
+                        {"subindex", o.subindex},
+                        {"data", to_hex(*bytes)},
+                        {"complete_access", o.complete_access}});
+  return finish(r, o.common.target.json, [&](const Json&) {
+    fmt::print("{} {}:{} <- {}\n", *name, o.index, o.subindex, o.value);
+  });
+}
+
+struct StateOptions {
+  Common common;
+  std::string state;
+};
+
+int cmd_states(const StateOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  Json request{{"op", "state.request"}, {"state", o.state}};
+  if (o.common.slave.position || !o.common.slave.name.empty()) {
+    auto name = slave_name(*c, o.common.slave);
+    if (!name) return finish(name.error(), o.common.target.json, {});
+    request["slave"] = *name;
+  }
+  auto r = c->call(request);
+  return finish(r, o.common.target.json,
+                [](const Json& j) { fmt::print("now {}\n", j.value("state", "")); });
+}
+
+struct RegOptions {
+  Common common;
+  std::string address;
+  std::string length_or_value;
+  std::string type;
+};
+
+int cmd_reg_read(const RegOptions& o) {
+  std::string length = o.length_or_value;
+  if (length.empty()) {
+    const auto size = type_size(o.type);
+    if (!size) {
+      Connection::print_error(
+          Error(Errc::invalid_argument, "give LENGTH, or a --type with a size (uint16 ...)"),
+          o.common.target.json);
+      return 2;
+    }
+    length = std::to_string(*size);
+  }
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(
+      Json{{"op", "reg.read"}, {"slave", *name}, {"address", o.address}, {"length", length}});
+  if (r) {
+    auto value = decode_typed(o.type, from_hex(r->value("data", "")));
+    if (!value) {
+      r = value.error();
+    } else {
+      (*r)["value"] = *value;
+    }
+  }
+  return finish(r, o.common.target.json,
+                [](const Json& j) { fmt::print("{}\n", show(j["value"])); });
+}
+
+int cmd_reg_write(const RegOptions& o) {
+  auto bytes = encode_typed(o.type.empty() ? "octets" : o.type, o.length_or_value);
+  if (!bytes) {
+    Connection::print_error(bytes.error(), o.common.target.json);
+    return 2;
+  }
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(Json{
+      {"op", "reg.write"}, {"slave", *name}, {"address", o.address}, {"data", to_hex(*bytes)}});
+  return finish(r, o.common.target.json, [&](const Json&) {
+    fmt::print("{} {} <- {}\n", *name, o.address, to_hex(*bytes, " "));
+  });
+}
+
+struct SiiOptions {
+  Common common;
+  std::string output;
+};
+
+int cmd_sii_read(const SiiOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(Json{{"op", "sii.read"}, {"slave", *name}});
+  if (r && !o.output.empty()) {
+    const auto bytes = from_hex(r->value("data", ""));
+    std::ofstream out(o.output, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
+    if (!out) r = Error(Errc::io_error, fmt::format("cannot write '{}'", o.output));
+  }
+  return finish(r, o.common.target.json, [&](const Json& j) {
+    if (!o.output.empty()) {
+      fmt::print("{} bytes written to {} (decode with `ecat sii {}`)\n", j.value("size", 0),
+                 o.output, o.output);
+      return;
+    }
+    const auto bytes = from_hex(j.value("data", ""));
+    for (std::size_t i = 0; i < bytes.size(); i += 16) {
+      std::vector<std::uint8_t> row(
+          bytes.begin() + static_cast<std::ptrdiff_t>(i),
+          bytes.begin() + static_cast<std::ptrdiff_t>(std::min(bytes.size(), i + 16)));
+      fmt::print("{:04x}  {}\n", i / 2, to_hex(row, " "));
+    }
+  });
+}
+
+int cmd_sdos(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.slave);
+  if (!name) return finish(name.error(), o.target.json, {});
+  auto list = c->call(Json{{"op", "sdo.list"}, {"slave", *name}});
+  Result<Json> r = list;
+  if (list) {
+    Json objects = Json::array();
+    for (const auto& index : (*list)["objects"]) {
+      auto d = c->call(Json{{"op", "sdo.describe"}, {"slave", *name}, {"index", index}});
+      objects.push_back(d ? *d : Json{{"index", index}, {"error", d.error().message()}});
+    }
+    r = Json{{"slave", *name}, {"objects", objects}};
+  }
+  return finish(r, o.target.json, [](const Json& j) {
+    for (const auto& d : j["objects"]) {
+      if (d.contains("error")) {
+        fmt::print("{}  ({})\n", show(d["index"]), show(d["error"]));
+      } else {
+        fmt::print("{}  {:<40} type 0x{:04x}, {} subindices\n", show(d["index"]),
+                   d.value("name", ""), d.value("data_type", 0), d.value("max_subindex", 0));
+      }
+    }
+  });
+}
+
+struct EventsOptions {
+  Common common;
+  double duration_s = 0;
+};
+
+int cmd_events(const EventsOptions& o) {
+  ecat::tool::catch_interrupts();
+  if (!o.common.target.attach) {
+    Connection::print_error(
+        Error(Errc::invalid_argument, "events follows a running master: give --attach [NAME]"),
+        o.common.target.json);
+    return 2;
+  }
+  auto path = ecat::master::find_control_endpoint(*o.common.target.attach);
+  if (!path) {
+    Connection::print_error(path.error(), o.common.target.json);
+    return 1;
+  }
+  auto client = ecat::ipc::LineClient::connect(*path, "master");
+  if (!client) {
+    Connection::print_error(client.error(), o.common.target.json);
+    return 1;
+  }
+  auto first = client->request(R"({"op":"events.follow"})");
+  if (!first) {
+    Connection::print_error(first.error(), o.common.target.json);
+    return 1;
+  }
+  const auto end = o.duration_s > 0 ? std::chrono::steady_clock::now() +
+                                          std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                              std::chrono::duration<double>(o.duration_s))
+                                    : std::chrono::steady_clock::time_point::max();
+  while (!ecat::tool::interrupted() && std::chrono::steady_clock::now() < end) {
+    auto line = client->read_line(100ms);
+    if (!line) {
+      if (line.error().code() == Errc::closed) return 0;  // the master went away
+      Connection::print_error(line.error(), o.common.target.json);
+      return 1;
+    }
+    if (!*line) continue;
+    if (o.common.target.json) {
+      fmt::print("{}\n", **line);
+    } else {
+      const Json e = Json::parse(**line, nullptr, false);
+      if (e.is_discarded()) continue;
+      std::string rest;
+      for (const auto& [k, v] : e.items()) {
+        if (k == "event" || k == "seq" || k == "time_ns") continue;
+        rest += fmt::format(" {}={}", k, show(v));
+      }
+      fmt::print("{:>6}  {:<16}{}\n", e.value("seq", 0u), e.value("event", ""), rest);
+    }
+    std::fflush(stdout);
+  }
+  return 0;
+}
+
+// ---- Registration -----------------------------------------------------------------------------
+
+template <class O>
+CLI::App* base(CLI::App& parent, const char* name, const char* help, O& o, bool slave,
+               bool slave_required) {
+  auto* app = parent.add_subcommand(name, help);
+  add_target(app, o.target);
+  if (slave) add_slave_choice(app, o.slave, slave_required);
+  return app;
+}
+
+ecat::tool::Command setup_slaves(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app =
+      base(parent, "slaves", "List the slaves (standalone: every slave found, held in PREOP)", *o,
+           true, false);
+  app->add_flag("-v,--verbose", o->verbose, "ESC, ports, mailbox, SyncManagers and signals");
+  return {app, [o] { return cmd_slaves(*o); }};
+}
+
+ecat::tool::Command setup_master(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app =
+      base(parent, "master", "The master: state, link, domains, frame counters", *o, false, false);
+  return {app, [o] { return cmd_master(*o); }};
+}
+
+ecat::tool::Command setup_domains(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app = base(parent, "domains",
+                   "The domains (standalone: laid out, not cycling: every slave held in PREOP)", *o,
+                   false, false);
+  app->add_flag("-v,--verbose", o->verbose, "With the process image in hex");
+  return {app, [o] { return cmd_domains(*o); }};
+}
+
+ecat::tool::Command setup_data(CLI::App& parent) {
+  auto o = std::make_shared<DataOptions>();
+  auto* app =
+      base(parent, "data", "A domain's process image, raw, to stdout", o->common, false, false);
+  app->add_option("--domain", o->domain, "The domain (needed when there are several)");
+  return {app, [o] { return cmd_data(*o); }};
+}
+
+void add_sdo_address(CLI::App* app, SdoOptions& o) {
+  app->add_option("INDEX", o.index, "Object index (0x6041)")->required();
+  app->add_option("SUBINDEX", o.subindex, "Subindex (0)")->required();
+  app->add_option("--type", o.type, std::string("Value type: ") + kTypes);
+  app->add_flag("--complete-access,-c", o.complete_access, "The whole object at once");
+}
+
+ecat::tool::Command setup_upload(CLI::App& parent) {
+  auto o = std::make_shared<SdoOptions>();
+  auto* app = base(parent, "upload", "Read an SDO", o->common, true, true);
+  add_sdo_address(app, *o);
+  return {app, [o] { return cmd_upload(*o); }};
+}
+
+ecat::tool::Command setup_download(CLI::App& parent) {
+  auto o = std::make_shared<SdoOptions>();
+  auto* app = base(parent, "download", "Write an SDO (attached: the endpoint must allow writes)",
+                   o->common, true, true);
+  add_sdo_address(app, *o);
+  app->add_option("VALUE", o->value, "The value, as --type says (default: hex octets)")->required();
+  return {app, [o] { return cmd_download(*o); }};
+}
+
+ecat::tool::Command setup_states(CLI::App& parent) {
+  auto o = std::make_shared<StateOptions>();
+  auto* app = base(parent, "states",
+                   "Request a state: the session's (op, safeop, preop) or, with -p/--name, one "
+                   "slave's (init, preop, bootstrap, safeop, op)",
+                   o->common, true, false);
+  app->add_option("STATE", o->state, "The state")->required();
+  return {app, [o] { return cmd_states(*o); }};
+}
+
+ecat::tool::Command setup_reg_read(CLI::App& parent) {
+  auto o = std::make_shared<RegOptions>();
+  auto* app = base(parent, "reg_read", "Read ESC registers", o->common, true, true);
+  app->add_option("ADDRESS", o->address, "Register address (0x0130)")->required();
+  app->add_option("LENGTH", o->length_or_value, "Bytes (default: the --type's size)");
+  app->add_option("--type", o->type, std::string("Show as: ") + kTypes);
+  return {app, [o] { return cmd_reg_read(*o); }};
+}
+
+ecat::tool::Command setup_reg_write(CLI::App& parent) {
+  auto o = std::make_shared<RegOptions>();
+  auto* app =
+      base(parent, "reg_write", "Write ESC registers (attached: the endpoint must allow writes)",
+           o->common, true, true);
+  app->add_option("ADDRESS", o->address, "Register address (0x0120)")->required();
+  app->add_option("VALUE", o->length_or_value, "The value, as --type says (default: hex octets)")
+      ->required();
+  app->add_option("--type", o->type, std::string("Value type: ") + kTypes);
+  return {app, [o] { return cmd_reg_write(*o); }};
+}
+
+ecat::tool::Command setup_sii_read(CLI::App& parent) {
+  auto o = std::make_shared<SiiOptions>();
+  auto* app = base(parent, "sii_read", "A slave's SII EEPROM image (as read at bring-up)",
+                   o->common, true, true);
+  app->add_option("-o,--output", o->output, "Write the raw image to this file");
+  return {app, [o] { return cmd_sii_read(*o); }};
+}
+
+ecat::tool::Command setup_sdos(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app = base(parent, "sdos", "A slave's object dictionary (SDO information)", *o, true, true);
+  return {app, [o] { return cmd_sdos(*o); }};
+}
+
+ecat::tool::Command setup_events(CLI::App& parent) {
+  auto o = std::make_shared<EventsOptions>();
+  auto* app = base(parent, "events", "Follow a running master's event stream (--attach)", o->common,
+                   false, false);
+  app->add_option("--duration", o->duration_s, "Seconds to follow (default: until Ctrl-C)")
+      ->check(ecat::tool::run_seconds());
+  return {app, [o] { return cmd_events(*o); }};
+}
+
+const bool registered = [] {
+  for (auto setup : {&setup_slaves, &setup_master, &setup_domains, &setup_data, &setup_upload,
+                     &setup_download, &setup_states, &setup_reg_read, &setup_reg_write,
+                     &setup_sii_read, &setup_sdos, &setup_events}) {
+    ecat::tool::register_command(setup);
+  }
+  return true;
+}();
+
+}  // namespace

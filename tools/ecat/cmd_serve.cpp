@@ -1,0 +1,124 @@
+// ecat serve RING: runs a master as a long-lived service with a control endpoint, so that other
+// processes (`ecat ... --attach`, scripts, dashboards) can look at it while it runs.
+//
+//   ecat serve examples/default.yaml                      endpoint "default" (the file's name)
+//   ecat serve line.yaml --control line1 --writes         endpoint allowing writes
+//   ecat slaves --attach line1
+//
+// Service behaviour (systemd Type=simple): logs go to stderr; SIGTERM or SIGINT stops the session
+// cleanly (every slave back to INIT) and exits 0; a session that does not get running within
+// --timeout, or that ends by itself (the link lost for good), exits 1; bad arguments or files 2.
+// The session is brought to the file's targets: outputs move only as the application (or a
+// client allowed to write) sets them.
+#include <chrono>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include <fmt/format.h>
+
+#include <ecat/app/open_master.hpp>
+#include <ecat/master/control_endpoint.hpp>
+#include <ecat/master/master.hpp>
+
+#include "command.hpp"
+#include "interrupt.hpp"
+#include "session_view.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+
+struct Options {
+  std::string ring;
+  std::string backend;
+  std::string control;
+  std::string mode = "0600";
+  bool writes = false;
+  double timeout_s = 60.0;
+  double duration_s = 0.0;
+};
+
+int serve(const Options& o) {
+  ecat::tool::catch_interrupts();
+  // The endpoint: --control, else the file's `master: control:`, else the file's stem.
+  std::uint32_t mode = 0600;
+  if (o.mode.empty() || o.mode.size() > 4 ||
+      o.mode.find_first_not_of("01234567") != std::string::npos ||
+      std::stoul(o.mode, nullptr, 8) > 0777) {
+    fmt::print(stderr, "ecat: --mode '{}' is not an octal permission such as 0660\n", o.mode);
+    return 2;
+  }
+  mode = static_cast<std::uint32_t>(std::stoul(o.mode, nullptr, 8));
+  ecat::OpenMasterOptions options;
+  options.backend = o.backend;
+  const std::string stem = std::filesystem::path(o.ring).stem().string();
+  options.configure = [&](ecat::master::MasterConfig& config) {
+    if (!o.control.empty()) {
+      config.control.name = o.control;
+    } else if (config.control.name.empty()) {
+      config.control.name = stem;
+    }
+    if (!o.control.empty() || config.control.mode == 0600) config.control.mode = mode;
+    if (o.writes) config.control.allow_writes = true;
+  };
+  auto opened = ecat::open_master(o.ring, std::move(options));
+  if (!opened) {
+    fmt::print(stderr, "ecat: {}\n", opened.error().describe());
+    return opened.error().code() == ecat::Errc::busy ? 1 : 2;
+  }
+  auto& master = **opened;
+  const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::duration<double>(o.timeout_s));
+  if (auto running = master.await_running(timeout); !running) {
+    const int code = ecat::tool::report_failure(master, running.error());
+    (void)master.stop();
+    return code;
+  }
+  const auto path = ecat::master::find_control_endpoint(o.control.empty() ? stem : o.control);
+  fmt::print(stderr, "ecat serve: {} is {}; control endpoint {}\n", o.ring,
+             to_string(master.state()), path ? *path : std::string("(none)"));
+  const auto end = o.duration_s > 0 ? std::chrono::steady_clock::now() +
+                                          std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                              std::chrono::duration<double>(o.duration_s))
+                                    : std::chrono::steady_clock::time_point::max();
+  int code = 0;
+  while (!ecat::tool::interrupted() && std::chrono::steady_clock::now() < end) {
+    if (master.state() == ecat::master::MasterState::idle) {
+      // The session ended by itself (link lost for good, a fatal DC policy).
+      const auto failure = master.last_failure();
+      fmt::print(stderr, "ecat serve: the session ended: {}\n",
+                 failure ? failure->kind + ": " + failure->error.describe() : "stopped");
+      code = 1;
+      break;
+    }
+    ecat::tool::sleep_unless_interrupted(100ms);
+  }
+  (void)master.stop();
+  fmt::print(stderr, "ecat serve: stopped; every slave back in INIT\n");
+  return code;
+}
+
+ecat::tool::Command setup(CLI::App& parent) {
+  auto o = std::make_shared<Options>();
+  auto* app = parent.add_subcommand(
+      "serve", "Run a master as a service with a control endpoint (see `--attach`)");
+  app->add_option("RING", o->ring, "Ring file (its master sections and backend)")->required();
+  app->add_option("--backend,--link", o->backend,
+                  "Replaces the file's backend: raw:IFACE, udp:HOST:PORT or sim:RING.yaml");
+  app->add_option("--control", o->control,
+                  "Endpoint name or socket path (default: the file's master: control:, else the "
+                  "file's name)");
+  app->add_option("--mode", o->mode, "Socket permissions, octal (default 0600: you only)");
+  app->add_flag("--writes", o->writes,
+                "Let clients write: outputs, states, SDO downloads, registers");
+  app->add_option("--timeout", o->timeout_s, "Seconds the session may take to get running")
+      ->check(ecat::tool::timeout_seconds());
+  app->add_option("--duration", o->duration_s, "Stop after this many seconds (default: never)")
+      ->check(ecat::tool::run_seconds());
+  return {app, [o] { return serve(*o); }};
+}
+
+const bool registered = ecat::tool::register_command(&setup);
+
+}  // namespace
