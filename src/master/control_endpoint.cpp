@@ -11,9 +11,12 @@
 #include <ecat/ipc/line_server.hpp>
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/domain.hpp>
+#include <ecat/master/foe.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/master/sii_writer.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/version.hpp>
+#include <ecat/wire/al.hpp>
 
 #include "master/json_view.hpp"
 
@@ -23,13 +26,15 @@ namespace {
 
 using detail::Json;
 
-constexpr std::array<std::string_view, 20> kOps{
-    "ping",         "status",       "slaves",        "slave",         "domains",
-    "domain.data",  "dc",           "counters",      "events.follow", "sdo.upload",
-    "sdo.list",     "sdo.describe", "signal.read",   "reg.read",      "sii.read",
-    "sdo.download", "output.write", "state.request", "reg.write",     "help"};
-constexpr std::array<std::string_view, 5> kWriteOps{"sdo.download", "output.write", "state.request",
-                                                    "reg.write"};
+constexpr std::array<std::string_view, 29> kOps{
+    "ping",         "status",       "slaves",        "slave",      "domains",   "domain.data",
+    "dc",           "counters",     "events.follow", "sdo.upload", "sdo.list",  "sdo.describe",
+    "signal.read",  "reg.read",     "sii.read",      "pdos",       "foe.read",  "soe.read",
+    "sdo.download", "output.write", "state.request", "reg.write",  "sii.write", "alias.write",
+    "foe.write",    "soe.write",    "help",          "version",    "al_status"};
+constexpr std::array<std::string_view, 8> kWriteOps{"sdo.download", "output.write", "state.request",
+                                                    "reg.write",    "sii.write",    "alias.write",
+                                                    "foe.write",    "soe.write"};
 
 // Largest register range one reg.read / reg.write moves (one datagram of a standard frame).
 constexpr std::size_t kMaxRegisterBytes = 1486;
@@ -371,6 +376,131 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
     Json out{{"wkc", static_cast<unsigned>(d.wkc)}};
     if (op == "reg.read") out["data"] = detail::hex(d.data);
     return out;
+  }
+  if (op == "version") return Json{{"version", ECAT_VERSION_STRING}};
+  if (op == "al_status") {
+    // Every slave's AL state and the status code it last reported, in words.
+    Json list = Json::array();
+    for (const auto& s : master.slaves()) {
+      auto slave = master.slave(s.name);
+      if (!slave) continue;
+      Json j{{"name", s.name}, {"state", std::string(to_string(s.state))}};
+      if (auto code = (*slave)->error()) {
+        j["al_status_code"] = *code;
+        j["al_status_text"] = wire::al_status_code_text(*code);
+      }
+      list.push_back(std::move(j));
+    }
+    return Json{{"slaves", std::move(list)}};
+  }
+  if (op == "pdos") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    const auto info = (*slave)->info();
+    const auto pdo_json = [](const Pdo& p) {
+      Json entries = Json::array();
+      for (const auto& e : p.entries) {
+        entries.push_back({{"index", fmt::format("0x{:04x}", e.index)},
+                           {"subindex", e.subindex},
+                           {"bit_length", e.bit_length},
+                           {"name", e.name}});
+      }
+      return Json{{"index", fmt::format("0x{:04x}", p.index)},
+                  {"name", p.name},
+                  {"direction", std::string(to_string(p.direction))},
+                  {"fixed", p.fixed_content},
+                  {"entries", std::move(entries)}};
+    };
+    Json sms = Json::array();
+    for (const auto& sm : info.layout.sync_managers) {
+      Json pdos = Json::array();
+      for (const auto& p : sm.pdos)
+        pdos.push_back(pdo_json(p));
+      sms.push_back({{"sync_manager", sm.sync_manager},
+                     {"direction", std::string(to_string(sm.direction))},
+                     {"bytes", sm.byte_length()},
+                     {"pdos", std::move(pdos)}});
+    }
+    Json unassigned = Json::array();
+    for (const auto& p : info.layout.unassigned)
+      unassigned.push_back(pdo_json(p));
+    return Json{{"slave", info.name},
+                {"sync_managers", std::move(sms)},
+                {"unassigned", std::move(unassigned)}};
+  }
+  if (op == "sii.write" || op == "alias.write") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    if (op == "alias.write") {
+      auto alias = r.number("alias", 0xFFFF);
+      if (!alias) return alias.error();
+      if (auto done = (*slave)->write_alias(static_cast<std::uint16_t>(*alias)); !done) {
+        return done.error();
+      }
+      return Json{{"alias", *alias}};
+    }
+    auto data = r.bytes("data");
+    if (!data) return data.error();
+    if (auto done = (*slave)->write_sii(*data); !done) return done.error();
+    return Json{{"size", data->size()}};
+  }
+  if (op == "foe.read" || op == "foe.write") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto file = r.text("file");
+    if (!file) return file.error();
+    FoeOptions options;
+    if (r.json().contains("password")) {
+      auto password = r.number("password", 0xFFFFFFFF);
+      if (!password) return password.error();
+      options.password = static_cast<std::uint32_t>(*password);
+    }
+    if (op == "foe.read") {
+      auto data = (*slave)->foe_read(*file, options);
+      if (!data) return data.error();
+      return Json{{"size", data->size()}, {"data", detail::hex(*data)}};
+    }
+    auto data = r.bytes("data");
+    if (!data) return data.error();
+    const auto size = data->size();
+    if (auto done = (*slave)->foe_write(*file, std::move(*data), options); !done) {
+      return done.error();
+    }
+    return Json{{"size", size}};
+  }
+  if (op == "soe.read" || op == "soe.write") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    std::uint64_t drive = 0;
+    if (r.json().contains("drive")) {
+      auto d = r.number("drive", 7);
+      if (!d) return d.error();
+      drive = *d;
+    }
+    auto idn = r.number("idn", 0xFFFF);
+    if (!idn) return idn.error();
+    std::uint64_t elements = 0x40;  // the value
+    if (r.json().contains("elements")) {
+      auto e = r.number("elements", 0xFF);
+      if (!e) return e.error();
+      elements = *e;
+    }
+    if (op == "soe.read") {
+      auto data =
+          (*slave)->soe_read(static_cast<std::uint8_t>(drive), static_cast<std::uint16_t>(*idn),
+                             static_cast<std::uint8_t>(elements));
+      if (!data) return data.error();
+      return Json{{"size", data->size()}, {"data", detail::hex(*data)}};
+    }
+    auto data = r.bytes("data");
+    if (!data) return data.error();
+    if (auto done =
+            (*slave)->soe_write(static_cast<std::uint8_t>(drive), static_cast<std::uint16_t>(*idn),
+                                static_cast<std::uint8_t>(elements), std::move(*data));
+        !done) {
+      return done.error();
+    }
+    return Json::object();
   }
   if (op == "sii.read") {
     auto slave = find_slave(master, r);

@@ -88,7 +88,9 @@ struct Master::Impl : DomainObserver {
           return fmt::format(R"({{"ok":false,"error":"{}","code":"{}"}})", message,
                              busy ? "busy" : "out_of_range");
         },
-        {.mode = want.mode, .what = "master"});
+        // Requests may carry a firmware image in hex (foe.write, sii.write): lines up to 32 MiB
+        // (16 MiB of file), at most 16 clients: a bounded 512 MiB in the worst case.
+        {.mode = want.mode, .max_line = 32u << 20, .what = "master"});
     if (!started) {
       return started.error().context(
           started.error().code(),

@@ -3,6 +3,7 @@
 // service cleanly, and the same commands standalone on their own session.
 #include <string>
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -83,6 +84,12 @@ TEST(InstrumentTool, StandaloneCommandsRunTheirOwnSession) {
   r = tool.run("slaves --ring '" + default_ring() + "' --json");
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_EQ(json::parse(r.out)["slaves"].size(), 5u);
+  r = tool.run("pdos --ring '" + default_ring() + "' --name drive");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("0x6040:00 16 bits \"Controlword\""), std::string::npos) << r.out;
+  r = tool.run("alias --ring '" + default_ring() + "' --name inputs 0x0042 --json");
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_EQ(json::parse(r.out)["alias"], 0x42);
   r = tool.run("domains --ring '" + default_ring() + "' --json");
   ASSERT_EQ(r.status, 0) << r.err;
   // Laid out, not cycling: the slaves are held in PREOP, nothing moves.
@@ -90,6 +97,38 @@ TEST(InstrumentTool, StandaloneCommandsRunTheirOwnSession) {
   EXPECT_EQ(domains[0]["id"], "main");
   EXPECT_EQ(domains[0]["image_size"], 40);
   EXPECT_EQ(domains[0]["state"], "open");
+}
+
+TEST(InstrumentTool, WritesThroughAServiceThatAllowsThem) {
+  ToolRunner tool("writes");
+  const std::string socket = (tool.dir() / "w.sock").string();
+  const std::string script = fmt::format(
+      R"("$ECAT" serve '{ring}' --control '{sock}' --writes --timeout 20 2>serve.err &
+pid=$!
+for i in $(seq 1 400); do "$ECAT" master --attach '{sock}' --json 2>/dev/null | grep -q '"state": "operational"' && break; sleep 0.05; done
+cd '{dir}'
+printf 'firmware notes' > notes.txt
+"$ECAT" foe_write --attach '{sock}' --name drive notes.txt notes.txt > foe_write.txt
+"$ECAT" foe_read --attach '{sock}' --name drive notes.txt -o back.txt > foe_read.txt
+"$ECAT" download --attach '{sock}' --name drive 0x6065 0 5000 --type uint32 > download.txt; echo $? > download.code
+"$ECAT" upload --attach '{sock}' --name drive 0x6065 0 --type uint32 > upload.txt
+"$ECAT" alias --attach '{sock}' --name inputs 0x1234 --json > alias.json; echo $? > alias.code
+"$ECAT" diag --attach '{sock}' > diag.txt
+"$ECAT" crc --attach '{sock}' --json > crc.json
+kill -TERM $pid; wait $pid; echo $? > serve.code)",
+      fmt::arg("ring", default_ring()), fmt::arg("sock", socket),
+      fmt::arg("dir", tool.dir().string()));
+  (void)tool.run_script("cd '" + tool.dir().string() + "' && " + script);
+  const auto file = [&](const char* name) { return read_text_file(tool.dir() / name); };
+  EXPECT_EQ(file("serve.code"), "0\n") << file("serve.err");
+  EXPECT_EQ(file("back.txt"), "firmware notes") << file("foe_write.txt") << file("foe_read.txt");
+  EXPECT_EQ(file("download.code"), "0\n") << file("download.txt");
+  EXPECT_EQ(file("upload.txt"), "5000\n");
+  // EEPROM writes need the slave in INIT or PREOP: refused while the service runs it in OP.
+  EXPECT_EQ(file("alias.code"), "1\n");
+  EXPECT_EQ(json::parse(file("alias.json"))["code"], "wrong_state") << file("alias.json");
+  EXPECT_NE(file("diag.txt").find("master: operational"), std::string::npos) << file("diag.txt");
+  EXPECT_EQ(json::parse(file("crc.json"))["slaves"].size(), 5u);
 }
 
 TEST(InstrumentTool, ClearErrorsWithoutAMaster) {

@@ -21,6 +21,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -32,6 +33,7 @@
 #include <ecat/ipc/line_server.hpp>
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/version.hpp>
 
 #include "command.hpp"
 #include "interrupt.hpp"
@@ -786,6 +788,347 @@ int cmd_events(const EventsOptions& o) {
   return 0;
 }
 
+struct FileOptions {
+  Common common;
+  std::string remote;  // the file's name on the slave
+  std::string local;   // the file here
+  std::optional<std::string> password;
+};
+
+std::optional<std::vector<std::uint8_t>> read_local(const std::string& path, bool json) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    Connection::print_error(Error(Errc::not_found, fmt::format("cannot read '{}'", path)), json);
+    return std::nullopt;
+  }
+  std::vector<std::uint8_t> bytes{std::istreambuf_iterator<char>(in),
+                                  std::istreambuf_iterator<char>()};
+  if (bytes.size() > (16u << 20)) {
+    Connection::print_error(
+        Error(Errc::out_of_range, fmt::format("'{}' is larger than 16 MiB", path)), json);
+    return std::nullopt;
+  }
+  return bytes;
+}
+
+Result<void> write_local(const std::string& path, const std::vector<std::uint8_t>& bytes) {
+  std::ofstream out(path, std::ios::binary);
+  out.write(reinterpret_cast<const char*>(bytes.data()),
+            static_cast<std::streamsize>(bytes.size()));
+  if (!out) return Error(Errc::io_error, fmt::format("cannot write '{}'", path));
+  return {};
+}
+
+int cmd_foe(const FileOptions& o, bool write) {
+  std::vector<std::uint8_t> bytes;
+  if (write) {
+    auto read = read_local(o.local, o.common.target.json);
+    if (!read) return 2;
+    bytes = std::move(*read);
+  }
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  Json request{{"op", write ? "foe.write" : "foe.read"}, {"slave", *name}, {"file", o.remote}};
+  if (o.password) request["password"] = *o.password;
+  if (write) request["data"] = to_hex(bytes);
+  auto r = c->call(request);
+  if (r && !write) {
+    if (auto done = write_local(o.local, from_hex(r->value("data", ""))); !done) {
+      r = done.error();
+    } else {
+      r->erase("data");
+    }
+  }
+  return finish(r, o.common.target.json, [&](const Json& j) {
+    fmt::print("{} bytes {} {} '{}'\n", j.value("size", 0), write ? "written to" : "read from",
+               *name, o.remote);
+  });
+}
+
+struct SoeOptions {
+  Common common;
+  std::string idn;
+  std::string value;
+  std::string type;
+  unsigned drive = 0;
+  std::string elements = "0x40";
+};
+
+// "S-0-0047", "P-0-0010" or a number.
+std::optional<std::string> idn_number(const std::string& text) {
+  if (text.size() == 8 && (text[0] == 'S' || text[0] == 'P') && text[1] == '-' && text[3] == '-' &&
+      text[2] >= '0' && text[2] <= '7' &&
+      text.find_first_not_of("0123456789", 4) == std::string::npos) {
+    const unsigned number = static_cast<unsigned>(std::stoul(text.substr(4)));
+    if (number > 4095) return std::nullopt;
+    const unsigned idn =
+        (text[0] == 'P' ? 0x8000u : 0u) | (static_cast<unsigned>(text[2] - '0') << 12) | number;
+    return std::to_string(idn);
+  }
+  if (!text.empty() && text.find_first_not_of("0123456789abcdefABCDEFx") == std::string::npos) {
+    return text;
+  }
+  return std::nullopt;
+}
+
+int cmd_soe(const SoeOptions& o, bool write) {
+  const auto idn = idn_number(o.idn);
+  if (!idn) {
+    Connection::print_error(
+        Error(Errc::invalid_argument,
+              fmt::format("IDN '{}' is not S-x-nnnn, P-x-nnnn or a number", o.idn)),
+        o.common.target.json);
+    return 2;
+  }
+  std::vector<std::uint8_t> bytes;
+  if (write) {
+    auto encoded = encode_typed(o.type.empty() ? "octets" : o.type, o.value);
+    if (!encoded) {
+      Connection::print_error(encoded.error(), o.common.target.json);
+      return 2;
+    }
+    bytes = std::move(*encoded);
+  }
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  Json request{{"op", write ? "soe.write" : "soe.read"},
+               {"slave", *name},
+               {"drive", o.drive},
+               {"idn", *idn},
+               {"elements", o.elements}};
+  if (write) request["data"] = to_hex(bytes);
+  auto r = c->call(request);
+  if (r && !write) {
+    auto value = decode_typed(o.type, from_hex(r->value("data", "")));
+    if (!value) {
+      r = value.error();
+    } else {
+      (*r)["value"] = *value;
+    }
+  }
+  return finish(r, o.common.target.json, [&](const Json& j) {
+    if (write) {
+      fmt::print("{} {} <- {}\n", *name, o.idn, o.value);
+    } else {
+      fmt::print("{}\n", show(j["value"]));
+    }
+  });
+}
+
+struct AliasOptions {
+  Common common;
+  std::string alias;
+};
+
+int cmd_alias(const AliasOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(Json{{"op", "alias.write"}, {"slave", *name}, {"alias", o.alias}});
+  return finish(r, o.common.target.json, [&](const Json& j) {
+    fmt::print("{}: alias 0x{:04x} written to the EEPROM (the ESC takes it at its next power-up)\n",
+               *name, j.value("alias", 0u));
+  });
+}
+
+int cmd_sii_write(const SiiOptions& o) {
+  auto bytes = read_local(o.output, o.common.target.json);
+  if (!bytes) return 2;
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  auto r = c->call(Json{{"op", "sii.write"}, {"slave", *name}, {"data", to_hex(*bytes)}});
+  return finish(r, o.common.target.json, [&](const Json& j) {
+    fmt::print("{}: {} bytes written to the EEPROM and verified\n", *name, j.value("size", 0));
+  });
+}
+
+int cmd_pdos(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.slave);
+  if (!name) return finish(name.error(), o.target.json, {});
+  auto r = c->call(Json{{"op", "pdos"}, {"slave", *name}});
+  return finish(r, o.target.json, [](const Json& j) {
+    const auto print_pdo = [](const Json& p, const char* indent) {
+      fmt::print("{}{} {} \"{}\"{}\n", indent, show(p["index"]), p.value("direction", ""),
+                 p.value("name", ""), p.value("fixed", false) ? " (fixed)" : "");
+      for (const auto& e : p["entries"]) {
+        fmt::print("{}  {}:{:02x} {:>2} bits \"{}\"\n", indent, show(e["index"]),
+                   e.value("subindex", 0), e.value("bit_length", 0), e.value("name", ""));
+      }
+    };
+    for (const auto& sm : j["sync_managers"]) {
+      fmt::print("SM{} {} ({} bytes)\n", sm.value("sync_manager", 0), sm.value("direction", ""),
+                 sm.value("bytes", 0));
+      for (const auto& p : sm["pdos"])
+        print_pdo(p, "  ");
+    }
+    if (!j["unassigned"].empty()) fmt::print("not assigned:\n");
+    for (const auto& p : j["unassigned"])
+      print_pdo(p, "  ");
+  });
+}
+
+// The ESC's error counters (0x0300..0x0313): per port RX errors (invalid frame, physical layer),
+// forwarded RX errors, processing unit and PDI errors, lost links.
+int cmd_crc(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto slaves = c->call(Json{{"op", "slaves"}});
+  if (!slaves) return finish(slaves.error(), o.target.json, {});
+  Json rows = Json::array();
+  for (const auto& s : (*slaves)["slaves"]) {
+    const std::string name = s.value("name", "");
+    if (!o.slave.name.empty() && name != o.slave.name) continue;
+    if (o.slave.position && s.value("position", -1) != static_cast<int>(*o.slave.position)) {
+      continue;
+    }
+    auto r =
+        c->call(Json{{"op", "reg.read"}, {"slave", name}, {"address", 0x0300}, {"length", 20}});
+    if (!r) {
+      rows.push_back({{"name", name}, {"error", r.error().message()}});
+      continue;
+    }
+    const auto b = from_hex(r->value("data", ""));
+    if (b.size() != 20) continue;
+    Json ports = Json::array();
+    for (int p = 0; p < 4; ++p) {
+      ports.push_back({{"invalid_frames", b[2 * p]},
+                       {"rx_errors", b[2 * p + 1]},
+                       {"forwarded_errors", b[8 + p]},
+                       {"lost_links", b[16 + p]}});
+    }
+    rows.push_back({{"name", name},
+                    {"position", s.value("position", 0)},
+                    {"ports", ports},
+                    {"processing_unit_errors", b[12]},
+                    {"pdi_errors", b[13]}});
+  }
+  return finish(Json{{"slaves", rows}}, o.target.json, [](const Json& j) {
+    fmt::print("{:>3}  {:<14} {:>23} {:>23} {:>23} {:>23}  {:>4} {:>4}\n", "pos", "name",
+               "port 0 inv/rx/fwd/lost", "port 1", "port 2", "port 3", "pu", "pdi");
+    for (const auto& s : j["slaves"]) {
+      if (s.contains("error")) {
+        fmt::print("     {:<14} {}\n", s.value("name", ""), show(s["error"]));
+        continue;
+      }
+      std::string cells;
+      for (const auto& p : s["ports"]) {
+        cells += fmt::format(
+            " {:>23}",
+            fmt::format("{}/{}/{}/{}", p.value("invalid_frames", 0), p.value("rx_errors", 0),
+                        p.value("forwarded_errors", 0), p.value("lost_links", 0)));
+      }
+      fmt::print("{:>3}  {:<14}{}  {:>4} {:>4}\n", s.value("position", 0), s.value("name", ""),
+                 cells, s.value("processing_unit_errors", 0), s.value("pdi_errors", 0));
+    }
+  });
+}
+
+// What is wrong now, per slave, in words: the session's failures and faults, each slave's state
+// against its target and the AL status code it reported, and the ESC error counters that count.
+int cmd_diag(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto status = c->call(Json{{"op", "status"}});
+  if (!status) return finish(status.error(), o.target.json, {});
+  auto al = c->call(Json{{"op", "al_status"}});
+  if (!al) return finish(al.error(), o.target.json, {});
+  Json findings = Json::array();
+  for (const auto& f : (*status)["activation_failures"]) {
+    findings.push_back({{"slave", f.value("slave", "")}, {"problem", f.value("error", "")}});
+  }
+  for (const auto& f : (*status)["runtime_faults"])
+    findings.push_back({{"slave", ""}, {"problem", show(f)}});
+  if ((*status)["last_failure"].is_object()) {
+    findings.push_back({{"slave", ""},
+                        {"problem", fmt::format("the last session ended: {}",
+                                                (*status)["last_failure"].value("error", ""))}});
+  }
+  std::map<std::string, Json> codes;
+  for (const auto& s : (*al)["slaves"])
+    codes[s.value("name", "")] = s;
+  for (const auto& s : (*status)["slaves"]) {
+    const std::string name = s.value("name", "");
+    const std::string state = s.value("state", "");
+    const std::string target = s.value("target", "");
+    if (state != target && (*status).value("state", "") != "preop_ready") {
+      std::string why = fmt::format("{} instead of {}", state, target);
+      if (codes[name].contains("al_status_text")) {
+        why += fmt::format(" (AL status 0x{:04x}: {})", codes[name].value("al_status_code", 0),
+                           codes[name].value("al_status_text", ""));
+      }
+      findings.push_back({{"slave", name}, {"problem", why}});
+    }
+    if (s.contains("fault")) findings.push_back({{"slave", name}, {"problem", show(s["fault"])}});
+    if (s.contains("startup_error")) {
+      findings.push_back({{"slave", name}, {"problem", show(s["startup_error"])}});
+    }
+    auto counters =
+        c->call(Json{{"op", "reg.read"}, {"slave", name}, {"address", 0x0300}, {"length", 20}});
+    if (!counters) {
+      findings.push_back(
+          {{"slave", name},
+           {"problem", "its error counters do not read: " + counters.error().message()}});
+      continue;
+    }
+    const auto b = from_hex(counters->value("data", ""));
+    for (int p = 0; p < 4 && b.size() == 20; ++p) {
+      if (b[2 * p] != 0 || b[2 * p + 1] != 0) {
+        findings.push_back({{"slave", name},
+                            {"problem", fmt::format("port {} received {} invalid frame(s) and {} "
+                                                    "physical layer error(s): a cable or "
+                                                    "connector on that port",
+                                                    p, b[2 * p], b[2 * p + 1])}});
+      }
+      if (b[16 + p] != 0) {
+        findings.push_back(
+            {{"slave", name},
+             {"problem", fmt::format("port {} lost its link {} time(s)", p, b[16 + p])}});
+      }
+    }
+  }
+  return finish(Json{{"state", (*status).value("state", "")}, {"findings", findings}},
+                o.target.json, [](const Json& j) {
+                  fmt::print("master: {}\n", j.value("state", ""));
+                  if (j["findings"].empty()) fmt::print("nothing wrong found\n");
+                  for (const auto& f : j["findings"]) {
+                    const std::string who = f.value("slave", "");
+                    fmt::print("  {}{}\n", who.empty() ? "" : who + ": ", f.value("problem", ""));
+                  }
+                });
+}
+
+int cmd_version(const Common& o) {
+  Json out{{"tool", ECAT_VERSION_STRING}};
+  if (o.target.attach) {
+    int code = 0;
+    auto c = Connection::open(o.target, &code);
+    if (!c) return code;
+    auto r = c->call(Json{{"op", "version"}});
+    if (!r) return finish(r.error(), o.target.json, {});
+    out["master"] = r->value("version", "");
+  }
+  return finish(out, o.target.json, [](const Json& j) {
+    fmt::print("ecat {}\n", j.value("tool", ""));
+    if (j.contains("master")) fmt::print("attached master: ecat {}\n", j.value("master", ""));
+  });
+}
+
 // ---- Registration -----------------------------------------------------------------------------
 
 template <class O>
@@ -907,10 +1250,106 @@ ecat::tool::Command setup_events(CLI::App& parent) {
   return {app, [o] { return cmd_events(*o); }};
 }
 
+void add_file_options(CLI::App* app, FileOptions& o, bool write) {
+  app->add_option("FILE", o.remote, "The file's name on the slave")->required();
+  app->add_option(write ? "SOURCE" : "-o,--output", o.local,
+                  write ? "The local file to send" : "Where to write what was read")
+      ->required();
+  app->add_option("--password", o.password, "FoE password (a number)");
+}
+
+ecat::tool::Command setup_foe_read(CLI::App& parent) {
+  auto o = std::make_shared<FileOptions>();
+  auto* app = base(parent, "foe_read", "Read a file from a slave (FoE)", o->common, true, true);
+  add_file_options(app, *o, false);
+  return {app, [o] { return cmd_foe(*o, false); }};
+}
+
+ecat::tool::Command setup_foe_write(CLI::App& parent) {
+  auto o = std::make_shared<FileOptions>();
+  auto* app = base(parent, "foe_write",
+                   "Write a file to a slave (FoE; attached: the endpoint must allow writes)",
+                   o->common, true, true);
+  add_file_options(app, *o, true);
+  return {app, [o] { return cmd_foe(*o, true); }};
+}
+
+void add_soe_options(CLI::App* app, SoeOptions& o) {
+  app->add_option("IDN", o.idn, "S-0-0047, P-0-0010 or a number")->required();
+  app->add_option("--drive", o.drive, "Drive number (0..7)")->check(CLI::Range(0, 7));
+  app->add_option("--elements", o.elements, "Element flags (0x40: the value)");
+  app->add_option("--type", o.type, std::string("Value type: ") + kTypes);
+}
+
+ecat::tool::Command setup_soe_read(CLI::App& parent) {
+  auto o = std::make_shared<SoeOptions>();
+  auto* app = base(parent, "soe_read", "Read an IDN of a servo drive (SoE)", o->common, true, true);
+  add_soe_options(app, *o);
+  return {app, [o] { return cmd_soe(*o, false); }};
+}
+
+ecat::tool::Command setup_soe_write(CLI::App& parent) {
+  auto o = std::make_shared<SoeOptions>();
+  auto* app = base(parent, "soe_write",
+                   "Write an IDN of a servo drive (SoE; attached: the endpoint must allow writes)",
+                   o->common, true, true);
+  add_soe_options(app, *o);
+  app->add_option("VALUE", o->value, "The value, as --type says (default: hex octets)")->required();
+  return {app, [o] { return cmd_soe(*o, true); }};
+}
+
+ecat::tool::Command setup_alias(CLI::App& parent) {
+  auto o = std::make_shared<AliasOptions>();
+  auto* app = base(parent, "alias",
+                   "Write a slave's station alias into its EEPROM (SII word 4, checksum fixed)",
+                   o->common, true, true);
+  app->add_option("ALIAS", o->alias, "The alias (0x1234 or decimal)")->required();
+  return {app, [o] { return cmd_alias(*o); }};
+}
+
+ecat::tool::Command setup_sii_write(CLI::App& parent) {
+  auto o = std::make_shared<SiiOptions>();
+  auto* app =
+      base(parent, "sii_write", "Write an SII image into a slave's EEPROM (written words verified)",
+           o->common, true, true);
+  app->add_option("IMAGE", o->output, "The raw image file (as sii_read -o writes it)")->required();
+  return {app, [o] { return cmd_sii_write(*o); }};
+}
+
+ecat::tool::Command setup_pdos(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app =
+      base(parent, "pdos", "A slave's PDO assignment and mapping, as configured", *o, true, true);
+  return {app, [o] { return cmd_pdos(*o); }};
+}
+
+ecat::tool::Command setup_crc(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app = base(parent, "crc", "The ESCs' frame error and lost-link counters (0x0300..)", *o,
+                   true, false);
+  return {app, [o] { return cmd_crc(*o); }};
+}
+
+ecat::tool::Command setup_diag(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app = base(parent, "diag", "What is wrong now, per slave, in words", *o, false, false);
+  return {app, [o] { return cmd_diag(*o); }};
+}
+
+ecat::tool::Command setup_version(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app =
+      base(parent, "version", "The tool's version (and an attached master's)", *o, false, false);
+  return {app, [o] { return cmd_version(*o); }};
+}
+
 const bool registered = [] {
-  for (auto setup : {&setup_slaves, &setup_master, &setup_domains, &setup_data, &setup_upload,
-                     &setup_download, &setup_states, &setup_reg_read, &setup_reg_write,
-                     &setup_sii_read, &setup_sdos, &setup_events}) {
+  for (auto setup :
+       {&setup_slaves,    &setup_master, &setup_domains,   &setup_data,      &setup_upload,
+        &setup_download,  &setup_states, &setup_reg_read,  &setup_reg_write, &setup_sii_read,
+        &setup_sdos,      &setup_events, &setup_foe_read,  &setup_foe_write, &setup_soe_read,
+        &setup_soe_write, &setup_alias,  &setup_sii_write, &setup_pdos,      &setup_crc,
+        &setup_diag,      &setup_version}) {
     ecat::tool::register_command(setup);
   }
   return true;
