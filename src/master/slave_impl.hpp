@@ -23,6 +23,8 @@
 
 namespace ecat::master {
 
+class EoeClient;  // <ecat/master/eoe.hpp>
+
 struct Slave::Impl {
   Impl(Slave& owner, Session& s, SlaveConfig c);
 
@@ -147,6 +149,9 @@ struct Slave::Impl {
   exec::Task<Result<void>> go_to(wire::AlState target, std::shared_ptr<Session> keep);
   // go_to's walk itself, for the firmware update that holds the slave (go_to refuses then).
   exec::Task<Result<void>> walk_to(wire::AlState target, std::shared_ptr<Session> keep);
+
+  // ---- EoE (slave_eoe.cpp): frame counter, reassembly and counters, made at the first use ----
+  std::shared_ptr<EoeClient> eoe;  // loop thread only
 
   // ---- FoE and BOOTSTRAP (slave_foe.cpp) ----
   // The mailbox of the SII's bootstrap mailbox while the slave is in BOOTSTRAP: go_to writes its

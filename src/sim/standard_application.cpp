@@ -81,6 +81,14 @@ StandardApplication::StandardApplication(StandardConfig config)
                                [this](Esc& esc, const wire::MailboxHeader& header,
                                       wire::Bytes data) { return soe_->handle(esc, header, data); });
   }
+  if (coe_ && (config_.sii.mailbox_protocols & wire::mailbox_protocol::kEoe) != 0) {
+    eoe_ = std::make_unique<EoeServer>(*coe_, config_.eoe);
+    coe_->set_protocol_handler(
+        wire::MailboxType::eoe,
+        [this](Esc& esc, const wire::MailboxHeader& header, wire::Bytes data) {
+          return eoe_->handle(esc, header, data);
+        });
+  }
 }
 
 AlState StandardApplication::al_state() const noexcept {
@@ -104,6 +112,10 @@ void StandardApplication::start(Esc& esc) {
   if (soe_) {
     soe_->power_up();
     soe_->clear_faults();
+  }
+  if (eoe_) {
+    eoe_->power_up();
+    eoe_->clear_faults();
   }
   layouts_.clear();
   valid_outputs_.clear();

@@ -30,6 +30,7 @@
 
 namespace ecat::wire {
 struct VoeMessage;  // <ecat/wire/voe.hpp>: declared only, so the application's face stays small
+struct EoeIpParameters;  // <ecat/wire/eoe.hpp>
 }  // namespace ecat::wire
 
 namespace ecat::master {
@@ -40,6 +41,7 @@ struct SoeNotification;  // <ecat/master/soe.hpp>
 // small: callers that pass options include the header.
 struct FoeOptions;       // <ecat/master/foe.hpp>
 struct SiiWriteOptions;  // <ecat/master/sii_writer.hpp>
+struct EoeStats;         // <ecat/master/eoe.hpp>
 namespace detail {
 class SlaveAccess;
 }
@@ -199,6 +201,21 @@ class Slave {
                         std::vector<std::uint8_t> data,
                         std::chrono::nanoseconds timeout = std::chrono::seconds(1));
   Result<wire::VoeMessage> voe_receive(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+
+  // EoE
+  // Ethernet over EtherCAT (master/eoe.hpp): Errc::unsupported when the SII does not declare
+  // EoE, Errc::wrong_state below PREOP. eoe_send tunnels one Ethernet frame (14..1518 bytes, no
+  // FCS) in fragments; eoe_receive gives the frames the slave sent, reassembled, oldest first,
+  // waiting up to `timeout` for the first (empty when none came: not an error); eoe_set_ip is the
+  // Set IP Parameter service (a refusal is Errc::mailbox_error, master::eoe_result_code).
+  Result<void> eoe_send(std::span<const std::uint8_t> frame,
+                        std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  Result<std::vector<std::vector<std::uint8_t>>> eoe_receive(
+      std::chrono::nanoseconds timeout = std::chrono::milliseconds(100));
+  Result<void> eoe_set_ip(const wire::EoeIpParameters& parameters,
+                          std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  // The slave's EoE counters (frames, fragments, drops); zeros before the first EoE call.
+  Result<EoeStats> eoe_stats(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
 
   // CoE emergencies the slave sent since the last call, oldest first (the mailbox is read first,
   // so an emergency waiting in it is included). Empty for a slave without a mailbox.

@@ -45,6 +45,7 @@
 #include <ecat/result.hpp>
 #include <ecat/sim/coe_server.hpp>
 #include <ecat/sim/device.hpp>
+#include <ecat/sim/eoe_server.hpp>
 #include <ecat/sim/foe_server.hpp>
 #include <ecat/sim/object_dictionary.hpp>
 #include <ecat/sim/pdo_mapping.hpp>
@@ -84,6 +85,7 @@ struct StandardConfig {
   CoeServerConfig coe{};  // used when the SII declares a standard mailbox
   SoeServerConfig soe{};  // used when the SII's mailbox protocols also declare SoE
   FoeServerConfig foe{};  // used when it also declares FoE (mailbox protocols)
+  EoeServerConfig eoe{};  // used when it also declares EoE (mailbox protocols)
   bool check_fmmus = false;
   bool require_valid_outputs = false;
   // Also a DC requirement: 0x1C32:01 (SM output parameter, synchronisation type) written to 2
@@ -121,6 +123,8 @@ class StandardApplication : public DeviceApplication {
   SoeServer* soe_server() noexcept { return soe_.get(); }
   // The FoE server, or nullptr unless the SII declares FoE (and a standard mailbox).
   FoeServer* foe_server() noexcept { return foe_.get(); }
+  // The EoE server, or nullptr unless the SII declares EoE (and a standard mailbox).
+  EoeServer* eoe_server() noexcept { return eoe_.get(); }
   const wire::SiiImage& sii() const noexcept { return config_.sii; }
   const std::vector<ProcessDataSyncManager>& process_data() const noexcept { return pd_sms_; }
   // The process data of SyncManager `sm` as the dictionary says now.
@@ -223,6 +227,7 @@ class StandardApplication : public DeviceApplication {
   std::unique_ptr<CoeServer> coe_;
   std::unique_ptr<SoeServer> soe_;
   std::unique_ptr<FoeServer> foe_;
+  std::unique_ptr<EoeServer> eoe_;
   std::vector<ProcessDataSyncManager> pd_sms_;
   std::map<std::uint8_t, SyncManagerLayout> layouts_;  // frozen at PREOP -> SAFEOP
   std::vector<Binding> bindings_;

@@ -74,6 +74,8 @@ constexpr Profile kProfiles[] = {
     {"soe_drive",
      "SERCOS servo drive over SoE (no CoE): IDNs S-0-0001.., fragmented reads, SII process data",
      &devices::make_soe_drive},
+    {"eoe_device", "a network node over EoE (CoE + EoE, no process data): answers ARP and ping",
+     &devices::make_eoe_device},
     {"eeprom", "a device rebuilt from a real SII EEPROM image (file=path)",
      &devices::make_eeprom_device},
     {"esi", "a device built from an ESI XML description (file=path, product=0x...)",

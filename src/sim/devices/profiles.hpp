@@ -98,6 +98,7 @@ Result<std::unique_ptr<Esc>> make_el4102(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_servo(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_mailbox_device(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_soe_drive(const DeviceConfig& config);
+Result<std::unique_ptr<Esc>> make_eoe_device(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_eeprom_device(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_esi_device(const DeviceConfig& config);
 
