@@ -595,9 +595,7 @@ Result<MasterConfig> parse_master_config(std::string_view yaml, std::string sour
 }
 
 Result<MasterConfig> load_master_config(const std::string& path) {
-  auto text = read_file(path, FileKind::ring);
-  if (!text) return std::move(text).error();
-  return parse_master_config(*text, path);
+  return load_master_config(path, nullptr);  // a ring file or an ENI (config_eni.cpp)
 }
 
 }  // namespace ecat::master

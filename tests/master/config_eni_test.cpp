@@ -1,0 +1,255 @@
+// ENI files mapped onto a MasterConfig (import_eni, load_master_config): the configuration the
+// example ENI of examples/default.yaml's ring maps to, the report of what ecat does not use, and
+// the simulated ring brought to OP by a master configured from it.
+#include <algorithm>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include <ecat/master/config.hpp>
+#include <ecat/master/master.hpp>
+#include <ecat/master/slave.hpp>
+
+#include "master/master_test_support.hpp"
+
+namespace ecat::master {
+namespace {
+
+using namespace std::chrono_literals;
+
+const std::string kExample = std::string(ECAT_SOURCE_DIR) + "/examples/default-eni.xml";
+const std::string kDefaultRing = std::string(ECAT_SOURCE_DIR) + "/examples/default.yaml";
+
+std::string read_text(const std::string& path) {
+  std::ifstream in(path);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+bool reported(const std::vector<std::string>& report, const std::string& fragment) {
+  return std::any_of(report.begin(), report.end(), [&](const std::string& line) {
+    return line.find(fragment) != std::string::npos;
+  });
+}
+
+bool eventually(const std::function<bool()>& condition, std::chrono::milliseconds limit = 10s) {
+  const auto deadline = std::chrono::steady_clock::now() + limit;
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (condition()) return true;
+    std::this_thread::sleep_for(5ms);
+  }
+  return condition();
+}
+
+std::string joined(const std::vector<std::string>& report) {
+  std::string out;
+  for (const auto& l : report)
+    out += l + "\n";
+  return out;
+}
+
+TEST(ConfigEni, TheExampleMapsToSlavesDomainsAndStartupSdos) {
+  auto imported = import_eni(read_text(kExample), kExample);
+  ASSERT_TRUE(imported) << imported.error().describe();
+  const MasterConfig& c = imported->config;
+  ASSERT_EQ(c.domains.size(), 1u);
+  EXPECT_EQ(c.domains[0].id, "main");
+  EXPECT_EQ(c.domains[0].period, 1ms);
+  EXPECT_EQ(c.base_station, 0x1000);  // the ENI's PhysAddr 4096 + position
+  ASSERT_EQ(c.slaves.size(), 5u);
+  EXPECT_EQ(c.slaves[0].name, "Term_1_EK1100");
+  EXPECT_EQ(c.slaves[4].name, "Drive_1_ECAT-SERVO");
+  for (std::size_t i = 0; i < c.slaves.size(); ++i) {
+    EXPECT_EQ(c.slaves[i].position, i) << c.slaves[i].name;
+    EXPECT_FALSE(c.slaves[i].alias);
+  }
+  EXPECT_EQ(c.slaves[0].vendor_id, 2u);
+  EXPECT_EQ(c.slaves[0].product_code, 0x044C2C52u);
+  EXPECT_EQ(c.slaves[4].vendor_id, 0xACEu);
+  EXPECT_EQ(c.slaves[4].product_code, 0x2402u);
+
+  EXPECT_EQ(c.slaves[0].process_data.kind, ProcessDataRequest::Kind::none);
+  for (std::size_t i = 1; i < 5; ++i) {
+    EXPECT_EQ(c.slaves[i].process_data.kind, ProcessDataRequest::Kind::all);
+    EXPECT_EQ(c.slaves[i].process_data.domain, "main");
+  }
+  // No CoE: the terminals keep their SII layout.
+  EXPECT_EQ(c.slaves[1].pdo_source, SlaveConfig::PdoSource::sii);
+  EXPECT_EQ(c.slaves[2].pdo_source, SlaveConfig::PdoSource::sii);
+  // The EL3202: CoE, no assignment in its InitCmds: written from the ENI's lists.
+  const auto& rtd = c.slaves[3];
+  EXPECT_EQ(rtd.pdo_source, SlaveConfig::PdoSource::configured);
+  ASSERT_TRUE(rtd.pdo_mapping);
+  ASSERT_EQ(rtd.pdo_mapping->assignments.size(), 1u);
+  EXPECT_EQ(rtd.pdo_mapping->assignments[0].sync_manager, 3);
+  EXPECT_EQ(rtd.pdo_mapping->assignments[0].pdo_indices,
+            (std::vector<std::uint16_t>{0x1A00, 0x1A01}));
+  EXPECT_EQ(rtd.pdo_mapping->assignments[0].direction, PdoDirection::input);
+  ASSERT_EQ(rtd.pdo_mapping->mappings.size(), 2u);
+  EXPECT_EQ(rtd.pdo_mapping->mappings[0].entries.size(), 9u);
+  EXPECT_EQ(rtd.pdo_mapping->mappings[0].entries[8], coe_mapping_entry(0x6000, 0x11, 16));
+  EXPECT_EQ(rtd.pdo_mapping->mappings[0].entries[5], coe_mapping_entry(0, 0, 7));
+  const auto value =
+      std::find_if(rtd.pdo_mapping->entry_info.begin(), rtd.pdo_mapping->entry_info.end(),
+                   [](const CoeEntryInfo& e) { return e.index == 0x6000 && e.subindex == 0x11; });
+  ASSERT_NE(value, rtd.pdo_mapping->entry_info.end());
+  EXPECT_EQ(value->data_type, coe_type::kInteger16);
+  EXPECT_EQ(value->name, "Value");
+  // Its PS download runs; its upload does not.
+  ASSERT_EQ(rtd.startup_sdos.size(), 1u);
+  EXPECT_EQ(rtd.startup_sdos[0].index, 0x8000);
+  EXPECT_EQ(rtd.startup_sdos[0].subindex, 0x15);
+
+  // The drive: its InitCmds write the assignment, so they carry it and the layout is read back.
+  const auto& drive = c.slaves[4];
+  EXPECT_EQ(drive.pdo_source, SlaveConfig::PdoSource::coe);
+  ASSERT_EQ(drive.startup_sdos.size(), 7u);  // IP + PS, in order; not the SO one
+  EXPECT_EQ(drive.startup_sdos[0],
+            (SdoWrite{.index = 0x6060, .subindex = 0, .data = {0x08}, .complete_access = false}));
+  EXPECT_EQ(drive.startup_sdos[2],
+            (SdoWrite{.index = 0x1C12, .subindex = 1, .data = {0x00, 0x16}}));
+  EXPECT_EQ(drive.startup_sdos[6], (SdoWrite{.index = 0x1C13, .subindex = 0, .data = {0x01}}));
+  ASSERT_TRUE(drive.sync);
+  EXPECT_EQ(drive.sync->mode, SyncMode::sync0);
+  EXPECT_EQ(drive.sync->assign_activate, 0x0300);
+  EXPECT_EQ(drive.sync->sync0_shift, 0ns);
+  EXPECT_FALSE(c.slaves[0].sync);
+  ASSERT_TRUE(c.dc);
+  EXPECT_EQ(c.dc->cycle, 1ms);
+}
+
+TEST(ConfigEni, TheReportNamesWhatIsNotUsedWithElementAndSlave) {
+  auto imported = import_eni(read_text(kExample), kExample);
+  ASSERT_TRUE(imported) << imported.error().describe();
+  const auto& r = imported->report;
+  const auto all = joined(r);
+  EXPECT_TRUE(reported(r, "Cyclic (line")) << all;
+  EXPECT_TRUE(reported(r, "LRW 0x00010000+51")) << all;
+  EXPECT_TRUE(reported(r, "ProcessImage")) << all;
+  EXPECT_TRUE(reported(r, "Master/InitCmds: 1 command(s) not replayed")) << all;
+  EXPECT_TRUE(reported(r, "Master/MailboxStates")) << all;
+  EXPECT_TRUE(reported(r, "slave \"Term 2 (EL1809)\" (line")) << all;
+  EXPECT_TRUE(reported(r, "InitCmds: 3 ESC register command(s) not replayed")) << all;
+  EXPECT_TRUE(reported(r, "(the DC activation 0x0981 is taken from them)")) << all;
+  EXPECT_TRUE(reported(r, "slave \"Term 3 (EL2809)\"")) << all;
+  EXPECT_TRUE(reported(r, "no CoE mailbox, so its PDO assignment cannot be written")) << all;
+  EXPECT_TRUE(reported(r, "0x2000:01 \"enable the brake release\" at SO: not run")) << all;
+  EXPECT_TRUE(reported(r, "1 CoE InitCmd upload(s) (Ccs 2): not run")) << all;
+  EXPECT_TRUE(reported(r, "RevisionNo (and SerialNo): not checked for 5 slave(s)")) << all;
+}
+
+TEST(ConfigEni, SoeEoeAliasesAndUnknownElementsAreReported) {
+  const std::string xml = R"(<?xml version="1.0"?>
+<EtherCATConfig>
+  <Config>
+    <Slave>
+      <Info><Name>Axis 1</Name><Identification><Ado>#x0012</Ado><Value>7</Value></Identification>
+        <VendorId>2</VendorId><ProductCode>#x13882</ProductCode></Info>
+      <Mailbox>
+        <Protocol>SoE</Protocol><Protocol>EoE</Protocol>
+        <SoE><InitCmds><InitCmd><Transition>PS</Transition><OpCode>3</OpCode><IDN>15</IDN>
+          <Data>0700</Data></InitCmd></InitCmds></SoE>
+      </Mailbox>
+      <Frobnicate/>
+    </Slave>
+    <Slave>
+      <Info><Name>Axis 1</Name><VendorId>2</VendorId><ProductCode>#x13882</ProductCode></Info>
+    </Slave>
+    <Cyclic><CycleTime>500</CycleTime></Cyclic>
+    <Cyclic><CycleTime>2000</CycleTime></Cyclic>
+    <Extras/>
+  </Config>
+</EtherCATConfig>
+)";
+  auto imported = import_eni(xml, "axes.xml");
+  ASSERT_TRUE(imported) << imported.error().describe();
+  const auto& c = imported->config;
+  ASSERT_EQ(c.slaves.size(), 2u);
+  EXPECT_EQ(c.slaves[0].name, "Axis_1");
+  EXPECT_EQ(c.slaves[1].name, "Axis_1_2");
+  EXPECT_EQ(c.slaves[0].alias, 7);
+  EXPECT_FALSE(c.slaves[0].position);
+  EXPECT_EQ(c.slaves[1].position, 1);
+  EXPECT_EQ(c.domains[0].period, 500us);
+  const auto& r = imported->report;
+  const auto all = joined(r);
+  EXPECT_TRUE(reported(r, "slave \"Axis 1\" (line 4): Mailbox/SoE: 1 InitCmd(s) (S-0-0015)"))
+      << all;
+  EXPECT_TRUE(reported(r, "slave \"Axis 1\" (line 4): Mailbox/EoE settings not used")) << all;
+  EXPECT_TRUE(reported(r, "slave \"Axis 1\" (line 4): <Frobnicate> (line 12) not recognised"))
+      << all;
+  EXPECT_TRUE(reported(r, "<Extras> (line 19) not recognised")) << all;
+  EXPECT_TRUE(reported(r, "2 different cycle times")) << all;
+}
+
+TEST(ConfigEni, ErrorsNameTheFile) {
+  auto empty = import_eni("<EtherCATConfig><Config/></EtherCATConfig>", "empty.xml");
+  ASSERT_FALSE(empty);
+  EXPECT_NE(empty.error().describe().find("empty.xml: the ENI describes no <Slave>"),
+            std::string::npos)
+      << empty.error().describe();
+  auto bad = import_eni("<EtherCATConfig><Config>\n<Slave/></Config></EtherCATConfig>", "b.xml");
+  ASSERT_FALSE(bad);
+  EXPECT_NE(bad.error().describe().find("b.xml:2: <Slave>"), std::string::npos)
+      << bad.error().describe();
+}
+
+TEST(ConfigEni, LoadMasterConfigTellsEniFromRingFileByContent) {
+  // An ENI under a name without .xml is still an ENI.
+  const auto path = std::filesystem::temp_directory_path() /
+                    fmt::format("ecat-eni-{}.ring", static_cast<long>(::getpid()));
+  std::filesystem::copy_file(kExample, path, std::filesystem::copy_options::overwrite_existing);
+  ConfigFileInfo info;
+  auto config = load_master_config(path.string(), &info);
+  std::filesystem::remove(path);
+  ASSERT_TRUE(config) << config.error().describe();
+  EXPECT_TRUE(info.eni);
+  EXPECT_FALSE(info.eni_report.empty());
+  EXPECT_EQ(config->slaves.size(), 5u);
+
+  ConfigFileInfo ring_info;
+  auto ring = load_master_config(kDefaultRing, &ring_info);
+  ASSERT_TRUE(ring) << ring.error().describe();
+  EXPECT_FALSE(ring_info.eni);
+  EXPECT_TRUE(ring_info.eni_report.empty());
+  auto plain = load_master_config(kExample);  // the one-argument form takes ENIs too
+  ASSERT_TRUE(plain) << plain.error().describe();
+}
+
+// The simulated ring of examples/default.yaml, driven by a master configured from the ENI only.
+TEST(ConfigEni, TheDefaultRingReachesOpFromItsEni) {
+  auto imported = import_eni(read_text(kExample), kExample);
+  ASSERT_TRUE(imported) << imported.error().describe();
+  auto server = test::make_sim_server(read_text(kDefaultRing));
+  ASSERT_TRUE(server);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  Master master(std::move(imported->config));
+  ASSERT_TRUE(master.start(std::move(*link)));
+  auto op = master.await_operational(20s);
+  ASSERT_TRUE(op) << op.error().describe();
+
+  auto drive = master.slave("Drive_1_ECAT-SERVO");
+  ASSERT_TRUE(drive) << drive.error().describe();
+  const auto info = (*drive)->info();
+  EXPECT_EQ(info.state, SlaveState::op);
+  EXPECT_EQ(info.layout.bit_length(PdoDirection::output), 104u);
+  EXPECT_EQ(info.layout.bit_length(PdoDirection::input), 120u);
+  ASSERT_TRUE(info.dc_sync);
+  EXPECT_EQ(info.dc_sync->assign_activate, 0x0300);
+  EXPECT_EQ(info.dc_sync->source, AssignActivateSource::config);
+
+  auto rtd = master.slave("Term_4_EL3202");
+  ASSERT_TRUE(rtd) << rtd.error().describe();
+  EXPECT_EQ((*rtd)->info().layout.bit_length(PdoDirection::input), 64u);
+
+  auto domain = master.domain("main");
+  ASSERT_TRUE(domain) << domain.error().describe();
+  EXPECT_TRUE(eventually([&] { return (*domain)->info().stats.valid_count > 10; }));
+  (void)master.stop();
+}
+
+}  // namespace
+}  // namespace ecat::master
