@@ -68,12 +68,13 @@ struct Master::Impl : DomainObserver {
     std::lock_guard lock(endpoint_mutex);
     const ControlEndpointConfig& want = config.control;
     if (endpoint.server && want.name == endpoint.config.name && want.mode == endpoint.config.mode &&
-        want.allow_writes == endpoint.config.allow_writes) {
+        want.allow_writes == endpoint.config.allow_writes &&
+        want.flight_recorder == endpoint.config.flight_recorder) {
       return ok();
     }
     close_endpoint_locked();
     if (want.name.empty()) return ok();
-    const ControlAccess access{want.allow_writes};
+    const ControlAccess access{want.allow_writes, want.flight_recorder};
     auto started = ipc::LineServer::start(
         control_socket_path(want.name),
         [&master, access](std::string_view line, const ipc::Peer&) {
@@ -89,8 +90,12 @@ struct Master::Impl : DomainObserver {
                              busy ? "busy" : "out_of_range");
         },
         // Requests may carry a firmware image in hex (foe.write, sii.write): lines up to 32 MiB
-        // (16 MiB of file), at most 16 clients: a bounded 512 MiB in the worst case.
-        {.mode = want.mode, .max_line = 32u << 20, .what = "master"});
+        // (16 MiB of file); replies up to 40 MiB (capture.frames: 16 MiB of frames); at most 16
+        // clients: bounded, if large, in the worst case.
+        {.mode = want.mode,
+         .max_line = 32u << 20,
+         .max_pending_output = 40u << 20,
+         .what = "master"});
     if (!started) {
       return started.error().context(
           started.error().code(),
@@ -1185,8 +1190,36 @@ struct Master::Impl : DomainObserver {
     if (s->cycler) (void)s->cycler->stop();
     if (s->bus) s->bus->stop();
     std::lock_guard lock(mutex);
+    // What the session counted to its very end (the walk back to INIT included): counters()
+    // gives it until the next start, so a tool can compare a capture with the bus's own counts.
+    final_counters = collect_counters(*s);
     session.reset();
   }
+
+  // The counts of a session (under `mutex`).
+  static MasterCounters collect_counters(const Session& s) {
+    MasterCounters out;
+    if (s.bus) {
+      const auto b = s.bus->stats();
+      out.frames_sent = b.frames_sent;
+      out.frames_received = b.frames_received;
+      out.frames_lost = b.frames_lost;
+      out.transaction_timeouts = b.transaction_timeouts;
+      out.retries = b.retries;
+      out.realtime_expired = b.realtime_expired;
+      out.cycle_deadlines_missed = b.cycle_deadlines_missed;
+    }
+    for (const auto& d : s.domains) {
+      const auto st = d->stats();
+      out.domains.push_back(
+          {d->id(), st.cycle_count, st.valid_count, st.wkc_mismatch_count, st.total_miss_count});
+    }
+    for (const auto& slave : s.slaves)
+      out.slaves.push_back(SlaveAccess::counters(*slave));
+    if (s.dc) out.dc_max_difference_ns = s.dc->status().max_difference_ns;
+    return out;
+  }
+  std::optional<MasterCounters> final_counters;  // the last session's, once it ended (mutex)
 
   void shutdown() {
     if (current() != MasterState::idle || session) {
@@ -1645,29 +1678,15 @@ bool Master::flush_events(std::chrono::nanoseconds timeout) {
 }
 
 MasterCounters Master::counters() const {
-  MasterCounters out;
-  out.events = impl_->events.stats();
+  const auto events = impl_->events.stats();  // before the lock, as the event hub has its own
   std::lock_guard lock(impl_->mutex);
-  const auto& s = impl_->session;
-  if (!s) return out;
-  if (s->bus) {
-    const auto b = s->bus->stats();
-    out.frames_sent = b.frames_sent;
-    out.frames_received = b.frames_received;
-    out.frames_lost = b.frames_lost;
-    out.transaction_timeouts = b.transaction_timeouts;
-    out.retries = b.retries;
-    out.realtime_expired = b.realtime_expired;
-    out.cycle_deadlines_missed = b.cycle_deadlines_missed;
+  MasterCounters out;
+  if (impl_->session) {
+    out = Impl::collect_counters(*impl_->session);
+  } else if (impl_->final_counters) {
+    out = *impl_->final_counters;
   }
-  for (const auto& d : s->domains) {
-    const auto st = d->stats();
-    out.domains.push_back(
-        {d->id(), st.cycle_count, st.valid_count, st.wkc_mismatch_count, st.total_miss_count});
-  }
-  for (const auto& slave : s->slaves)
-    out.slaves.push_back(SlaveAccess::counters(*slave));
-  if (s->dc) out.dc_max_difference_ns = s->dc->status().max_difference_ns;
+  out.events = events;
   return out;
 }
 

@@ -51,6 +51,7 @@ struct Options {
   bool json = false;
   bool chase = false;  // outputs are written only when asked (--chase)
   bool events = false;
+  std::string pcap;  // --pcap FILE
 };
 
 using ecat::tool::prepare;
@@ -85,7 +86,7 @@ struct Chase {
 
 int run_session(const Options& options) {
   ecat::tool::catch_interrupts();
-  auto setup = prepare(options.ring, options.link, false);
+  auto setup = prepare(options.ring, options.link, false, options.pcap);
   if (!setup) return 2;
   Master master(setup->config);
   if (options.events) {
@@ -176,9 +177,12 @@ int run_session(const Options& options) {
   const bool operational =
       master.state() == MasterState::operational || master.state() == MasterState::preop_ready;
   (void)master.stop();
+  // After stop: the file then holds the way back to INIT too, and the bus's counters are final.
+  const auto counted = master.counters();  // the session's final counts (it has stopped)
+  const bool captured = !setup->capture || setup->capture->finish(&counted);
   if (options.events) (void)master.flush_events();
   if (!options.json) fmt::print("stopped: every slave back in INIT\n");
-  return operational ? 0 : 1;
+  return operational && captured ? 0 : 1;
 }
 
 void add_common(CLI::App* app, Options& o) {
@@ -190,6 +194,8 @@ void add_common(CLI::App* app, Options& o) {
   app->add_option("--timeout", o.timeout_s, "Seconds to wait for the session to get running")
       ->check(ecat::tool::timeout_seconds());
   app->add_flag("--json", o.json, "Print JSON");
+  app->add_option("--pcap", o.pcap,
+                  "Write every frame sent and received to this pcapng file (times, direction)");
 }
 
 ecat::tool::Command setup_run(CLI::App& parent) {

@@ -10,6 +10,7 @@
 // --timeout, or that ends by itself (the link lost for good), exits 1; bad arguments or files 2.
 // The session is brought to the file's targets: outputs move only as the application (or a
 // client allowed to write) sets them.
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <memory>
@@ -20,6 +21,8 @@
 #include <ecat/app/open_master.hpp>
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/master.hpp>
+
+#include <ecat/link/recording_link.hpp>
 
 #include "command.hpp"
 #include "interrupt.hpp"
@@ -37,7 +40,15 @@ struct Options {
   bool writes = false;
   double timeout_s = 60.0;
   double duration_s = 0.0;
+  std::string pcap;                // --pcap FILE: every frame
+  double flight_recorder_s = 10.0;  // --flight-recorder SECONDS: the recent past in memory, 0 off
 };
+
+// The flight recorder's memory: about what 10 s of a busy 4 kHz ring take, bounded.
+std::size_t flight_recorder_budget(double seconds) {
+  const double bytes = seconds * 3.2e6;
+  return static_cast<std::size_t>(std::clamp(bytes, 1.0 * (1 << 20), 256.0 * (1 << 20)));
+}
 
 int serve(const Options& o) {
   ecat::tool::catch_interrupts();
@@ -61,6 +72,31 @@ int serve(const Options& o) {
     }
     if (!o.control.empty() || config.control.mode == 0600) config.control.mode = mode;
     if (o.writes) config.control.allow_writes = true;
+  };
+  // Recording: --pcap streams every frame to a file; the flight recorder keeps the last seconds
+  // for `ecat capture --attach` (the endpoint's capture.frames). One link may carry both.
+  std::unique_ptr<ecat::tool::LiveCapture> capture;
+  if (!o.pcap.empty()) {
+    capture = ecat::tool::LiveCapture::open(o.pcap, o.backend.empty() ? o.ring : o.backend);
+    if (!capture) return 2;
+  }
+  std::shared_ptr<ecat::link::FrameRecorder> flight;
+  if (o.flight_recorder_s > 0) {
+    ecat::link::FrameRecorderOptions fr;
+    fr.window = std::chrono::duration_cast<std::chrono::nanoseconds>(
+        std::chrono::duration<double>(o.flight_recorder_s));
+    fr.byte_budget = flight_recorder_budget(o.flight_recorder_s);
+    flight = std::make_shared<ecat::link::FrameRecorder>(fr);
+  }
+  const auto configure = std::move(options.configure);
+  options.configure = [&, configure](ecat::master::MasterConfig& config) {
+    configure(config);
+    config.control.flight_recorder = flight;
+  };
+  options.wrap_link = [&](std::unique_ptr<ecat::link::Link> link) {
+    if (capture) link = capture->wrap(std::move(link));
+    if (flight) link = std::make_unique<ecat::link::RecordingLink>(std::move(link), flight);
+    return link;
   };
   auto opened = ecat::open_master(o.ring, std::move(options));
   if (!opened) {
@@ -96,6 +132,7 @@ int serve(const Options& o) {
   }
   (void)master.stop();
   fmt::print(stderr, "ecat serve: stopped; every slave back in INIT\n");
+  if (capture && !capture->finish()) code = 1;
   return code;
 }
 
@@ -116,6 +153,12 @@ ecat::tool::Command setup(CLI::App& parent) {
       ->check(ecat::tool::timeout_seconds());
   app->add_option("--duration", o->duration_s, "Stop after this many seconds (default: never)")
       ->check(ecat::tool::run_seconds());
+  app->add_option("--pcap", o->pcap,
+                  "Write every frame sent and received to this pcapng file (times, direction)");
+  app->add_option("--flight-recorder", o->flight_recorder_s,
+                  "Keep the frames of the last SECONDS in memory for `ecat capture --attach` "
+                  "(default 10, 0: off)")
+      ->check(ecat::tool::number_in(0, 3600, "seconds"));
   return {app, [o] { return serve(*o); }};
 }
 

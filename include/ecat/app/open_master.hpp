@@ -12,6 +12,7 @@
 #include <memory>
 #include <string>
 
+#include <ecat/link/link.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/result.hpp>
 
@@ -23,6 +24,9 @@ struct OpenMasterOptions {
   // Changes made to the configuration read from the file before the master starts (a domain's
   // on_cycle callback, the application's own drivers ...). Runs on the caller's thread.
   std::function<void(master::MasterConfig&)> configure{};
+  // Wraps the opened backend's link before the master gets it (`ecat serve --pcap` puts a
+  // link::RecordingLink around it). Runs on the caller's thread; must return a link.
+  std::function<std::unique_ptr<link::Link>(std::unique_ptr<link::Link>)> wrap_link{};
 };
 
 // Reads `ring_file`, opens its backend and starts a master on it (idle -> discovering; returns

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -20,6 +21,14 @@
 #include <ecat/master/states.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/bytes.hpp>
+
+namespace ecat::link {
+class FrameRecorder;
+}
+
+namespace ecat::config {
+struct EniFile;  // <ecat/config/eni.hpp>
+}  // namespace ecat::config
 
 namespace ecat::master {
 
@@ -447,6 +456,10 @@ struct ControlEndpointConfig {
   // Requests that change what the master does (stage outputs, request states, SDO downloads,
   // register and EEPROM writes) are refused unless this is set.
   bool allow_writes = false;
+  // The frames of the recent past (link/recording_link.hpp: the link the master was started on
+  // records into it): the endpoint's "capture.frames" request reads it. Empty: that request
+  // answers not_found. Only declared here: the recorder is the application's business.
+  std::shared_ptr<const link::FrameRecorder> flight_recorder{};
 };
 
 struct MasterConfig {
@@ -491,5 +504,24 @@ Result<void> validate(const MasterConfig& config);
 // section is ignored. Errors carry file:line.
 Result<MasterConfig> parse_master_config(std::string_view yaml, std::string source = "ring.yaml");
 Result<MasterConfig> load_master_config(const std::string& path);
+
+// ENI files (ETG.2100 EtherCAT Network Information, what TwinCAT and other configurators
+// export; docs/MASTER-CONFIG.md "ENI files") mapped onto a MasterConfig, with a report: one line
+// for each thing the file holds that ecat does not use, naming the element and the slave.
+struct EniImport {
+  MasterConfig config{};
+  std::vector<std::string> report{};
+};
+Result<EniImport> import_eni(std::string_view xml, std::string source = "network.xml");
+Result<EniImport> import_eni(const config::EniFile& eni, std::string source = "network.xml");
+
+// What load_master_config found in the file.
+struct ConfigFileInfo {
+  bool eni = false;                       // an ENI (root element <EtherCATConfig>)
+  std::vector<std::string> eni_report{};  // EniImport::report
+};
+// Reads a ring file or an ENI, told apart by content (not by extension). An ENI has no
+// simulator section: the backend comes from the caller. `info`, when given, says which it was.
+Result<MasterConfig> load_master_config(const std::string& path, ConfigFileInfo* info);
 
 }  // namespace ecat::master

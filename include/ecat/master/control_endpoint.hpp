@@ -15,6 +15,7 @@
 //   signal.read {slave, signal}
 //   reg.read {slave, address, length}                                 -> {"data":"hex","wkc":1}
 //   sii.read {slave}                                                  -> {"data":"hex"}
+//   capture.frames {seconds?}   -> {"frames":[{"t_ns","steady_ns","direction","length","data"}]}
 // Writes (refused with code permission_denied unless ControlEndpointConfig::allow_writes):
 //   sdo.download {slave, index, subindex, data:"hex", complete_access?}
 //   output.write {slave, signal, value}
@@ -28,10 +29,15 @@
 // answer) holds the others up to its time-out, never the master.
 #pragma once
 
+#include <memory>
 #include <string>
 #include <string_view>
 
 #include <ecat/result.hpp>
+
+namespace ecat::link {
+class FrameRecorder;
+}
 
 namespace ecat::master {
 
@@ -51,6 +57,8 @@ std::string control_error_code(Errc code);
 
 struct ControlAccess {
   bool allow_writes = false;
+  // What "capture.frames" reads (ControlEndpointConfig::flight_recorder); empty: not_found.
+  std::shared_ptr<const link::FrameRecorder> flight_recorder{};
 };
 
 // The reply (one JSON line, no newline) to one request. `follow` is set when the connection

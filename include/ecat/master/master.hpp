@@ -210,6 +210,8 @@ class Master {
   EventStats event_stats() const noexcept;
   // Waits until every event raised so far has reached the subscribers (tests, orderly exits).
   bool flush_events(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+  // The running session's counts; once a session ended (stop() or by itself), its final counts
+  // (the walk back to INIT included) until the next start.
   MasterCounters counters() const;
 
   // A signal of a slave of the running session, resolved once for hot-path reads and writes
