@@ -1,6 +1,9 @@
 #include <algorithm>
 #include <array>
+#include <cctype>
+#include <chrono>
 #include <cstdint>
+#include <cstdio>
 #include <optional>
 #include <string>
 #include <vector>
@@ -9,14 +12,17 @@
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/ipc/line_server.hpp>
+#include <ecat/link/recording_link.hpp>
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/domain.hpp>
+#include <ecat/master/eoe.hpp>
 #include <ecat/master/foe.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/sii_writer.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/version.hpp>
 #include <ecat/wire/al.hpp>
+#include <ecat/wire/eoe.hpp>
 
 #include "master/json_view.hpp"
 
@@ -26,15 +32,16 @@ namespace {
 
 using detail::Json;
 
-constexpr std::array<std::string_view, 29> kOps{
+constexpr std::array<std::string_view, 32> kOps{
     "ping",         "status",       "slaves",        "slave",      "domains",   "domain.data",
     "dc",           "counters",     "events.follow", "sdo.upload", "sdo.list",  "sdo.describe",
     "signal.read",  "reg.read",     "sii.read",      "pdos",       "foe.read",  "soe.read",
     "sdo.download", "output.write", "state.request", "reg.write",  "sii.write", "alias.write",
-    "foe.write",    "soe.write",    "help",          "version",    "al_status"};
-constexpr std::array<std::string_view, 8> kWriteOps{"sdo.download", "output.write", "state.request",
+    "foe.write",    "soe.write",    "help",          "version",    "al_status", "capture.frames",
+    "eoe.stats",    "eoe.set_ip"};
+constexpr std::array<std::string_view, 9> kWriteOps{"sdo.download", "output.write", "state.request",
                                                     "reg.write",    "sii.write",    "alias.write",
-                                                    "foe.write",    "soe.write"};
+                                                    "foe.write",    "soe.write",    "eoe.set_ip"};
 
 // Largest register range one reg.read / reg.write moves (one datagram of a standard frame).
 constexpr std::size_t kMaxRegisterBytes = 1486;
@@ -43,7 +50,8 @@ constexpr std::size_t kMaxRegisterBytes = 1486;
 
 std::string control_error_code(Errc code) {
   std::string name(to_string(code));
-  std::replace(name.begin(), name.end(), ' ', '_');
+  for (char& ch : name)
+    ch = ch == ' ' ? '_' : static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
   return name;
 }
 
@@ -403,6 +411,7 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
         entries.push_back({{"index", fmt::format("0x{:04x}", e.index)},
                            {"subindex", e.subindex},
                            {"bit_length", e.bit_length},
+                           {"data_type", e.data_type},
                            {"name", e.name}});
       }
       return Json{{"index", fmt::format("0x{:04x}", p.index)},
@@ -502,6 +511,66 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
     }
     return Json::object();
   }
+  if (op == "eoe.stats") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto st = (*slave)->eoe_stats();
+    if (!st) return st.error();
+    return Json{
+        {"frames_sent", st->frames_sent},         {"fragments_sent", st->fragments_sent},
+        {"frames_received", st->frames_received}, {"fragments_received", st->fragments_received},
+        {"frames_dropped", st->frames_dropped},   {"fragments_dropped", st->fragments_dropped},
+        {"other_dropped", st->other_dropped}};
+  }
+  if (op == "eoe.set_ip") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    // Dotted IPv4 fields; absent ones are left out of the request (the device keeps them).
+    const auto ipv4 = [&](const char* key) -> Result<std::optional<std::uint32_t>> {
+      auto text = r.optional_text(key);
+      if (!text) return std::optional<std::uint32_t>();
+      unsigned a = 0, b = 0, c = 0, d = 0;
+      char tail = 0;
+      if (std::sscanf(text->c_str(), "%3u.%3u.%3u.%3u%c", &a, &b, &c, &d, &tail) != 4 || a > 255 ||
+          b > 255 || c > 255 || d > 255) {
+        return Error(Errc::invalid_argument,
+                     fmt::format("{}: '{}' is not a dotted IPv4 address", key, *text));
+      }
+      return std::optional<std::uint32_t>((a << 24) | (b << 16) | (c << 8) | d);
+    };
+    wire::EoeIpParameters p;
+    auto ip = ipv4("ip");
+    if (!ip) return ip.error();
+    auto mask = ipv4("subnet_mask");
+    if (!mask) return mask.error();
+    auto gateway = ipv4("gateway");
+    if (!gateway) return gateway.error();
+    auto dns = ipv4("dns_server");
+    if (!dns) return dns.error();
+    p.ip = *ip;
+    p.subnet_mask = *mask;
+    p.default_gateway = *gateway;
+    p.dns_server = *dns;
+    if (auto mac = r.optional_text("mac")) {
+      std::array<unsigned, 6> m{};
+      char tail = 0;
+      if (std::sscanf(mac->c_str(), "%2x:%2x:%2x:%2x:%2x:%2x%c", &m[0], &m[1], &m[2], &m[3], &m[4],
+                      &m[5], &tail) != 6) {
+        return Error(Errc::invalid_argument,
+                     fmt::format("mac: '{}' is not six hex bytes (02:00:00:00:00:01)", *mac));
+      }
+      std::array<std::uint8_t, 6> bytes{};
+      for (std::size_t i = 0; i < 6; ++i)
+        bytes[i] = static_cast<std::uint8_t>(m[i]);
+      p.mac = bytes;
+    }
+    if (auto name = r.optional_text("dns_name")) {
+      if (name->size() > 32) return Error(Errc::invalid_argument, "dns_name: at most 32 bytes");
+      p.dns_name = *name;
+    }
+    if (auto done = (*slave)->eoe_set_ip(p); !done) return done.error();
+    return Json::object();
+  }
   if (op == "sii.read") {
     auto slave = find_slave(master, r);
     if (!slave) return slave.error();
@@ -546,6 +615,51 @@ Result<std::string> find_control_endpoint(std::string_view name) {
                fmt::format("several masters are running ({}); name one with --attach", list));
 }
 
+// ---- capture.frames (live capture) ------------------------------------------------------------
+namespace {
+
+// The flight recorder's last `seconds` (default: its window), at most kMaxCaptureBytes of frame
+// data (the newest kept; "complete": false says older ones were left out): 16 MiB of frames make
+// about 36 MiB of JSON, within the 40 MiB of unsent output the master's endpoint allows a client
+// (master.cpp, open_endpoint).
+constexpr std::size_t kMaxCaptureBytes = std::size_t{16} << 20;
+constexpr double kMaxCaptureSeconds = 3600.0;
+
+Result<Json> capture_frames(const ControlAccess& access, const Json& request) {
+  if (!access.flight_recorder) {
+    return Error(Errc::not_found,
+                 "capture.frames: this master keeps no flight recorder (`ecat serve "
+                 "--flight-recorder SECONDS`)");
+  }
+  std::optional<std::chrono::nanoseconds> last;
+  if (auto it = request.find("seconds"); it != request.end()) {
+    const double seconds = it->is_number() ? it->get<double>() : -1.0;
+    if (!(seconds > 0.0 && seconds <= kMaxCaptureSeconds)) {
+      return Error(
+          Errc::invalid_argument,
+          fmt::format("seconds: must be a number above 0 and at most {}", kMaxCaptureSeconds));
+    }
+    last = std::chrono::duration_cast<std::chrono::nanoseconds>(
+        std::chrono::duration<double>(seconds));
+  }
+  bool cut = false;
+  const auto frames = access.flight_recorder->snapshot(last, kMaxCaptureBytes, &cut);
+  Json list = Json::array();
+  for (const auto& f : frames) {
+    list.push_back(Json{{"t_ns", f.realtime_ns},
+                        {"steady_ns", f.steady_ns},
+                        {"direction", link::to_string(f.direction)},
+                        {"length", f.original_length},
+                        {"data", detail::hex(f.data)}});
+  }
+  const auto window = last ? *last : access.flight_recorder->options().window;
+  return Json{{"seconds", std::chrono::duration<double>(window).count()},
+              {"complete", !cut},
+              {"frames", std::move(list)}};
+}
+
+}  // namespace
+
 std::string handle_control_request(Master& master, std::string_view request,
                                    const ControlAccess& access, bool* follow) {
   const Json parsed = Json::parse(request, nullptr, false);
@@ -575,7 +689,8 @@ std::string handle_control_request(Master& master, std::string_view request,
   }
   Result<Json> result = Error(Errc::internal, "not handled");
   try {
-    result = dispatch(master, Request(parsed), op, follow);
+    result = op == "capture.frames" ? capture_frames(access, parsed)
+                                    : dispatch(master, Request(parsed), op, follow);
   } catch (const std::exception& e) {
     // Nothing here throws by design; a JSON type error that slipped through is still an answer.
     result = Error(Errc::internal, fmt::format("{}: {}", op, e.what()));

@@ -1,6 +1,7 @@
 // The instrument commands end to end: `ecat serve` with a control endpoint, the commands
 // attached to it (text and JSON, errors too) while the domain keeps cycling, SIGTERM ending the
 // service cleanly, and the same commands standalone on their own session.
+#include <fstream>
 #include <string>
 
 #include <fmt/format.h>
@@ -90,6 +91,35 @@ TEST(InstrumentTool, StandaloneCommandsRunTheirOwnSession) {
   r = tool.run("alias --ring '" + default_ring() + "' --name inputs 0x0042 --json");
   ASSERT_EQ(r.status, 0) << r.out << r.err;
   EXPECT_EQ(json::parse(r.out)["alias"], 0x42);
+  // A C header of the image: compiles, and its struct is as large as the image.
+  const auto header = (tool.dir() / "image.h").string();
+  r = tool.run("cstruct --ring '" + default_ring() + "' -o '" + header + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(read_text_file(header).find("#define ECAT_MAIN_DRIVE_STATUSWORD_BYTE"),
+            std::string::npos);
+  const auto compiled = tool.run_script(
+      "command -v cc >/dev/null || { echo skipped; exit 0; }; cd '" + tool.dir().string() +
+      "' && printf '#include \"image.h\"\\nint main(void) { return 0; }\\n' > t.c && "
+      "cc -std=c11 -Wall -Werror -fsyntax-only t.c");
+  EXPECT_EQ(compiled.status, 0) << compiled.out << compiled.err;
+  // -a ALIAS: the slaves of the simulated ring have alias 0; the first one is the coupler.
+  r = tool.run("reg_read --ring '" + default_ring() + "' -a 0x0000 0x0000 1");
+  ASSERT_EQ(r.status, 0) << r.err;
+  // The device description, the dictionary with values, the SII decoded.
+  r = tool.run("xml --ring '" + default_ring() + "' --name inputs");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("<Type ProductCode=\"#x07113052\" RevisionNo=\"#x00120000\">EL1809</Type>"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("<TxPdo Sm=\"0\" Fixed=\"1\">"), std::string::npos) << r.out;
+  r = tool.run("sdos --ring '" + default_ring() + "' --name drive --values --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto objects = json::parse(r.out)["objects"];
+  ASSERT_FALSE(objects.empty());
+  EXPECT_TRUE(objects[0].contains("values")) << objects[0].dump();
+  r = tool.run("sii_read --ring '" + default_ring() + "' --name inputs --decode");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("EL1809"), std::string::npos) << r.out;
   r = tool.run("domains --ring '" + default_ring() + "' --json");
   ASSERT_EQ(r.status, 0) << r.err;
   // Laid out, not cycling: the slaves are held in PREOP, nothing moves.
@@ -113,6 +143,7 @@ printf 'firmware notes' > notes.txt
 "$ECAT" download --attach '{sock}' --name drive 0x6065 0 5000 --type uint32 > download.txt; echo $? > download.code
 "$ECAT" upload --attach '{sock}' --name drive 0x6065 0 --type uint32 > upload.txt
 "$ECAT" alias --attach '{sock}' --name inputs 0x1234 --json > alias.json; echo $? > alias.code
+"$ECAT" download --attach '{sock}' --name drive 0x1018 1 7 --type uint32 --json > readonly.json; echo $? > readonly.code
 "$ECAT" diag --attach '{sock}' > diag.txt
 "$ECAT" crc --attach '{sock}' --json > crc.json
 kill -TERM $pid; wait $pid; echo $? > serve.code)",
@@ -128,7 +159,83 @@ kill -TERM $pid; wait $pid; echo $? > serve.code)",
   EXPECT_EQ(file("alias.code"), "1\n");
   EXPECT_EQ(json::parse(file("alias.json"))["code"], "wrong_state") << file("alias.json");
   EXPECT_NE(file("diag.txt").find("master: operational"), std::string::npos) << file("diag.txt");
+  // A read-only object: the drive's own abort, with its code.
+  EXPECT_EQ(file("readonly.code"), "1\n");
+  const auto readonly = json::parse(file("readonly.json"));
+  EXPECT_EQ(readonly["code"], "sdo_abort") << readonly.dump();
+  EXPECT_NE(readonly["error"].get<std::string>().find("0x06010002"), std::string::npos)
+      << readonly.dump();
   EXPECT_EQ(json::parse(file("crc.json"))["slaves"].size(), 5u);
+}
+
+// `ecat config`: the user's first configuration in one command. Written from the ring as found,
+// it brings the same ring to OP.
+TEST(InstrumentTool, ConfigWritesARingFileThatBringsTheRingToOp) {
+  ToolRunner tool("config");
+  const auto file = (tool.dir() / "found.yaml").string();
+  auto r = tool.run("config --backend 'sim:" + default_ring() + "' -o '" + file + "'");
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_EQ(r.out, "5 slaves written to " + file + "\n");
+  const auto yaml = read_text_file(file);
+  EXPECT_NE(yaml.find("{name: el1809, position: 1, vendor_id: 0x00000002, product_code: "
+                      "0x07113052, process_data: main}"),
+            std::string::npos)
+      << yaml;
+  r = tool.run("run '" + file + "' --duration 0.2");
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("-> operational"), std::string::npos) << r.out;
+
+  r = tool.run("graph --ring '" + default_ring() + "' --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto graph = json::parse(r.out);
+  ASSERT_EQ(graph["edges"].size(), 5u);
+  EXPECT_EQ(graph["edges"][0]["from"], "master");
+  EXPECT_EQ(graph["edges"][4]["from"], "rtd");
+  EXPECT_EQ(graph["edges"][4]["to"], "drive");
+}
+
+// Standalone over EtherCAT-over-UDP: the simulated ring served by `ecat sim` on loopback.
+TEST(InstrumentTool, StandaloneOverUdp) {
+  ToolRunner tool("udp");
+  const std::string script = fmt::format(
+      R"(cd '{dir}'
+"$ECAT" sim --ring '{ring}' --udp 127.0.0.1:0 --control '{dir}/sim.sock' > sim.out 2>&1 &
+pid=$!
+for i in $(seq 1 200); do grep -q 'udp-server:' sim.out 2>/dev/null && break; sleep 0.05; done
+port=$(sed -n 's/.*udp-server:127.0.0.1:\([0-9]*\).*/\1/p' sim.out | head -1)
+"$ECAT" slaves --backend udp:127.0.0.1:$port --json > slaves.json; echo $? > slaves.code
+"$ECAT" reg_read --backend udp:127.0.0.1:$port -p 1 0x0000 1 > type.txt
+kill -TERM $pid; wait $pid)",
+      fmt::arg("ring", default_ring()), fmt::arg("dir", tool.dir().string()));
+  (void)tool.run_script(script);
+  const auto file = [&](const char* name) { return read_text_file(tool.dir() / name); };
+  ASSERT_EQ(file("slaves.code"), "0\n") << file("sim.out");
+  const auto slaves = json::parse(file("slaves.json"))["slaves"];
+  ASSERT_EQ(slaves.size(), 5u);
+  EXPECT_EQ(slaves[0]["name"], "coupler");  // a dynamic session names the EK1100 so
+  EXPECT_EQ(slaves[1]["name"], "slave_1");
+  EXPECT_FALSE(file("type.txt").empty());
+}
+
+// `ecat eoe`: Set IP Parameter on a simulated EoE device, its tunnel counters, a bad address.
+TEST(InstrumentTool, EoeSetsIpParametersAndShowsCounters) {
+  ToolRunner tool("eoe");
+  const auto ring = (tool.dir() / "eoe.yaml").string();
+  {
+    std::ofstream out(ring);
+    out << "version: 1\nsimulator:\n  slaves:\n    - {name: dev, profile: eoe_device}\n"
+           "slaves:\n  - {name: dev}\n";
+  }
+  auto r = tool.run("eoe --ring '" + ring + "' --name dev --ip 192.168.7.2 --subnet-mask "
+                    "255.255.255.0");
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_EQ(r.out, "dev: IP parameters set\n");
+  r = tool.run("eoe --ring '" + ring + "' --name dev --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(json::parse(r.out)["frames_dropped"], 0);
+  r = tool.run("eoe --ring '" + ring + "' --name dev --ip 300.1.1.1 --json");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_EQ(json::parse(r.out)["code"], "invalid_argument");
 }
 
 TEST(InstrumentTool, ClearErrorsWithoutAMaster) {

@@ -15,10 +15,12 @@
 //   ecat events --attach line1 --json
 //
 // Exit codes: 0 done; 1 the operation failed (the error says why); 2 bad arguments.
+#include <cctype>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <map>
@@ -55,6 +57,7 @@ struct Target {
   std::string backend;
   double timeout_s = 20.0;
   bool json = false;
+  std::string pcap;  // --pcap FILE (standalone only)
 };
 
 class Connection {
@@ -67,6 +70,14 @@ class Connection {
     code = 1;
     auto c = std::unique_ptr<Connection>(new Connection());
     if (target.attach) {
+      if (!target.pcap.empty()) {
+        code = 2;
+        return c->fail(
+            Error(Errc::invalid_argument,
+                  "--pcap records a session of this command's own (--ring/--backend); "
+                  "a running master's recent frames: ecat capture --attach NAME -o FILE"),
+            target.json);
+      }
       auto path = ecat::master::find_control_endpoint(*target.attach);
       if (!path) return c->fail(path.error(), target.json);
       c->path_ = *path;
@@ -84,13 +95,14 @@ class Connection {
     // process-data commands would let inputs move, but a session whose every slave targets
     // SAFEOP has no drawn way out of awaiting_preop: the seed's diagram goes from there to
     // preop_ready, operational or activation_blocked only.)
-    auto setup = ecat::tool::prepare(target.ring, target.backend, target.ring.empty());
+    auto setup = ecat::tool::prepare(target.ring, target.backend, target.ring.empty(), target.pcap);
     if (!setup) {
       code = 2;
       return nullptr;
     }
     for (auto& slave : setup->config.slaves)
       slave.target = ecat::master::TargetState::preop;
+    c->capture_ = std::move(setup->capture);
     c->master_ = std::make_unique<ecat::master::Master>(setup->config);
     if (auto started = c->master_->start(std::move(setup->link)); !started) {
       return c->fail(started.error(), target.json);
@@ -107,6 +119,7 @@ class Connection {
 
   ~Connection() {
     if (master_) (void)master_->stop();
+    if (capture_) (void)capture_->finish();
   }
 
   // The reply's fields (without "ok"), or the error it carries.
@@ -162,6 +175,7 @@ class Connection {
 
  private:
   std::string path_;
+  std::unique_ptr<ecat::tool::LiveCapture> capture_;  // declared first: outlives master_
   std::unique_ptr<ecat::master::Master> master_;
 };
 
@@ -176,6 +190,7 @@ void add_target(CLI::App* app, Target& t) {
   app->add_option("--timeout", t.timeout_s, "Seconds the own session may take to get running")
       ->check(ecat::tool::timeout_seconds());
   app->add_flag("--json", t.json, "Print JSON (errors too)");
+  app->add_option("--pcap", t.pcap, "With --ring/--backend: write every frame to this pcapng file");
 }
 
 int finish(const Result<Json>& result, bool json, const std::function<void(const Json&)>& text) {
@@ -199,31 +214,66 @@ int finish(const Result<Json>& result, bool json, const std::function<void(const
 struct SlaveChoice {
   std::optional<unsigned> position;
   std::string name;
+  std::optional<std::string> alias;  // the configured station alias (register 0x0012)
+  bool given() const { return position || !name.empty() || alias; }
 };
 
 void add_slave_choice(CLI::App* app, SlaveChoice& s, bool required) {
   auto* p = app->add_option("-p,--position", s.position, "The slave at this ring position");
   auto* n = app->add_option("--name", s.name, "The slave with this name");
+  auto* a = app->add_option("-a,--alias", s.alias,
+                            "The slave with this configured station alias (0x0012)");
   p->excludes(n);
+  a->excludes(p);
+  a->excludes(n);
   if (required) {
-    app->callback([app, p, n] {
-      if (p->count() == 0 && n->count() == 0) {
-        throw CLI::RequiredError("-p POSITION or --name NAME");
+    app->callback([p, n, a] {
+      if (p->count() == 0 && n->count() == 0 && a->count() == 0) {
+        throw CLI::RequiredError("-p POSITION, -a ALIAS or --name NAME");
       }
     });
-    (void)app;
   }
 }
 
 // The name the endpoint knows the chosen slave by.
 Result<std::string> slave_name(Connection& c, const SlaveChoice& s) {
   if (!s.name.empty()) return s.name;
-  if (!s.position) return Error(Errc::invalid_argument, "give -p POSITION or --name NAME");
+  if (!s.position && !s.alias) {
+    return Error(Errc::invalid_argument, "give -p POSITION, -a ALIAS or --name NAME");
+  }
   auto slaves = c.call(Json{{"op", "slaves"}});
   if (!slaves) return slaves.error();
-  for (const auto& j : (*slaves)["slaves"]) {
-    if (j.value("position", -1) == static_cast<int>(*s.position)) return j.value("name", "");
+  std::optional<unsigned long> alias;
+  if (s.alias) {
+    const std::string& t = *s.alias;
+    const bool hex = t.starts_with("0x") || t.starts_with("0X");
+    const std::string digits = hex ? t.substr(2) : t;
+    if (digits.empty() || digits.size() > 5 ||
+        digits.find_first_not_of(hex ? "0123456789abcdefABCDEF" : "0123456789") !=
+            std::string::npos ||
+        std::stoul(digits, nullptr, hex ? 16 : 10) > 0xFFFF) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("alias '{}' is not a number from 0 to 0xffff", t));
+    }
+    alias = std::stoul(digits, nullptr, hex ? 16 : 10);
   }
+  for (const auto& j : (*slaves)["slaves"]) {
+    if (s.position && j.value("position", -1) == static_cast<int>(*s.position)) {
+      return j.value("name", "");
+    }
+    if (alias) {
+      // The alias register as the ESC holds it now (loaded from SII word 4 at power-up).
+      auto r = c.call(Json{
+          {"op", "reg.read"}, {"slave", j.value("name", "")}, {"address", 0x0012}, {"length", 2}});
+      if (!r) continue;
+      const auto hex = r->value("data", "");
+      if (hex.size() == 4 &&
+          std::stoul(hex.substr(2, 2) + hex.substr(0, 2), nullptr, 16) == *alias) {
+        return j.value("name", "");
+      }
+    }
+  }
+  if (alias) return Error(Errc::not_found, fmt::format("no slave with alias 0x{:04x}", *alias));
   return Error(Errc::not_found, fmt::format("no slave at position {}", *s.position));
 }
 
@@ -382,11 +432,17 @@ int cmd_slaves(const Common& o) {
   auto c = Connection::open(o.target, &code);
   if (!c) return code;
   auto r = c->call(Json{{"op", "slaves"}, {"verbose", o.verbose}});
-  if (r && (o.slave.position || !o.slave.name.empty())) {
+  SlaveChoice chosen = o.slave;
+  if (r && chosen.alias) {
+    auto name = slave_name(*c, chosen);
+    if (!name) return finish(name.error(), o.target.json, {});
+    chosen = SlaveChoice{std::nullopt, *name, std::nullopt};
+  }
+  if (r && (chosen.position || !chosen.name.empty())) {
     Json kept = Json::array();
     for (const auto& j : (*r)["slaves"]) {
-      if ((o.slave.position && j.value("position", -1) == static_cast<int>(*o.slave.position)) ||
-          (!o.slave.name.empty() && j.value("name", "") == o.slave.name)) {
+      if ((chosen.position && j.value("position", -1) == static_cast<int>(*chosen.position)) ||
+          (!chosen.name.empty() && j.value("name", "") == chosen.name)) {
         kept.push_back(j);
       }
     }
@@ -602,7 +658,7 @@ int cmd_states(const StateOptions& o) {
   auto c = Connection::open(o.common.target, &code);
   if (!c) return code;
   Json request{{"op", "state.request"}, {"state", o.state}};
-  if (o.common.slave.position || !o.common.slave.name.empty()) {
+  if (o.common.slave.given()) {
     auto name = slave_name(*c, o.common.slave);
     if (!name) return finish(name.error(), o.common.target.json, {});
     request["slave"] = *name;
@@ -671,6 +727,7 @@ int cmd_reg_write(const RegOptions& o) {
 struct SiiOptions {
   Common common;
   std::string output;
+  bool decode = false;
 };
 
 int cmd_sii_read(const SiiOptions& o) {
@@ -680,6 +737,12 @@ int cmd_sii_read(const SiiOptions& o) {
   auto name = slave_name(*c, o.common.slave);
   if (!name) return finish(name.error(), o.common.target.json, {});
   auto r = c->call(Json{{"op", "sii.read"}, {"slave", *name}});
+  if (r && o.decode) {
+    // Decoded as `ecat sii` decodes a file (text or JSON).
+    return ecat::tool::print_sii(from_hex(r->value("data", "")),
+                                 fmt::format("slave {} (SII as read)", *name),
+                                 o.common.target.json);
+  }
   if (r && !o.output.empty()) {
     const auto bytes = from_hex(r->value("data", ""));
     std::ofstream out(o.output, std::ios::binary);
@@ -703,7 +766,13 @@ int cmd_sii_read(const SiiOptions& o) {
   });
 }
 
-int cmd_sdos(const Common& o) {
+struct SdosOptions {
+  Common common;
+  bool values = false;
+};
+
+int cmd_sdos(const SdosOptions& so) {
+  const Common& o = so.common;
   int code = 0;
   auto c = Connection::open(o.target, &code);
   if (!c) return code;
@@ -715,7 +784,20 @@ int cmd_sdos(const Common& o) {
     Json objects = Json::array();
     for (const auto& index : (*list)["objects"]) {
       auto d = c->call(Json{{"op", "sdo.describe"}, {"slave", *name}, {"index", index}});
-      objects.push_back(d ? *d : Json{{"index", index}, {"error", d.error().message()}});
+      Json object = d ? *d : Json{{"index", index}, {"error", d.error().message()}};
+      if (d && so.values) {
+        // Every subindex's value, as the slave gives it (hex; a refusal says why).
+        Json values = Json::array();
+        const int last = object.value("max_subindex", 0);
+        for (int sub = 0; sub <= last; ++sub) {
+          auto v = c->call(
+              Json{{"op", "sdo.upload"}, {"slave", *name}, {"index", index}, {"subindex", sub}});
+          values.push_back(v ? Json{{"subindex", sub}, {"data", v->value("data", "")}}
+                             : Json{{"subindex", sub}, {"error", v.error().message()}});
+        }
+        object["values"] = std::move(values);
+      }
+      objects.push_back(std::move(object));
     }
     r = Json{{"slave", *name}, {"objects", objects}};
   }
@@ -723,9 +805,15 @@ int cmd_sdos(const Common& o) {
     for (const auto& d : j["objects"]) {
       if (d.contains("error")) {
         fmt::print("{}  ({})\n", show(d["index"]), show(d["error"]));
-      } else {
-        fmt::print("{}  {:<40} type 0x{:04x}, {} subindices\n", show(d["index"]),
-                   d.value("name", ""), d.value("data_type", 0), d.value("max_subindex", 0));
+        continue;
+      }
+      fmt::print("{}  {:<40} type 0x{:04x}, {} subindices\n", show(d["index"]), d.value("name", ""),
+                 d.value("data_type", 0), d.value("max_subindex", 0));
+      if (!d.contains("values")) continue;
+      for (const auto& v : d["values"]) {
+        fmt::print("    :{:02x} {}\n", v.value("subindex", 0),
+                   v.contains("error") ? "(" + show(v["error"]) + ")"
+                                       : to_hex(from_hex(v.value("data", "")), " "));
       }
     }
   });
@@ -989,10 +1077,16 @@ int cmd_crc(const Common& o) {
   if (!c) return code;
   auto slaves = c->call(Json{{"op", "slaves"}});
   if (!slaves) return finish(slaves.error(), o.target.json, {});
+  std::string only = o.slave.name;
+  if (o.slave.alias) {
+    auto named = slave_name(*c, o.slave);
+    if (!named) return finish(named.error(), o.target.json, {});
+    only = *named;
+  }
   Json rows = Json::array();
   for (const auto& s : (*slaves)["slaves"]) {
     const std::string name = s.value("name", "");
-    if (!o.slave.name.empty() && name != o.slave.name) continue;
+    if (!only.empty() && name != only) continue;
     if (o.slave.position && s.value("position", -1) != static_cast<int>(*o.slave.position)) {
       continue;
     }
@@ -1129,6 +1223,476 @@ int cmd_version(const Common& o) {
   });
 }
 
+// ---- The ring as a file and as a picture ------------------------------------------------------
+
+struct ConfigOptions {
+  Common common;
+  std::string output;
+  unsigned period_us = 1000;
+};
+
+// A name for a slave from its device name: the first word when it is a product code ("EK1100
+// EtherCAT Coupler" -> "ek1100"), made unique with _2, _3 ...; else slave_<position>.
+std::string slave_name_for(const Json& s, std::map<std::string, int>& used) {
+  const std::string device = s.value("device", "");
+  std::string word = device.substr(0, device.find(' '));
+  std::string name;
+  for (char ch : word) {
+    if (std::isalnum(static_cast<unsigned char>(ch)) != 0) {
+      name += static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+    }
+  }
+  if (name.empty() || name.find_first_of("0123456789") == std::string::npos ||
+      std::isalpha(static_cast<unsigned char>(name[0])) == 0) {
+    name = fmt::format("slave_{}", s.value("position", 0));
+  }
+  const int n = ++used[name];
+  return n == 1 ? name : fmt::format("{}_{}", name, n);
+}
+
+int cmd_config(const ConfigOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto status = c->call(Json{{"op", "status"}});
+  auto slaves = status ? c->call(Json{{"op", "slaves"}, {"verbose", true}}) : status;
+  if (!slaves) return finish(slaves.error(), o.common.target.json, {});
+  std::string backend = o.common.target.backend;
+  if (backend.empty()) backend = status->value("link", "");
+  if (backend.starts_with("sim:") && !o.common.target.ring.empty()) {
+    backend = "sim:" + std::filesystem::absolute(o.common.target.ring).string();
+  }
+  std::string yaml = fmt::format(
+      "# Written by `ecat config` from the ring as it was found: every slave with its identity, "
+      "those\n# with process data in domain main. Edit the names; docs/MASTER-CONFIG.md has every "
+      "key.\nversion: 1\nmaster:\n  backend: {}\ndomains:\n  - {{id: main, period_us: {}}}\n"
+      "slaves:\n",
+      backend, o.period_us);
+  std::map<std::string, int> used;
+  Json listed = Json::array();
+  for (const auto& s : (*slaves)["slaves"]) {
+    const std::string name = slave_name_for(s, used);
+    std::string line = fmt::format("  - {{name: {}, position: {}", name, s.value("position", 0));
+    if (s["identity"].is_object()) {
+      line += fmt::format(", vendor_id: 0x{:08x}, product_code: 0x{:08x}",
+                          s["identity"].value("vendor_id", 0u),
+                          s["identity"].value("product_code", 0u));
+    }
+    auto pdos = c->call(Json{{"op", "pdos"}, {"slave", s.value("name", "")}});
+    bool process_data = false;
+    if (pdos) {
+      for (const auto& sm : (*pdos)["sync_managers"]) {
+        if (!sm["pdos"].empty()) process_data = true;
+      }
+    }
+    if (process_data) line += ", process_data: main";
+    line += "}";
+    const std::string device = s.value("device", "");
+    if (!device.empty()) line += "   # " + device;
+    yaml += line + "\n";
+    listed.push_back(
+        {{"name", name}, {"position", s.value("position", 0)}, {"process_data", process_data}});
+  }
+  if (!o.output.empty()) {
+    if (auto done = write_local(o.output, std::vector<std::uint8_t>(yaml.begin(), yaml.end()));
+        !done) {
+      return finish(done.error(), o.common.target.json, {});
+    }
+  }
+  return finish(Json{{"file", o.output}, {"slaves", listed}, {"yaml", yaml}}, o.common.target.json,
+                [&](const Json& j) {
+                  if (o.output.empty()) {
+                    fmt::print("{}", yaml);
+                  } else {
+                    fmt::print("{} slaves written to {}\n", j["slaves"].size(), o.output);
+                  }
+                });
+}
+
+struct GraphOptions {
+  Common common;
+  std::string output;
+  std::string svg;
+};
+
+// The topology as Graphviz DOT: each slave hangs off the nearest slave before it in ring order
+// that still has an open port with a link (ports other than 0, the one the frame enters by):
+// how the frame travels a tree (port 0 -> 3 -> 1 -> 2), so a line is a chain and a junction's
+// branches fan out. `dot -Tsvg` turns it into a picture.
+int cmd_graph(const GraphOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto slaves = c->call(Json{{"op", "slaves"}, {"verbose", true}});
+  if (!slaves) return finish(slaves.error(), o.common.target.json, {});
+  std::string dot =
+      "digraph ethercat {\n  rankdir=LR;\n  node [shape=box, fontname=\"sans\"];\n"
+      "  master [label=\"master\", shape=ellipse];\n";
+  struct Open {
+    std::size_t node;
+    int free;
+  };
+  std::vector<Open> stack;
+  Json edges = Json::array();
+  const auto& list = (*slaves)["slaves"];
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const auto& s = list[i];
+    int linked = 0;
+    for (std::size_t p = 1; p < s["ports"].size(); ++p) {
+      if (s["ports"][p].value("communication", false)) ++linked;
+    }
+    dot += fmt::format("  s{} [label=\"{}\\n{} (0x{:04x})\"];\n", i, s.value("name", ""),
+                       s.value("device", "").substr(0, 24), s.value("station", 0));
+    while (!stack.empty() && stack.back().free == 0)
+      stack.pop_back();
+    std::string parent = "master";
+    if (!stack.empty()) {
+      parent = fmt::format("s{}", stack.back().node);
+      --stack.back().free;
+    }
+    dot += fmt::format("  {} -> s{};\n", parent, i);
+    edges.push_back({{"from", parent == "master" ? Json("master")
+                                                 : Json(list[stack.back().node].value("name", ""))},
+                     {"to", s.value("name", "")}});
+    stack.push_back({i, linked});
+  }
+  dot += "}\n";
+  if (!o.svg.empty()) {
+    // Rendered by Graphviz when it is installed; the DOT text is what ecat itself makes.
+    if (std::system("command -v dot >/dev/null 2>&1") != 0) {
+      return finish(Error(Errc::unsupported,
+                          "--svg needs Graphviz's `dot` (apt install graphviz); --output writes "
+                          "the DOT text"),
+                    o.common.target.json, {});
+    }
+    const std::string quoted = "'" + o.svg + "'";
+    if (o.svg.find('\'') != std::string::npos) {
+      return finish(Error(Errc::invalid_argument, "--svg: a path without a quote, please"),
+                    o.common.target.json, {});
+    }
+    FILE* pipe = ::popen(("dot -Tsvg -o " + quoted).c_str(), "w");
+    if (pipe == nullptr) {
+      return finish(Error(Errc::io_error, "cannot run dot"), o.common.target.json, {});
+    }
+    std::fwrite(dot.data(), 1, dot.size(), pipe);
+    if (::pclose(pipe) != 0) {
+      return finish(Error(Errc::io_error, fmt::format("dot could not write '{}'", o.svg)),
+                    o.common.target.json, {});
+    }
+  }
+  if (!o.output.empty()) {
+    if (auto done = write_local(o.output, std::vector<std::uint8_t>(dot.begin(), dot.end()));
+        !done) {
+      return finish(done.error(), o.common.target.json, {});
+    }
+  }
+  return finish(Json{{"edges", edges}, {"dot", dot}}, o.common.target.json, [&](const Json&) {
+    if (o.output.empty()) {
+      fmt::print("{}", dot);
+    } else {
+      fmt::print("written to {} (render: dot -Tsvg {} -o ring.svg)\n", o.output, o.output);
+    }
+  });
+}
+
+// A C identifier from a name: letters, digits and '_', not starting with a digit.
+std::string c_identifier(const std::string& text) {
+  std::string out;
+  for (char ch : text) {
+    const auto u = static_cast<unsigned char>(ch);
+    out += std::isalnum(u) != 0 ? static_cast<char>(std::tolower(u)) : '_';
+  }
+  if (out.empty() || std::isdigit(static_cast<unsigned char>(out[0])) != 0) out = "_" + out;
+  return out;
+}
+
+// The C type of a whole-byte signal, or "" (then only offset macros are written).
+std::string c_type(const std::string& type, unsigned bits) {
+  static const std::map<std::string, std::string> types{
+      {"int8", "int8_t"},   {"int16", "int16_t"},   {"int32", "int32_t"},   {"int64", "int64_t"},
+      {"uint8", "uint8_t"}, {"uint16", "uint16_t"}, {"uint32", "uint32_t"}, {"uint64", "uint64_t"},
+      {"real32", "float"},  {"real64", "double"}};
+  if (type == "bytes" && bits % 8 == 0) return fmt::format("uint8_t[{}]", bits / 8);
+  auto it = types.find(type);
+  return it == types.end() ? "" : it->second;
+}
+
+struct CStructOptions {
+  Common common;
+  std::string output;
+};
+
+// A C header of each domain's process image: a packed struct with a member per whole-byte
+// signal (reserved bytes between), and for every signal its byte offset, bit and bit length as
+// macros (bit signals are reached through those). Little endian, as the wire is.
+int cmd_cstruct(const CStructOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto domains = c->call(Json{{"op", "domains"}});
+  auto slaves = domains ? c->call(Json{{"op", "slaves"}, {"verbose", true}}) : domains;
+  if (!slaves) return finish(slaves.error(), o.common.target.json, {});
+  struct Field {
+    std::uint64_t bit = 0;  // in the image
+    unsigned bits = 0;
+    std::string name;
+    std::string type;
+    std::string direction;
+  };
+  std::string header =
+      "/* Generated by `ecat cstruct`: the process image of each domain. Little endian; the image "
+      "is\n   what Domain::read/write and `ecat data` see, from the domain's logical base on. */\n"
+      "#pragma once\n#include <stdint.h>\n\n";
+  Json out = Json::array();
+  for (const auto& d : (*domains)["domains"]) {
+    const std::string id = d.value("id", "");
+    const std::uint64_t base = d.value("logical_base", 0u);
+    const std::uint64_t size = d.value("image_size", 0u);
+    std::vector<Field> fields;
+    for (const auto& sl : (*slaves)["slaves"]) {
+      for (const auto& a : sl["attachments"]) {
+        if (a.value("domain", "") != id) continue;
+        const std::uint64_t at = (a.value("logical", 0u) - base) * 8;
+        for (const auto& sig : sl["signals"]) {
+          if (sig.value("sync_manager", -1) != a.value("sync_manager", -2)) continue;
+          fields.push_back({at + sig.value("bit_offset", 0u), sig.value("bit_length", 0u),
+                            c_identifier(sl.value("name", "") + "_" + sig.value("name", "")),
+                            sig.value("type", ""), sig.value("direction", "")});
+        }
+      }
+    }
+    std::sort(fields.begin(), fields.end(),
+              [](const Field& a, const Field& b) { return a.bit < b.bit; });
+    const std::string prefix = c_identifier("ecat_" + id);
+    std::string macros;
+    std::string members;
+    std::uint64_t byte = 0;
+    unsigned reserved = 0;
+    for (const auto& f : fields) {
+      std::string upper = prefix + "_" + f.name;
+      std::transform(upper.begin(), upper.end(), upper.begin(),
+                     [](unsigned char ch) { return static_cast<char>(std::toupper(ch)); });
+      macros +=
+          fmt::format("#define {}_BYTE {}\n#define {}_BIT {}\n#define {}_BITS {}  /* {} {} */\n",
+                      upper, f.bit / 8, upper, f.bit % 8, upper, f.bits, f.direction, f.type);
+      const std::string type = c_type(f.type, f.bits);
+      if (type.empty() || f.bit % 8 != 0 || f.bits % 8 != 0 || f.bit / 8 < byte) continue;
+      if (f.bit / 8 > byte)
+        members += fmt::format("  uint8_t reserved_{}[{}];\n", reserved++, f.bit / 8 - byte);
+      const auto bracket = type.find('[');
+      if (bracket == std::string::npos) {
+        members += fmt::format("  {} {};  /* {} */\n", type, f.name, f.direction);
+      } else {
+        members += fmt::format("  {} {}{};  /* {} */\n", type.substr(0, bracket), f.name,
+                               type.substr(bracket), f.direction);
+      }
+      byte = f.bit / 8 + f.bits / 8;
+    }
+    if (size > byte) members += fmt::format("  uint8_t reserved_{}[{}];\n", reserved, size - byte);
+    header += fmt::format("/* domain \"{}\": {} bytes at logical 0x{:08x} */\n{}\n", id, size, base,
+                          macros);
+    header += fmt::format("typedef struct __attribute__((packed)) {{\n{}}} {}_image_t;\n", members,
+                          prefix);
+    header +=
+        fmt::format("_Static_assert(sizeof({}_image_t) == {}, \"the image of domain {}\");\n\n",
+                    prefix, size, id);
+    out.push_back({{"domain", id}, {"size", size}, {"signals", fields.size()}});
+  }
+  if (!o.output.empty()) {
+    if (auto done = write_local(o.output, std::vector<std::uint8_t>(header.begin(), header.end()));
+        !done) {
+      return finish(done.error(), o.common.target.json, {});
+    }
+  }
+  return finish(Json{{"domains", out}, {"header", header}}, o.common.target.json, [&](const Json&) {
+    if (o.output.empty()) {
+      fmt::print("{}", header);
+    } else {
+      fmt::print("written to {}\n", o.output);
+    }
+  });
+}
+
+// The ESI name of a CoE data type (ETG.2000), for `ecat xml`; "" when unknown.
+std::string_view esi_type(unsigned code) {
+  switch (code) {
+    case 0x0001:
+      return "BOOL";
+    case 0x0002:
+      return "SINT";
+    case 0x0003:
+      return "INT";
+    case 0x0004:
+      return "DINT";
+    case 0x0005:
+      return "USINT";
+    case 0x0006:
+      return "UINT";
+    case 0x0007:
+      return "UDINT";
+    case 0x0008:
+      return "REAL";
+    case 0x0011:
+      return "LREAL";
+    case 0x0015:
+      return "LINT";
+    case 0x001B:
+      return "ULINT";
+    default:
+      return "";
+  }
+}
+
+std::string xml_text(const std::string& text) {
+  std::string out;
+  for (char ch : text) {
+    switch (ch) {
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      default:
+        out += ch;
+    }
+  }
+  return out;
+}
+
+struct XmlOptions {
+  Common common;
+  std::string output;
+};
+
+// A device description in the ESI form (EtherCATInfo) of each chosen slave, from what the master
+// read: identity, name, the SyncManagers process data uses, the PDOs with their entries as
+// configured. Enough for a configuration tool to know the device; not a full ESI (no
+// dictionary, no DC opmodes).
+int cmd_xml(const XmlOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto slaves = c->call(Json{{"op", "slaves"}, {"verbose", true}});
+  if (!slaves) return finish(slaves.error(), o.common.target.json, {});
+  std::string only;
+  if (o.common.slave.given()) {
+    auto name = slave_name(*c, o.common.slave);
+    if (!name) return finish(name.error(), o.common.target.json, {});
+    only = *name;
+  }
+  std::string xml =
+      "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<!-- Written by `ecat xml` from "
+      "what the master read of the slaves. -->\n";
+  std::size_t devices = 0;
+  for (const auto& s : (*slaves)["slaves"]) {
+    const std::string name = s.value("name", "");
+    if (!only.empty() && name != only) continue;
+    if (!s["identity"].is_object()) continue;
+    const auto& id = s["identity"];
+    auto pdos = c->call(Json{{"op", "pdos"}, {"slave", name}});
+    xml += fmt::format(
+        "<EtherCATInfo>\n  <Vendor>\n    <Id>#x{:08x}</Id>\n  </Vendor>\n  <Descriptions>\n"
+        "    <Devices>\n      <Device>\n        <Type ProductCode=\"#x{:08x}\" "
+        "RevisionNo=\"#x{:08x}\">{}</Type>\n        <Name>{}</Name>\n",
+        id.value("vendor_id", 0u), id.value("product_code", 0u), id.value("revision", 0u),
+        xml_text(s.value("device", "").substr(0, s.value("device", "").find(' '))),
+        xml_text(s.value("device", "")));
+    for (const auto& a : s["attachments"]) {
+      xml += fmt::format("        <Sm StartAddress=\"#x{:04x}\" DefaultSize=\"{}\">{}</Sm>\n",
+                         a.value("physical", 0), a.value("size", 0),
+                         a.value("direction", "") == "output" ? "Outputs" : "Inputs");
+    }
+    if (pdos) {
+      for (const auto& sm : (*pdos)["sync_managers"]) {
+        for (const auto& p : sm["pdos"]) {
+          const char* tag = p.value("direction", "") == "output" ? "RxPdo" : "TxPdo";
+          xml += fmt::format(
+              "        <{} Sm=\"{}\"{}>\n          <Index>#x{}</Index>\n"
+              "          <Name>{}</Name>\n",
+              tag, sm.value("sync_manager", 0), p.value("fixed", false) ? " Fixed=\"1\"" : "",
+              show(p["index"]).substr(2), xml_text(p.value("name", "")));
+          for (const auto& e : p["entries"]) {
+            xml += fmt::format(
+                "          <Entry>\n            <Index>#x{}</Index>\n"
+                "            <SubIndex>{}</SubIndex>\n"
+                "            <BitLen>{}</BitLen>\n",
+                show(e["index"]).substr(2), e.value("subindex", 0), e.value("bit_length", 0));
+            if (show(e["index"]) != "0x0000") {
+              xml += fmt::format("            <Name>{}</Name>\n", xml_text(e.value("name", "")));
+              const auto type = esi_type(e.value("data_type", 0u));
+              if (!type.empty()) xml += fmt::format("            <DataType>{}</DataType>\n", type);
+            }
+            xml += "          </Entry>\n";
+          }
+          xml += fmt::format("        </{}>\n", tag);
+        }
+      }
+    }
+    xml += "      </Device>\n    </Devices>\n  </Descriptions>\n</EtherCATInfo>\n";
+    ++devices;
+  }
+  if (!o.output.empty()) {
+    if (auto done = write_local(o.output, std::vector<std::uint8_t>(xml.begin(), xml.end()));
+        !done) {
+      return finish(done.error(), o.common.target.json, {});
+    }
+  }
+  return finish(Json{{"devices", devices}, {"xml", xml}}, o.common.target.json, [&](const Json&) {
+    if (o.output.empty()) {
+      fmt::print("{}", xml);
+    } else {
+      fmt::print("{} device(s) written to {}\n", devices, o.output);
+    }
+  });
+}
+
+struct EoeCommandOptions {
+  Common common;
+  std::string ip, subnet_mask, gateway, dns_server, mac, dns_name;
+  bool setting() const {
+    return !ip.empty() || !subnet_mask.empty() || !gateway.empty() || !dns_server.empty() ||
+           !mac.empty() || !dns_name.empty();
+  }
+};
+
+// EoE: the tunnel's counters, or (with any parameter) the Set IP Parameter service.
+int cmd_eoe(const EoeCommandOptions& o) {
+  int code = 0;
+  auto c = Connection::open(o.common.target, &code);
+  if (!c) return code;
+  auto name = slave_name(*c, o.common.slave);
+  if (!name) return finish(name.error(), o.common.target.json, {});
+  if (!o.setting()) {
+    auto r = c->call(Json{{"op", "eoe.stats"}, {"slave", *name}});
+    return finish(r, o.common.target.json, [&](const Json& j) {
+      fmt::print(
+          "{}: {} frames sent ({} fragments), {} received ({} fragments), {} frames and {} "
+          "fragments dropped\n",
+          *name, j.value("frames_sent", 0), j.value("fragments_sent", 0),
+          j.value("frames_received", 0), j.value("fragments_received", 0),
+          j.value("frames_dropped", 0), j.value("fragments_dropped", 0));
+    });
+  }
+  Json request{{"op", "eoe.set_ip"}, {"slave", *name}};
+  const std::pair<const char*, const std::string*> fields[] = {
+      {"ip", &o.ip},           {"subnet_mask", &o.subnet_mask},
+      {"gateway", &o.gateway}, {"dns_server", &o.dns_server},
+      {"mac", &o.mac},         {"dns_name", &o.dns_name}};
+  for (const auto& [key, value] : fields) {
+    if (!value->empty()) request[key] = *value;
+  }
+  auto r = c->call(request);
+  return finish(r, o.common.target.json,
+                [&](const Json&) { fmt::print("{}: IP parameters set\n", *name); });
+}
+
 // ---- Registration -----------------------------------------------------------------------------
 
 template <class O>
@@ -1232,12 +1796,15 @@ ecat::tool::Command setup_sii_read(CLI::App& parent) {
   auto* app = base(parent, "sii_read", "A slave's SII EEPROM image (as read at bring-up)",
                    o->common, true, true);
   app->add_option("-o,--output", o->output, "Write the raw image to this file");
+  app->add_flag("-d,--decode", o->decode, "Decode it (as `ecat sii FILE` does)");
   return {app, [o] { return cmd_sii_read(*o); }};
 }
 
 ecat::tool::Command setup_sdos(CLI::App& parent) {
-  auto o = std::make_shared<Common>();
-  auto* app = base(parent, "sdos", "A slave's object dictionary (SDO information)", *o, true, true);
+  auto o = std::make_shared<SdosOptions>();
+  auto* app =
+      base(parent, "sdos", "A slave's object dictionary (SDO information)", o->common, true, true);
+  app->add_flag("--values", o->values, "With every subindex's value");
   return {app, [o] { return cmd_sdos(*o); }};
 }
 
@@ -1336,6 +1903,59 @@ ecat::tool::Command setup_diag(CLI::App& parent) {
   return {app, [o] { return cmd_diag(*o); }};
 }
 
+ecat::tool::Command setup_config(CLI::App& parent) {
+  auto o = std::make_shared<ConfigOptions>();
+  auto* app = base(parent, "config",
+                   "Write a ring file from the ring as found: the first configuration in one "
+                   "command",
+                   o->common, false, false);
+  app->add_option("-o,--output", o->output, "The file to write (default: stdout)");
+  app->add_option("--period-us", o->period_us, "The domain's period")
+      ->check(CLI::Range(50u, 10'000'000u));
+  return {app, [o] { return cmd_config(*o); }};
+}
+
+ecat::tool::Command setup_graph(CLI::App& parent) {
+  auto o = std::make_shared<GraphOptions>();
+  auto* app = base(parent, "graph", "The ring's topology as Graphviz DOT", o->common, false, false);
+  app->add_option("-o,--output", o->output, "The file to write (default: stdout)");
+  app->add_option("--svg", o->svg, "Also render it as SVG into this file (needs Graphviz)");
+  return {app, [o] { return cmd_graph(*o); }};
+}
+
+ecat::tool::Command setup_cstruct(CLI::App& parent) {
+  auto o = std::make_shared<CStructOptions>();
+  auto* app = base(parent, "cstruct",
+                   "A C header of each domain's process image (packed structs and offsets)",
+                   o->common, false, false);
+  app->add_option("-o,--output", o->output, "The file to write (default: stdout)");
+  return {app, [o] { return cmd_cstruct(*o); }};
+}
+
+ecat::tool::Command setup_xml(CLI::App& parent) {
+  auto o = std::make_shared<XmlOptions>();
+  auto* app = base(parent, "xml",
+                   "Device descriptions (ESI form: identity, SyncManagers, PDOs) of the slaves",
+                   o->common, true, false);
+  app->add_option("-o,--output", o->output, "The file to write (default: stdout)");
+  return {app, [o] { return cmd_xml(*o); }};
+}
+
+ecat::tool::Command setup_eoe(CLI::App& parent) {
+  auto o = std::make_shared<EoeCommandOptions>();
+  auto* app = base(parent, "eoe",
+                   "A slave's EoE tunnel: its counters, or Set IP Parameter with --ip ... "
+                   "(attached: the endpoint must allow writes)",
+                   o->common, true, true);
+  app->add_option("--ip", o->ip, "IPv4 address (a.b.c.d)");
+  app->add_option("--subnet-mask", o->subnet_mask, "Subnet mask (a.b.c.d)");
+  app->add_option("--gateway", o->gateway, "Default gateway (a.b.c.d)");
+  app->add_option("--dns-server", o->dns_server, "DNS server (a.b.c.d)");
+  app->add_option("--mac", o->mac, "MAC address (02:00:00:00:00:01)");
+  app->add_option("--dns-name", o->dns_name, "DNS name (at most 32 bytes)");
+  return {app, [o] { return cmd_eoe(*o); }};
+}
+
 ecat::tool::Command setup_version(CLI::App& parent) {
   auto o = std::make_shared<Common>();
   auto* app =
@@ -1349,7 +1969,8 @@ const bool registered = [] {
         &setup_download,  &setup_states, &setup_reg_read,  &setup_reg_write, &setup_sii_read,
         &setup_sdos,      &setup_events, &setup_foe_read,  &setup_foe_write, &setup_soe_read,
         &setup_soe_write, &setup_alias,  &setup_sii_write, &setup_pdos,      &setup_crc,
-        &setup_diag,      &setup_version}) {
+        &setup_diag,      &setup_config, &setup_graph,     &setup_cstruct,   &setup_xml,
+        &setup_eoe,       &setup_version}) {
     ecat::tool::register_command(setup);
   }
   return true;

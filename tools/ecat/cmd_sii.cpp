@@ -17,6 +17,7 @@
 
 #include "command.hpp"
 #include "core/read_file.hpp"
+#include "session_view.hpp"
 
 namespace {
 
@@ -460,14 +461,7 @@ void print_text(const Options& options, std::size_t file_size, const SiiDecoded&
 
 // ---------------------------------------------------------------------------------------------
 
-int run(const Options& options) {
-  auto read = ecat::read_binary_file(options.file, ecat::FileKind::eeprom);
-  if (!read) {
-    fmt::print(stderr, "ecat sii: {}\n", read.error().describe());
-    return 2;
-  }
-  const std::vector<std::uint8_t>& bytes = *read;
-
+int print_image(const Options& options, const std::vector<std::uint8_t>& bytes) {
   auto decoded = ecat::wire::decode_sii(bytes);
   if (!decoded) {
     fmt::print(stderr, "ecat sii: {}: {}\n", options.file, decoded.error().describe());
@@ -484,6 +478,15 @@ int run(const Options& options) {
   return 0;
 }
 
+int run(const Options& options) {
+  auto read = ecat::read_binary_file(options.file, ecat::FileKind::eeprom);
+  if (!read) {
+    fmt::print(stderr, "ecat sii: {}\n", read.error().describe());
+    return 2;
+  }
+  return print_image(options, *read);
+}
+
 ecat::tool::Command setup(CLI::App& parent) {
   auto* app = parent.add_subcommand("sii", "Decode an SII EEPROM image file");
   auto options = std::make_shared<Options>();
@@ -495,3 +498,11 @@ ecat::tool::Command setup(CLI::App& parent) {
 const bool registered = ecat::tool::register_command(&setup);
 
 }  // namespace
+
+namespace ecat::tool {
+
+int print_sii(const std::vector<std::uint8_t>& image, const std::string& label, bool json) {
+  return print_image(Options{label, json}, image);
+}
+
+}  // namespace ecat::tool

@@ -103,17 +103,31 @@ nlohmann::ordered_json status_json(master::Master& master) {
 }
 
 std::optional<Setup> prepare(const std::string& ring_file, const std::string& backend,
-                             bool dynamic) {
+                             bool dynamic, const std::string& pcap) {
   Setup setup;
   std::string spec = backend;
   if (!ring_file.empty()) {
-    auto config = ecat::master::load_master_config(ring_file);
+    ecat::master::ConfigFileInfo file_info;  // a ring file or an ENI
+    auto config = ecat::master::load_master_config(ring_file, &file_info);
     if (!config) {
       fmt::print(stderr, "ecat: {}\n", config.error().describe());
       return std::nullopt;
     }
+    if (!file_info.eni_report.empty()) {
+      fmt::print(stderr, "ecat: {} is an ENI; what of it ecat does not use:\n", ring_file);
+      for (const auto& line : file_info.eni_report) {
+        fmt::print(stderr, "  {}\n", line);
+      }
+    }
     setup.config = std::move(*config);
     if (spec.empty()) spec = setup.config.backend;
+    if (spec.empty() && file_info.eni) {
+      fmt::print(stderr,
+                 "ecat: {} is an ENI, which has no simulator section: give the master's link with "
+                 "--backend\n",
+                 ring_file);
+      return std::nullopt;
+    }
     if (spec.empty()) {
       auto ring = ecat::sim::load_ring(ring_file);
       if (!ring) {
@@ -144,6 +158,11 @@ std::optional<Setup> prepare(const std::string& ring_file, const std::string& ba
   }
   setup.link = std::move(opened->link);
   setup.link_name = spec;
+  if (!pcap.empty()) {
+    setup.capture = LiveCapture::open(pcap, spec);
+    if (!setup.capture) return std::nullopt;
+    setup.link = setup.capture->wrap(std::move(setup.link));
+  }
   return setup;
 }
 
