@@ -18,6 +18,7 @@
 #include <cctype>
 #include <cinttypes>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -25,12 +26,15 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
+#include <unistd.h>
 
 #include <ecat/ipc/line_server.hpp>
 #include <ecat/master/control_endpoint.hpp>
@@ -48,6 +52,64 @@ using Json = nlohmann::ordered_json;
 using ecat::Errc;
 using ecat::Error;
 using ecat::Result;
+
+// ---- Progress on a terminal --------------------------------------------------------------------
+
+// A line on stderr that says a long operation is still going ("foe_write 'fw.efw': 4.2 s"),
+// redrawn every 200 ms while it runs, when stderr is a terminal; silent in pipes and files. The
+// endpoint answers a request as a whole, so what is shown is the time taken, and for loops the
+// step (`step(i, n)`).
+class Progress {
+ public:
+  explicit Progress(std::string what)
+      : what_(std::move(what)), active_(::isatty(STDERR_FILENO) == 1) {
+    if (!active_) return;
+    started_ = std::chrono::steady_clock::now();
+    thread_ = std::thread([this] {
+      std::unique_lock lock(mutex_);
+      while (!done_) {
+        changed_.wait_for(lock, 200ms);
+        if (done_) break;
+        draw_locked();
+      }
+    });
+  }
+  ~Progress() {
+    if (!active_) return;
+    {
+      std::lock_guard lock(mutex_);
+      done_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+    std::fprintf(stderr, "\r\033[K");  // the line goes: the result is printed instead
+  }
+  Progress(const Progress&) = delete;
+  Progress& operator=(const Progress&) = delete;
+
+  void step(std::size_t done, std::size_t total) {
+    if (!active_) return;
+    std::lock_guard lock(mutex_);
+    step_ = fmt::format(" {}/{}", done, total);
+  }
+
+ private:
+  void draw_locked() {
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
+    std::fprintf(stderr, "\r\033[K%s%s: %.1f s", what_.c_str(), step_.c_str(), seconds);
+    std::fflush(stderr);
+  }
+
+  std::string what_;
+  bool active_ = false;
+  std::chrono::steady_clock::time_point started_{};
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  bool done_ = false;
+  std::string step_;
+  std::thread thread_;
+};
 
 // ---- Where the requests go --------------------------------------------------------------------
 
@@ -782,7 +844,10 @@ int cmd_sdos(const SdosOptions& so) {
   Result<Json> r = list;
   if (list) {
     Json objects = Json::array();
+    Progress progress(fmt::format("sdos {}", *name));
+    std::size_t step = 0;
     for (const auto& index : (*list)["objects"]) {
+      progress.step(++step, (*list)["objects"].size());
       auto d = c->call(Json{{"op", "sdo.describe"}, {"slave", *name}, {"index", index}});
       Json object = d ? *d : Json{{"index", index}, {"error", d.error().message()}};
       if (d && so.values) {
@@ -922,7 +987,11 @@ int cmd_foe(const FileOptions& o, bool write) {
   Json request{{"op", write ? "foe.write" : "foe.read"}, {"slave", *name}, {"file", o.remote}};
   if (o.password) request["password"] = *o.password;
   if (write) request["data"] = to_hex(bytes);
-  auto r = c->call(request);
+  Result<Json> r = Error(Errc::internal, "not sent");
+  {
+    Progress progress(fmt::format("{} '{}'", write ? "foe_write" : "foe_read", o.remote));
+    r = c->call(request);
+  }
   if (r && !write) {
     if (auto done = write_local(o.local, from_hex(r->value("data", ""))); !done) {
       r = done.error();
@@ -1035,7 +1104,11 @@ int cmd_sii_write(const SiiOptions& o) {
   if (!c) return code;
   auto name = slave_name(*c, o.common.slave);
   if (!name) return finish(name.error(), o.common.target.json, {});
-  auto r = c->call(Json{{"op", "sii.write"}, {"slave", *name}, {"data", to_hex(*bytes)}});
+  Result<Json> r = Error(Errc::internal, "not sent");
+  {
+    Progress progress(fmt::format("sii_write {} ({} bytes)", *name, bytes->size()));
+    r = c->call(Json{{"op", "sii.write"}, {"slave", *name}, {"data", to_hex(*bytes)}});
+  }
   return finish(r, o.common.target.json, [&](const Json& j) {
     fmt::print("{}: {} bytes written to the EEPROM and verified\n", *name, j.value("size", 0));
   });
