@@ -158,14 +158,29 @@ TEST_F(ControlEndpointTest, RequestsDoNotDisturbTheCycle) {
   start(false);
   auto domain = master_->domain("main");
   ASSERT_TRUE(domain.ok());
-  const auto before = (*domain)->stats().total_miss_count;
+  // Misses caused by the requests: those during a burst of them, against those of an equally
+  // long quiet window right after (a loaded machine misses a cycle now and then by itself).
+  const auto misses = [&] { return (*domain)->stats().total_miss_count; };
+  const auto before = misses();
+  const auto started = std::chrono::steady_clock::now();
   for (int i = 0; i < 40; ++i) {
     ASSERT_EQ(ask(R"({"op":"reg.read","slave":"inputs","address":"0x0000","length":10})")["ok"],
               true);
     ASSERT_EQ(ask(R"({"op":"slaves","verbose":true})")["ok"], true);
     ASSERT_EQ(ask(R"({"op":"domain.data","domain":"main"})")["ok"], true);
+    ASSERT_EQ(ask(R"({"op":"sdo.upload","slave":"inputs","index":"0x1000","subindex":0})")["ok"],
+              false);  // an EL1809 has no mailbox: refused at once, no frame
   }
-  EXPECT_EQ((*domain)->stats().total_miss_count, before);
+  const auto burst = std::chrono::steady_clock::now() - started;
+  const auto during = misses() - before;
+  const auto quiet_start = misses();
+  std::this_thread::sleep_for(burst);
+  const auto quiet = misses() - quiet_start;
+  // One miss of slack: a miss lands in either window by chance on a loaded machine (requests
+  // that cost cycles cost one per request: 160 here).
+  EXPECT_LE(during, quiet + 1) << "the requests cost the domain cycles (" << during << " missed in "
+                               << std::chrono::duration<double>(burst).count() << " s, " << quiet
+                               << " in as long a quiet window)";
   EXPECT_EQ(master_->state(), MasterState::operational);
 }
 
