@@ -1,7 +1,11 @@
 // How fast the simulator answers. In process: frames per second through SimServer's function link
-// for 1, 16, 64 and 256 slaves, each frame a cyclic LRW over every slave's process data plus an
-// AL status read. Over a veth pair: a round trip through a SimServer serving a raw link, against a
-// bare echo on the same pair (the cost of the simulator itself). Figures only; nothing asserts.
+// for 1 to 1024 slaves, each frame a cyclic LRW over every slave's process data plus an AL status
+// read, and a health-poll frame of 8 FPRDs (AL status and code) to slaves spread over the ring:
+// the cyclic frame addresses every slave, the poll only 8, so its rate shows what a frame costs
+// apart from the slaves it addresses. Over a veth pair: a round trip through a SimServer serving a
+// raw link, against a bare echo on the same pair (the cost of the simulator itself). Figures only;
+// nothing asserts.
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <memory>
@@ -76,16 +80,36 @@ std::unique_ptr<ecat::sim::SimServer> configured_server(std::size_t slaves) {
   return server;
 }
 
-std::vector<std::uint8_t> cyclic_frame(std::size_t slaves) {
+// Slaves whose process data one LRW carries (1,024 bytes; a frame holds at most 1,486).
+constexpr std::size_t kSlavesPerLrw = 512;
+
+// One LRW over slaves [first, first + count), and an AL status read of the first slave when
+// `with_status` (the veth benchmarks send cyclic_frame(n), n <= 256).
+std::vector<std::uint8_t> cyclic_frame(std::size_t first, std::size_t count, bool with_status) {
   ecat::wire::DatagramHeader lrw;
   lrw.command = Command::lrw;
-  lrw.length = static_cast<std::uint16_t>(slaves * kBytesPerSlave);
+  lrw.address = static_cast<std::uint32_t>(first * kBytesPerSlave);
+  lrw.length = static_cast<std::uint16_t>(count * kBytesPerSlave);
+  if (!with_status) return frame_of({lrw});
   ecat::wire::DatagramHeader status;
   status.command = Command::fprd;
   status.index = 1;
   status.address = ecat::wire::physical_address(0x1001, reg::kAlStatus);
   status.length = 2;
   return frame_of({lrw, status});
+}
+
+std::vector<std::uint8_t> cyclic_frame(std::size_t slaves) {
+  return cyclic_frame(0, slaves, true);
+}
+
+// One cycle's frames: an LRW per 512 slaves, the first frame with the AL status read.
+std::vector<std::vector<std::uint8_t>> cyclic_frames(std::size_t slaves) {
+  std::vector<std::vector<std::uint8_t>> frames;
+  for (std::size_t first = 0; first < slaves; first += kSlavesPerLrw) {
+    frames.push_back(cyclic_frame(first, std::min(kSlavesPerLrw, slaves - first), frames.empty()));
+  }
+  return frames;
 }
 
 void BM_InProcessCyclicFrame(benchmark::State& state) {
@@ -96,9 +120,62 @@ void BM_InProcessCyclicFrame(benchmark::State& state) {
     return;
   }
   auto link = server->function_link();
-  const auto frame = cyclic_frame(slaves);
+  const auto frames = cyclic_frames(slaves);
   std::uint64_t wrong = 0;
-  const auto expected_wkc = static_cast<std::uint16_t>(3 * slaves);
+  for (auto _ : state) {
+    for (std::size_t f = 0; f < frames.size(); ++f) {
+      (void)link->send(frames[f]);
+      auto r = link->receive(0ns);
+      if (!r.ok() || !r->has_value()) {
+        state.SkipWithError("no reply");
+        return;
+      }
+      const std::size_t count = std::min(kSlavesPerLrw, slaves - f * kSlavesPerLrw);
+      const auto reply = (*r)->frame;
+      const std::size_t wkc_at =
+          ecat::wire::kFrameHeaderSize + ecat::wire::kDatagramHeaderSize + count * kBytesPerSlave;
+      if (ecat::wire::load_le16(reply.data() + wkc_at) != 3 * count) ++wrong;
+    }
+  }
+  state.counters["slaves"] = static_cast<double>(slaves);
+  state.counters["wrong_wkc"] = static_cast<double>(wrong);
+  state.counters["frames/s"] = benchmark::Counter(
+      static_cast<double>(state.iterations() * frames.size()), benchmark::Counter::kIsRate);
+  state.counters["cycles/s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_InProcessCyclicFrame)->Arg(1)->Arg(16)->Arg(64)->Arg(256)->Arg(512)->Arg(1024);
+
+constexpr std::size_t kPolledSlaves = 8;
+
+// FPRD AL status + AL status code (0x0130..0x0135) of 8 slaves spread over the ring.
+std::vector<std::uint8_t> health_poll_frame(std::size_t slaves) {
+  std::array<std::uint8_t, ecat::wire::kMaxFrameSize> buffer{};
+  ecat::wire::FrameBuilder builder(buffer);
+  for (std::size_t k = 0; k < kPolledSlaves; ++k) {
+    const std::size_t slave = k * slaves / kPolledSlaves;
+    ecat::wire::DatagramHeader h;
+    h.command = Command::fprd;
+    h.index = static_cast<std::uint8_t>(k);
+    h.address =
+        ecat::wire::physical_address(static_cast<std::uint16_t>(0x1001 + slave), reg::kAlStatus);
+    h.length = 6;
+    (void)builder.add(h, ecat::wire::Bytes{});
+  }
+  const auto frame = builder.finish();
+  return {frame.begin(), frame.end()};
+}
+
+void BM_InProcessHealthPollFrame(benchmark::State& state) {
+  const auto slaves = static_cast<std::size_t>(state.range(0));
+  auto server = configured_server(slaves);
+  if (!server) {
+    state.SkipWithError("cannot build the segment");
+    return;
+  }
+  auto link = server->function_link();
+  const auto frame = health_poll_frame(slaves);
+  std::uint64_t wrong = 0;
   for (auto _ : state) {
     (void)link->send(frame);
     auto r = link->receive(0ns);
@@ -106,17 +183,21 @@ void BM_InProcessCyclicFrame(benchmark::State& state) {
       state.SkipWithError("no reply");
       break;
     }
-    const auto reply = (*r)->frame;
-    const std::size_t wkc_at =
-        ecat::wire::kFrameHeaderSize + ecat::wire::kDatagramHeaderSize + slaves * kBytesPerSlave;
-    if (ecat::wire::load_le16(reply.data() + wkc_at) != expected_wkc) ++wrong;
+    const auto decoded = ecat::wire::decode_frame((*r)->frame);
+    if (!decoded) {
+      ++wrong;
+      continue;
+    }
+    for (const ecat::wire::DatagramView d : *decoded.frame) {
+      if (d.wkc != 1) ++wrong;
+    }
   }
   state.counters["slaves"] = static_cast<double>(slaves);
   state.counters["wrong_wkc"] = static_cast<double>(wrong);
   state.counters["frames/s"] =
       benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
-BENCHMARK(BM_InProcessCyclicFrame)->Arg(1)->Arg(16)->Arg(64)->Arg(256);
+BENCHMARK(BM_InProcessHealthPollFrame)->Arg(8)->Arg(64)->Arg(256)->Arg(512)->Arg(1024);
 
 // ---- veth ---------------------------------------------------------------------------------------
 

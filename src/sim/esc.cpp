@@ -169,6 +169,15 @@ void Esc::reset_registers() {
     f = wire::FmmuConfig{};
   last_mailbox_reply_.clear();
   if (dc_) dc_->reset();
+  if (layout_observer_ != nullptr) layout_observer_->esc_layout_changed(layout_tag_);
+}
+
+void Esc::layout_written(std::uint32_t first, std::uint32_t last) {
+  if (layout_observer_ == nullptr) return;
+  if (overlaps(first, last, reg::kStationAddress, 4) || overlaps(first, last, reg::kDlControl, 4) ||
+      overlaps(first, last, reg::kFmmuBase, reg::kFmmuSize * reg::kMaxFmmus)) {
+    layout_observer_->esc_layout_changed(layout_tag_);
+  }
 }
 
 void Esc::power_cycle(std::int64_t now_ns) {
@@ -191,23 +200,30 @@ void Esc::advance(std::int64_t now_ns) {
   sii_finish_if_due();
   // The segment advances every ESC before each frame: the SII write enable (0x0502 bit 0) is
   // self-clearing at the start of the next frame (ESC datasheet section II, 0x0502).
-  sii_store_status(static_cast<std::uint16_t>(sii_status_ & ~wire::sii_control::kWriteEnable));
+  // (Stored only when the register or the bit differ: the segment advances every ESC per frame.)
+  const auto sii_status =
+      static_cast<std::uint16_t>(sii_status_ & ~wire::sii_control::kWriteEnable);
+  if (sii_status != sii_status_ || wire::load_le16(&memory_[reg::kSiiControl]) != sii_status) {
+    sii_store_status(sii_status);
+  }
   // Process-data watchdog: an output SyncManager with the watchdog trigger enabled that sees no
   // complete write for the watchdog time expires (status bit 0 -> 0, counter + 1).
-  const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
-  const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
-  if (ticks != 0) {
-    const auto timeout_ns = static_cast<std::int64_t>(ticks * (divider + 2) * 40);
-    for (const auto& sm : sms_) {
-      if (!sm.enabled || !sm.config.control.watchdog ||
-          sm.config.control.direction != wire::SmDirection::write) {
-        continue;
-      }
-      if ((read_u16(reg::kWatchdogStatus) & 1) != 0 && now_ns_ - sm.last_write_ns > timeout_ns) {
-        wire::store_le16(&memory_[reg::kWatchdogStatus], 0);
-        memory_[reg::kWatchdogCounterProcessData] =
-            static_cast<std::uint8_t>(std::min(255, memory_[reg::kWatchdogCounterProcessData] + 1));
-      }
+  std::optional<std::int64_t> timeout_ns;  // read when an SM needs it
+  for (const auto& sm : sms_) {
+    if (!sm.enabled || !sm.config.control.watchdog ||
+        sm.config.control.direction != wire::SmDirection::write) {
+      continue;
+    }
+    if (!timeout_ns) {
+      const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
+      const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
+      if (ticks == 0) break;
+      timeout_ns = static_cast<std::int64_t>(ticks * (divider + 2) * 40);
+    }
+    if ((read_u16(reg::kWatchdogStatus) & 1) != 0 && now_ns_ - sm.last_write_ns > *timeout_ns) {
+      wire::store_le16(&memory_[reg::kWatchdogStatus], 0);
+      memory_[reg::kWatchdogCounterProcessData] =
+          static_cast<std::uint8_t>(std::min(255, memory_[reg::kWatchdogCounterProcessData] + 1));
     }
   }
   if (dc_) dc_->advance(now_ns_);
@@ -223,10 +239,14 @@ bool Esc::matches_station(std::uint16_t adp) const noexcept {
   return alias_enabled && adp == station_alias();
 }
 
-DatagramEffect Esc::process(DatagramInFlight& d, const PassContext& pass) {
+void Esc::pass_by(const PassContext& pass) {
   if (pass.epu_time_ns > now_ns_) now_ns_ = pass.epu_time_ns;
   sii_finish_if_due();
   if (dc_) dc_->on_datagram(pass);
+}
+
+DatagramEffect Esc::process(DatagramInFlight& d, const PassContext& pass) {
+  pass_by(pass);
   DatagramEffect effect;
   auto count = [&](AccessResult r, bool read_write) {
     std::uint16_t add = 0;
@@ -646,6 +666,7 @@ void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const Pa
     // A configuration the FMMU cannot represent (bit numbers > 7) leaves it inactive.
     fmmus_[i] = decoded ? *decoded : wire::FmmuConfig{};
   }
+  layout_written(first, last);
   for (std::size_t i = 0; i < sms_.size(); ++i) {
     if (!overlaps(first, last, reg::sync_manager(i), reg::kSyncManagerSize)) continue;
     sync_manager_written(i, sms_[i].enabled);
@@ -1056,11 +1077,13 @@ void Esc::pdi_set_sm_deactivated(std::size_t index, bool deactivated) {
 void Esc::pdi_write(std::uint16_t address, wire::Bytes data) {
   if (static_cast<std::size_t>(address) + data.size() > memory_.size()) return;
   std::memcpy(&memory_[address], data.data(), data.size());
+  if (!data.empty()) layout_written(address, address + static_cast<std::uint32_t>(data.size()) - 1);
 }
 
 void Esc::pdi_write_u16(std::uint16_t address, std::uint16_t value) {
   if (static_cast<std::size_t>(address) + 2 > memory_.size()) return;
   wire::store_le16(&memory_[address], value);
+  layout_written(address, static_cast<std::uint32_t>(address) + 1);
 }
 
 }  // namespace ecat::sim

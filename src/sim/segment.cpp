@@ -12,10 +12,14 @@ namespace {
 // The order in which an ESC forwards a frame out of its ports after processing it.
 constexpr std::array<std::uint8_t, 3> kForwardingOrder{3, 1, 2};
 constexpr std::size_t kMaxDatagramsPerFrame = wire::kMaxFrameSize / wire::kDatagramOverhead + 1;
+constexpr std::size_t kNotVisited = static_cast<std::size_t>(-1);
 }  // namespace
 
 Segment::Segment() {
   slots_.reserve(kMaxDatagramsPerFrame);
+  valid_.reserve(kMaxDatagramsPerFrame);
+  everyone_.reserve(kMaxDatagramsPerFrame);
+  positional_.reserve(kMaxDatagramsPerFrame);
 }
 
 Segment::~Segment() = default;
@@ -54,9 +58,12 @@ Result<std::size_t> Segment::add_slave(std::string name, std::unique_ptr<Esc> es
     nodes_[parent].children[port] = nodes_.size();
   }
   nodes_.push_back(std::move(node));
+  const std::size_t index = nodes_.size() - 1;
+  nodes_[index].esc->set_layout_observer(this, index);
+  esc_layout_changed(index);
   port_control_seen_.clear();  // re-plan on the next frame
   update_dl_status();
-  return nodes_.size() - 1;
+  return index;
 }
 
 std::optional<std::size_t> Segment::find(std::string_view name) const noexcept {
@@ -163,6 +170,134 @@ void Segment::update_dl_status() {
   }
 }
 
+void Segment::esc_layout_changed(std::size_t tag) {
+  if (tag >= nodes_.size()) return;
+  Node& node = nodes_[tag];
+  if (!node.port_dirty) {
+    node.port_dirty = true;
+    port_dirty_.push_back(tag);
+  }
+  if (!node.index_dirty) {
+    node.index_dirty = true;
+    index_dirty_.push_back(tag);
+  }
+}
+
+void Segment::reindex(std::size_t index) {
+  Node& node = nodes_[index];
+  node.index_dirty = false;
+  const Esc& esc = *node.esc;
+  std::array<std::uint16_t, 2> keys{esc.station_address(), 0};
+  std::uint8_t key_count = 1;
+  if ((esc.read_u8(reg::kDlAliasControl) & 0x01) != 0 && esc.station_alias() != keys[0]) {
+    keys[key_count++] = esc.station_alias();
+  }
+  if (key_count != node.key_count || keys != node.keys) {
+    for (std::uint8_t k = 0; k < node.key_count; ++k) {
+      auto it = by_address_.find(node.keys[k]);
+      if (it == by_address_.end()) continue;
+      auto& list = it->second;
+      list.erase(std::remove(list.begin(), list.end(), index), list.end());
+      if (list.empty()) by_address_.erase(it);
+    }
+    for (std::uint8_t k = 0; k < key_count; ++k) {
+      by_address_[keys[k]].push_back(index);
+    }
+    node.keys = keys;
+    node.key_count = key_count;
+  }
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> logical;
+  for (std::size_t i = 0; i < esc.fmmu_count(); ++i) {
+    const wire::FmmuConfig& f = esc.fmmu(i);
+    if (!f.active || f.length == 0) continue;
+    // Bytes [start, start + length) hold every bit the FMMU maps (start and stop bits inside).
+    logical.emplace_back(f.logical_start, std::uint64_t{f.logical_start} + f.length);
+  }
+  if (logical != node.logical) {
+    node.logical = std::move(logical);
+    logical_dirty_ = true;
+  }
+}
+
+void Segment::rebuild_logical_index() {
+  logical_.clear();
+  logical_max_length_ = 0;
+  for (std::size_t i = 0; i < nodes_.size(); ++i) {
+    for (const auto& [first, end] : nodes_[i].logical) {
+      logical_.push_back(LogicalRange{first, end, i});
+      logical_max_length_ = std::max(logical_max_length_, end - first);
+    }
+  }
+  std::sort(logical_.begin(), logical_.end(),
+            [](const LogicalRange& a, const LogicalRange& b) { return a.first < b.first; });
+  logical_dirty_ = false;
+}
+
+// Which slaves each datagram of the frame (slots_) addresses. The sets may be larger than the
+// slaves that act (Esc::process decides); they never miss one.
+void Segment::find_addressed() {
+  valid_.clear();
+  everyone_.clear();
+  hits_.clear();
+  positional_.clear();
+  for (std::size_t k = 0; k < slots_.size(); ++k) {
+    const Slot& slot = slots_[k];
+    if (!slot.command) continue;
+    valid_.push_back(k);
+    const auto adp = static_cast<std::uint16_t>(slot.address);
+    switch (*slot.command) {
+      case wire::Command::nop:
+        break;
+      case wire::Command::aprd:
+      case wire::Command::apwr:
+      case wire::Command::aprw:
+        // The ESC at reachable position p sees ADP + p; the one that sees 0 is addressed.
+        positional_.emplace_back(static_cast<std::uint16_t>(0x10000u - adp), k);
+        break;
+      case wire::Command::fprd:
+      case wire::Command::fpwr:
+      case wire::Command::fprw: {
+        const auto it = by_address_.find(adp);
+        if (it == by_address_.end()) break;
+        for (const std::size_t node : it->second) {
+          if (visit_of_[node] != kNotVisited) hits_.emplace_back(visit_of_[node], k);
+        }
+        break;
+      }
+      case wire::Command::lrd:
+      case wire::Command::lwr:
+      case wire::Command::lrw: {
+        if (slot.length == 0) break;
+        if (logical_dirty_) rebuild_logical_index();
+        const std::uint64_t first = slot.address;
+        const std::uint64_t end = first + slot.length;
+        // A range that overlaps [first, end) starts after first - max length.
+        const std::uint64_t from =
+            first >= logical_max_length_ ? first - logical_max_length_ + 1 : 0;
+        auto it = std::lower_bound(
+            logical_.begin(), logical_.end(), from,
+            [](const LogicalRange& r, std::uint64_t value) { return r.first < value; });
+        for (; it != logical_.end() && it->first < end; ++it) {
+          if (it->end > first && visit_of_[it->node] != kNotVisited) {
+            hits_.emplace_back(visit_of_[it->node], k);
+          }
+        }
+        break;
+      }
+      default:  // BRD, BWR, BRW, ARMW, FRMW: every slave processes them
+        everyone_.push_back(k);
+        break;
+    }
+  }
+  // One datagram's hits usually come in route order already (an LRW over a domain laid out along
+  // the ring).
+  if (!std::is_sorted(hits_.begin(), hits_.end())) std::sort(hits_.begin(), hits_.end());
+  hits_.erase(std::unique(hits_.begin(), hits_.end()), hits_.end());
+  if (!std::is_sorted(positional_.begin(), positional_.end())) {
+    std::sort(positional_.begin(), positional_.end());
+  }
+}
+
 void Segment::add_after_frame(std::function<void(Segment&, std::int64_t)> callback) {
   after_frame_.push_back(std::move(callback));
 }
@@ -170,6 +305,124 @@ void Segment::add_after_frame(std::function<void(Segment&, std::int64_t)> callba
 void Segment::advance(std::int64_t now_ns) {
   for (auto& node : nodes_)
     node.esc->advance(now_ns);
+}
+
+void Segment::dispatch_to_every_slave(std::span<std::uint8_t> frame, std::int64_t now_ns) {
+  for (const Visit& v : visits_) {
+    if (hooks_ != nullptr && hooks_->slave_unreachable(v.index)) continue;
+    Esc& esc = *nodes_[v.index].esc;
+    PassContext pass = v.pass;
+    pass.epu_time_ns += now_ns;
+    for (std::size_t p = 0; p < 4; ++p) {
+      if (pass.port_seen[p]) pass.port_time_ns[p] += now_ns;
+    }
+    for (std::size_t k = 0; k < slots_.size(); ++k) {
+      if (!slots_[k].command) continue;
+      std::uint8_t* base = frame.data() + slots_[k].offset;
+      DatagramInFlight d;
+      d.command = *slots_[k].command;
+      d.address = wire::load_le32(base + 2);
+      d.data = std::span<std::uint8_t>(base + wire::kDatagramHeaderSize, slots_[k].length);
+      std::uint8_t* wkc = base + wire::kDatagramHeaderSize + slots_[k].length;
+      d.wkc = wire::load_le16(wkc);
+      const DatagramEffect effect = esc.process(d, pass);
+      if (hooks_ != nullptr) hooks_->after_datagram(v.index, k, d, effect);
+      wire::store_le32(base + 2, d.address);
+      wire::store_le16(wkc, d.wkc);
+    }
+  }
+}
+
+void Segment::dispatch(std::span<std::uint8_t> frame, std::int64_t now_ns) {
+  find_addressed();
+  // Slave-major, as the frame travels: each reachable slave processes the datagrams that address
+  // it, in frame order; a slave no datagram addresses only sees the frame pass.
+  std::size_t reachable = 0;
+  std::size_t hit = 0;
+  std::size_t positional = 0;
+  for (std::size_t position = 0; position < visits_.size(); ++position) {
+    const Visit& v = visits_[position];
+    const std::size_t hits_begin = hit;
+    while (hit < hits_.size() && hits_[hit].first == position)
+      ++hit;
+    const std::size_t hits_end = hit;
+    if (hooks_ != nullptr && hooks_->slave_unreachable(v.index)) continue;
+    const std::size_t ordinal = reachable++;
+    while (positional < positional_.size() && positional_[positional].first < ordinal)
+      ++positional;
+    std::size_t positional_end = positional;
+    while (positional_end < positional_.size() && positional_[positional_end].first == ordinal)
+      ++positional_end;
+    if (valid_.empty()) continue;
+
+    Node& node = nodes_[v.index];
+    Esc& esc = *node.esc;
+    PassContext pass = v.pass;
+    pass.epu_time_ns += now_ns;
+    for (std::size_t p = 0; p < 4; ++p) {
+      if (pass.port_seen[p]) pass.port_time_ns[p] += now_ns;
+    }
+    if (everyone_.empty() && hits_begin == hits_end && positional == positional_end) {
+      esc.pass_by(pass);
+      continue;
+    }
+    // Walk the frame's datagrams; those not addressing this slave only pass it (pass_by is
+    // idempotent and process() starts with it, so one after the last processed one suffices).
+    // Should the slave's addresses or FMMUs change on the way, it processes every datagram left.
+    bool all = false;
+    bool passed_after = false;
+    std::size_t e = 0;
+    std::size_t h = hits_begin;
+    std::size_t a = positional;
+    for (const std::size_t k : valid_) {
+      bool addressed = all;
+      if (e < everyone_.size() && everyone_[e] == k) {
+        addressed = true;
+        ++e;
+      }
+      if (h < hits_end && hits_[h].second == k) {
+        addressed = true;
+        ++h;
+      }
+      if (a < positional_end && positional_[a].second == k) {
+        addressed = true;
+        ++a;
+      }
+      if (!addressed) {
+        passed_after = true;
+        continue;
+      }
+      passed_after = false;
+      const Slot& slot = slots_[k];
+      std::uint8_t* base = frame.data() + slot.offset;
+      DatagramInFlight d;
+      d.command = *slot.command;
+      d.address = wire::load_le32(base + 2);
+      if (d.command == wire::Command::aprd || d.command == wire::Command::apwr ||
+          d.command == wire::Command::aprw) {
+        // The slaves before this one each incremented the ADP.
+        d.set_adp(static_cast<std::uint16_t>(slot.address + ordinal));
+      }
+      d.data = std::span<std::uint8_t>(base + wire::kDatagramHeaderSize, slot.length);
+      std::uint8_t* wkc = base + wire::kDatagramHeaderSize + slot.length;
+      d.wkc = wire::load_le16(wkc);
+      const DatagramEffect effect = esc.process(d, pass);
+      if (hooks_ != nullptr) hooks_->after_datagram(v.index, k, d, effect);
+      wire::store_le32(base + 2, d.address);
+      wire::store_le16(wkc, d.wkc);
+      if (node.index_dirty) all = true;
+    }
+    if (passed_after) esc.pass_by(pass);
+    positional = positional_end;
+  }
+  // Every reachable slave incremented the ADP of the position-addressed datagrams.
+  for (const auto& [ordinal, k] : positional_) {
+    (void)ordinal;
+    std::uint8_t* base = frame.data() + slots_[k].offset;
+    const std::uint32_t address = wire::load_le32(base + 2);
+    wire::store_le32(base + 2, (address & 0xFFFF0000u) |
+                                   static_cast<std::uint16_t>(slots_[k].address + reachable));
+  }
 }
 
 bool Segment::process_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) {
@@ -189,26 +442,31 @@ bool Segment::process_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) 
   slots_.clear();
   for (const wire::DatagramView view : *decoded.frame) {
     const auto data_offset = static_cast<std::size_t>(view.data.data() - frame.data());
-    slots_.push_back(Slot{data_offset - wire::kDatagramHeaderSize, view.header.length});
+    const std::uint8_t* base = frame.data() + data_offset - wire::kDatagramHeaderSize;
+    slots_.push_back(Slot{data_offset - wire::kDatagramHeaderSize, view.header.length,
+                          wire::load_le32(base + 2), wire::command_from_byte(base[0])});
   }
   stats_.datagrams += slots_.size();
 
-  // Re-plan the route when a port's loop control changed since the last frame.
+  // Re-plan the route when a port's loop control changed since the last frame. Only ESCs whose
+  // DL control was written (or that were power cycled) can have changed it.
   bool replan = port_control_seen_.size() != nodes_.size();
-  if (!replan) {
-    for (std::size_t i = 0; i < nodes_.size(); ++i) {
-      if (nodes_[i].esc->read_u8(reg::kDlPortControl) != port_control_seen_[i]) {
-        replan = true;
-        break;
-      }
+  for (const std::size_t i : port_dirty_) {
+    if (!replan && nodes_[i].esc->read_u8(reg::kDlPortControl) != port_control_seen_[i]) {
+      replan = true;
     }
+    nodes_[i].port_dirty = false;
   }
+  port_dirty_.clear();
   if (replan) {
     plan(visits_, round_trip_);
     port_control_seen_.resize(nodes_.size());
     for (std::size_t i = 0; i < nodes_.size(); ++i) {
       port_control_seen_[i] = nodes_[i].esc->read_u8(reg::kDlPortControl);
     }
+    visit_of_.assign(nodes_.size(), kNotVisited);
+    for (std::size_t v = 0; v < visits_.size(); ++v)
+      visit_of_[visits_[v].index] = v;
     update_dl_status();
   }
   if (!nodes_.empty() && !nodes_[0].link_up[0]) {
@@ -217,29 +475,15 @@ bool Segment::process_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) 
   }
 
   advance(now_ns);
-  for (const Visit& v : visits_) {
-    if (hooks_ != nullptr && hooks_->slave_unreachable(v.index)) continue;
-    Esc& esc = *nodes_[v.index].esc;
-    PassContext pass = v.pass;
-    pass.epu_time_ns += now_ns;
-    for (std::size_t p = 0; p < 4; ++p) {
-      if (pass.port_seen[p]) pass.port_time_ns[p] += now_ns;
-    }
-    for (std::size_t k = 0; k < slots_.size(); ++k) {
-      std::uint8_t* base = frame.data() + slots_[k].offset;
-      const auto command = wire::command_from_byte(base[0]);
-      if (!command) continue;
-      DatagramInFlight d;
-      d.command = *command;
-      d.address = wire::load_le32(base + 2);
-      d.data = std::span<std::uint8_t>(base + wire::kDatagramHeaderSize, slots_[k].length);
-      std::uint8_t* wkc = base + wire::kDatagramHeaderSize + slots_[k].length;
-      d.wkc = wire::load_le16(wkc);
-      const DatagramEffect effect = esc.process(d, pass);
-      if (hooks_ != nullptr) hooks_->after_datagram(v.index, k, d, effect);
-      wire::store_le32(base + 2, d.address);
-      wire::store_le16(wkc, d.wkc);
-    }
+  for (const std::size_t i : index_dirty_) {
+    if (nodes_[i].index_dirty) reindex(i);
+  }
+  index_dirty_.clear();
+
+  if (reference_dispatch_) {
+    dispatch_to_every_slave(frame, now_ns);
+  } else {
+    dispatch(frame, now_ns);
   }
   if (hooks_ != nullptr) hooks_->after_frame(frame, now_ns);
   for (auto& callback : after_frame_)

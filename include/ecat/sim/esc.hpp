@@ -27,6 +27,16 @@ namespace ecat::sim {
 
 class DcUnit;
 
+// Told when an ESC register that decides where frames go or which datagrams address the ESC may
+// have changed: the station address or alias (0x0010..0x0013), DL control and alias control
+// (0x0100..0x0103), an FMMU (0x0600..0x06FF), or everything (power cycle). The segment keeps its
+// dispatch indexes with it (include/ecat/sim/segment.hpp).
+class EscLayoutObserver {
+ public:
+  virtual ~EscLayoutObserver() = default;
+  virtual void esc_layout_changed(std::size_t tag) = 0;
+};
+
 // The hardware of one ESC: what its information registers report and how large it is.
 struct EscHardware {
   std::uint8_t type = 0x11;  // ET1100-class, as Beckhoff terminals report
@@ -101,6 +111,18 @@ class Esc {
 
   // Processes one datagram as the frame passes this ESC; updates data, ADP and WKC in place.
   DatagramEffect process(DatagramInFlight& datagram, const PassContext& pass);
+  // What process() does for a datagram that does not concern this ESC, apart from the address
+  // field: the frame passing (time, DC frame start, a finished SII command). Idempotent for one
+  // pass; process() begins with it.
+  void pass_by(const PassContext& pass);
+  // Whether a configured-address datagram with this ADP addresses the ESC (station or alias).
+  bool matches_station(std::uint16_t adp) const noexcept;
+  std::size_t fmmu_count() const noexcept { return fmmus_.size(); }
+  // Reports layout changes (see EscLayoutObserver) as `tag`; nullptr stops.
+  void set_layout_observer(EscLayoutObserver* observer, std::size_t tag) noexcept {
+    layout_observer_ = observer;
+    layout_tag_ = tag;
+  }
 
   // Lets time-driven behaviour (watchdogs, DC SYNC, device dynamics) advance to `now_ns`.
   void advance(std::int64_t now_ns);
@@ -183,7 +205,8 @@ class Esc {
   };
 
   void reset_registers();
-  bool matches_station(std::uint16_t adp) const noexcept;
+  // Tells the observer when [first, last] touches a register of the layout.
+  void layout_written(std::uint32_t first, std::uint32_t last);
   AccessResult access(std::uint32_t address, std::span<std::uint8_t> data, bool do_read,
                       bool do_write, bool or_into_data, const PassContext& pass);
   AccessResult logical(DatagramInFlight& datagram, bool do_read, bool do_write,
@@ -239,6 +262,8 @@ class Esc {
   bool dc_system_time_ = false;
   std::vector<std::uint8_t> last_mailbox_reply_;
   std::array<std::optional<std::uint16_t>, 16> al_refusals_{};  // by AL state code (4 bits)
+  EscLayoutObserver* layout_observer_ = nullptr;
+  std::size_t layout_tag_ = 0;
 };
 
 // Byte ranges of the register area (0x0000..0x0FFF) the master may write; everything else is

@@ -3,6 +3,13 @@
 // them (depth first, ports in ESC forwarding order 0 -> 3 -> 1 -> 2), and returns to the master.
 // Every hop costs time, so DC receive-time latches see realistic, topology-dependent times.
 //
+// What a frame costs: every ESC advances (watchdogs, DC SYNC, device dynamics) and notes the
+// frame passing (its time, for DC); only the ESCs a datagram addresses process it. Indexes kept
+// as registers change (EscLayoutObserver) find them: configured addresses and aliases for FP*,
+// the FMMUs' logical ranges for LRD/LWR/LRW, the position for AP* (whose ADP the slaves passed
+// increment is computed); broadcasts reach every ESC. An ESC whose addressing or FMMUs change while
+// it processes a frame sees the rest of that frame datagram by datagram, as before.
+//
 // Not thread-safe: one thread processes frames (the server holds a lock around it).
 #pragma once
 
@@ -14,6 +21,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <unordered_map>
 #include <vector>
 
 #include <ecat/result.hpp>
@@ -54,7 +62,8 @@ class SegmentHooks {
     (void)index;
     return false;
   }
-  // After slave `index` processed a datagram.
+  // After slave `index` processed a datagram. Only for the slaves a datagram addresses (or may
+  // address: broadcasts, positions, stations, FMMU ranges), not for every slave it passes.
   virtual void after_datagram(std::size_t index, std::size_t datagram_number,
                               DatagramInFlight& datagram, const DatagramEffect& effect) {
     (void)index;
@@ -76,10 +85,10 @@ struct SegmentStats {
   std::uint64_t datagrams = 0;
 };
 
-class Segment {
+class Segment : private EscLayoutObserver {
  public:
   Segment();
-  ~Segment();
+  ~Segment() override;
   Segment(const Segment&) = delete;
   Segment& operator=(const Segment&) = delete;
 
@@ -119,6 +128,10 @@ class Segment {
 
   const SegmentStats& stats() const noexcept { return stats_; }
 
+  // Every reachable slave processes every datagram, as the frame physically passes them, instead
+  // of the slaves the indexes find: slower, the same result (tests hold the indexes to it).
+  void set_reference_dispatch(bool on) noexcept { reference_dispatch_ = on; }
+
  private:
   struct Node {
     std::string name;
@@ -129,6 +142,17 @@ class Segment {
     std::array<bool, 4> link_up{true, true, true, true};
     std::int64_t cable_delay_ns = 5;
     HopTiming timing;
+    // Dispatch indexes (see esc_layout_changed): what they hold for this node.
+    bool port_dirty = false;   // port control not compared since the layout changed
+    bool index_dirty = false;  // addresses and FMMUs not re-read since the layout changed
+    std::array<std::uint16_t, 2> keys{};  // station address, alias (when enabled and different)
+    std::uint8_t key_count = 0;
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> logical;  // FMMU bytes [first, end)
+  };
+  struct LogicalRange {
+    std::uint64_t first = 0;
+    std::uint64_t end = 0;
+    std::size_t node = 0;
   };
   struct Visit {
     std::size_t index = 0;
@@ -139,20 +163,44 @@ class Segment {
   void plan(std::vector<Visit>& visits, std::int64_t& round_trip) const;
   std::int64_t visit(std::size_t index, std::int64_t arrival, std::vector<Visit>& visits) const;
   void update_dl_status();
+  void esc_layout_changed(std::size_t tag) override;
+  void reindex(std::size_t index);
+  void rebuild_logical_index();
+  void find_addressed();
+  void dispatch(std::span<std::uint8_t> frame, std::int64_t now_ns);
+  void dispatch_to_every_slave(std::span<std::uint8_t> frame, std::int64_t now_ns);
 
   std::vector<Node> nodes_;
   std::vector<Visit> visits_;  // reused per frame; no allocation in steady state
   std::int64_t round_trip_ = 0;
   bool master_link_ = true;
+  bool reference_dispatch_ = false;
   SegmentHooks* hooks_ = nullptr;
   std::vector<std::function<void(Segment&, std::int64_t)>> after_frame_;
   SegmentStats stats_;
   struct Slot {
     std::size_t offset = 0;
     std::size_t length = 0;
+    std::uint32_t address = 0;  // as the frame arrived
+    std::optional<wire::Command> command;
   };
   std::vector<Slot> slots_;
   std::vector<std::uint8_t> port_control_seen_;
+
+  // Dispatch indexes, kept by esc_layout_changed.
+  std::vector<std::size_t> port_dirty_;   // nodes whose port control may have changed
+  std::vector<std::size_t> index_dirty_;  // nodes whose addresses or FMMUs may have changed
+  std::unordered_map<std::uint16_t, std::vector<std::size_t>> by_address_;  // -> nodes
+  std::vector<LogicalRange> logical_;                                       // by first
+  std::uint64_t logical_max_length_ = 0;
+  bool logical_dirty_ = true;
+  std::vector<std::size_t> visit_of_;  // node -> position in visits_ (kNotVisited: off route)
+  // Per frame: datagrams with a valid command, those every slave processes, (visit, datagram)
+  // pairs from the indexes, (reachable position, datagram) for AP*.
+  std::vector<std::size_t> valid_;
+  std::vector<std::size_t> everyone_;
+  std::vector<std::pair<std::size_t, std::size_t>> hits_;
+  std::vector<std::pair<std::size_t, std::size_t>> positional_;
 };
 
 }  // namespace ecat::sim
