@@ -50,7 +50,8 @@ Errc read_error_code(std::string_view message) noexcept {
   return Errc::malformed;
 }
 
-std::optional<EtherCatPacket> from_udp_ipv4(Bytes ip, EtherCatPacket packet) noexcept {
+std::optional<EtherCatPacket> from_udp_ipv4(Bytes ip, EtherCatPacket packet,
+                                            std::uint16_t port) noexcept {
   if (ip.size() < kIpv4MinHeader || (ip[0] >> 4) != 4) return std::nullopt;
   const std::size_t header = static_cast<std::size_t>(ip[0] & 0x0F) * 4;
   if (header < kIpv4MinHeader || header > ip.size() || ip[9] != kIpProtocolUdp) {
@@ -65,7 +66,7 @@ std::optional<EtherCatPacket> from_udp_ipv4(Bytes ip, EtherCatPacket packet) noe
   if (udp.size() < kUdpHeader) return std::nullopt;
   const std::uint16_t source_port = wire::load_be16(udp.data());
   const std::uint16_t destination_port = wire::load_be16(udp.data() + 2);
-  if (source_port != wire::kEtherCatUdpPort && destination_port != wire::kEtherCatUdpPort) {
+  if (source_port != port && destination_port != port) {
     return std::nullopt;
   }
   std::size_t end = wire::load_be16(udp.data() + 4);
@@ -79,7 +80,8 @@ std::optional<EtherCatPacket> from_udp_ipv4(Bytes ip, EtherCatPacket packet) noe
 
 // Dispatches on the EtherType of a link layer that has already been stripped.
 std::optional<EtherCatPacket> from_ether_type(std::uint16_t ether_type, Bytes payload,
-                                              EtherCatPacket packet) noexcept {
+                                              EtherCatPacket packet,
+                                              std::uint16_t udp_port) noexcept {
   if (ether_type == wire::kEtherTypeVlan) {
     if (payload.size() < wire::kVlanTagSize) return std::nullopt;
     packet.vlan = true;
@@ -91,7 +93,7 @@ std::optional<EtherCatPacket> from_ether_type(std::uint16_t ether_type, Bytes pa
     packet.frame = payload;
     return packet;
   }
-  if (ether_type == kEtherTypeIpv4) return from_udp_ipv4(payload, packet);
+  if (ether_type == kEtherTypeIpv4) return from_udp_ipv4(payload, packet, udp_port);
   return std::nullopt;
 }
 
@@ -338,14 +340,15 @@ std::string_view to_string(Encapsulation encapsulation) noexcept {
   return "unknown";
 }
 
-std::optional<EtherCatPacket> extract_ethercat(int link_type, Bytes packet) noexcept {
+std::optional<EtherCatPacket> extract_ethercat(int link_type, Bytes packet,
+                                               std::uint16_t udp_port) noexcept {
   EtherCatPacket result;
   switch (link_type) {
     case kLinkTypeEthernet: {
       if (packet.size() < wire::kEthernetHeaderSize) return std::nullopt;
       result.source = link_address(packet.subspan(6, 6), 6);
       return from_ether_type(wire::load_be16(packet.data() + 12),
-                             packet.subspan(wire::kEthernetHeaderSize), result);
+                             packet.subspan(wire::kEthernetHeaderSize), result, udp_port);
     }
     case kLinkTypeLinuxSll: {
       // packet type(2) ARPHRD(2) address length(2) address(8) protocol(2)
@@ -353,14 +356,15 @@ std::optional<EtherCatPacket> extract_ethercat(int link_type, Bytes packet) noex
       result.outgoing = wire::load_be16(packet.data()) == kSllOutgoing;
       result.source = link_address(packet.subspan(6, 8), wire::load_be16(packet.data() + 4));
       return from_ether_type(wire::load_be16(packet.data() + 14), packet.subspan(kSllHeader),
-                             result);
+                             result, udp_port);
     }
     case kLinkTypeLinuxSll2: {
       // protocol(2) reserved(2) ifindex(4) ARPHRD(2) packet type(1) address length(1) address(8)
       if (packet.size() < kSll2Header) return std::nullopt;
       result.outgoing = packet[10] == kSllOutgoing;
       result.source = link_address(packet.subspan(12, 8), packet[11]);
-      return from_ether_type(wire::load_be16(packet.data()), packet.subspan(kSll2Header), result);
+      return from_ether_type(wire::load_be16(packet.data()), packet.subspan(kSll2Header), result,
+                             udp_port);
     }
     default:
       return std::nullopt;

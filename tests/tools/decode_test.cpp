@@ -269,6 +269,25 @@ TEST_F(DecodeTool, UdpAndVlanEncapsulations) {
   EXPECT_EQ(document["summary"]["errors"], 0);
 }
 
+// --udp-port: EtherCAT over UDP on a port other than 0x88A4 (ecat sim --udp and ecat's UDP
+// links take any port).
+TEST_F(DecodeTool, UdpOnAnotherPort) {
+  const auto frame = good_frame();
+  const std::vector<Bytes> packets{
+      ethernet(0x0800, ipv4_udp(40000, 5000, frame)),
+      ethernet(0x0800, ipv4_udp(5000, 40000, frame)),
+      ethernet(0x0800, ipv4_udp(0x88A4, 0x88A4, frame)),  // now another port: not EtherCAT
+  };
+  const auto file = write("port5000.pcap", pcap_file(1, packets));
+  auto result = run_tool(file.string() + " --udp-port 5000");
+  EXPECT_EQ(result.status, 0) << result.out << result.err;
+  EXPECT_EQ(lines(result.out).back(), "frames=3 ethercat=2 errors=0");
+  result = run_tool(file.string());
+  EXPECT_EQ(lines(result.out).back(), "frames=3 ethercat=1 errors=0");
+  result = run_tool(file.string() + " --udp-port 0");
+  EXPECT_EQ(result.status, 2) << result.err;
+}
+
 TEST_F(DecodeTool, LinuxCookedCapture) {
   // SLL: packet type, ARPHRD_ETHER, address length 6, address (8), protocol.
   Bytes sll;

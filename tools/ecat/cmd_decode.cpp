@@ -35,6 +35,7 @@ using wire::DatagramView;
 struct Options {
   std::string file;
   bool json = false;
+  std::uint16_t udp_port = wire::kEtherCatUdpPort;  // EtherCAT over UDP on this port
 };
 
 constexpr std::uint16_t kSmBase = wire::reg::kSyncManagerBase;
@@ -232,7 +233,7 @@ class Decoder {
  private:
   void handle(int link_type, const capture::Packet& packet) {
     ++frames_;
-    auto ethercat = extract_ethercat(link_type, packet.data);
+    auto ethercat = extract_ethercat(link_type, packet.data, options_.udp_port);
     if (!ethercat) return;
     ++ethercat_;
     auto decoded = wire::decode_frame(ethercat->frame);
@@ -322,6 +323,9 @@ Command setup(CLI::App& parent) {
   auto options = std::make_shared<Options>();
   app->add_option("FILE", options->file, "Capture file (pcap or pcapng)")->required();
   app->add_flag("--json", options->json, "Print JSON instead of text");
+  app->add_option("--udp-port", options->udp_port,
+                  "EtherCAT over UDP on this port (default 34980, 0x88A4)")
+      ->check(CLI::Range(1, 65535));
   return {app, [options] { return Decoder(*options).run(); }};
 }
 

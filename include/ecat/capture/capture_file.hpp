@@ -108,7 +108,9 @@ struct EtherCatPacket {
 };
 
 // The EtherCAT frame a packet carries, or nullopt when it carries none (other protocols, packets
-// too short to tell).
-std::optional<EtherCatPacket> extract_ethercat(int link_type, wire::Bytes packet) noexcept;
+// too short to tell). EtherCAT over UDP is recognised on `udp_port` (source or destination):
+// 0x88A4 unless a capture used another (ecat sim --udp and ecat's UDP links take any port).
+std::optional<EtherCatPacket> extract_ethercat(
+    int link_type, wire::Bytes packet, std::uint16_t udp_port = wire::kEtherCatUdpPort) noexcept;
 
 }  // namespace ecat::capture
