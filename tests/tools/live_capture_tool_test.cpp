@@ -79,3 +79,38 @@ TEST(LiveCaptureTool, CaptureWritesTheFlightRecorder) {
 }
 
 }  // namespace
+
+namespace {
+
+// `ecat serve --fault-dumps DIR`: a slave dropping out of OP (forced here through the endpoint's
+// register write) gets the flight recorder written into DIR, a capture that decodes.
+TEST(LiveCaptureTool, AFaultWritesTheFlightRecorder) {
+  ASSERT_TRUE(fs::exists(ecat::test::tool_path())) << "ecat tool not found (set ECAT_TOOL)";
+  ecat::test::ToolRunner tool("fault-dump-test");
+  const auto sock = (tool.dir() / "f.sock").string();
+  const auto dumps = tool.dir() / "dumps";
+  fs::create_directories(dumps);
+  const auto ring = std::string(ECAT_SOURCE_DIR) + "/examples/default.yaml";
+  const auto run = tool.run_script(
+      "\"$ECAT\" serve " + ring + " --control " + sock + " --writes --fault-dumps " +
+      dumps.string() + " --duration 20 2>" + (tool.dir() / "serve.err").string() +
+      " & pid=$!; "
+      "for i in $(seq 1 400); do \"$ECAT\" master --attach " +
+      sock +
+      " --json 2>/dev/null | grep -q '\"state\": \"operational\"' && break; sleep 0.05; done; "
+      "\"$ECAT\" reg_write --attach " +
+      sock +
+      " -p 2 0x0120 0100; "
+      "for i in $(seq 1 100); do ls " +
+      dumps.string() + " | grep -q pcapng && break; sleep 0.05; done; kill -TERM $pid; wait $pid");
+  std::string file;
+  for (const auto& entry : fs::directory_iterator(dumps))
+    file = entry.path().string();
+  ASSERT_FALSE(file.empty()) << run.out << ecat::test::read_text_file(tool.dir() / "serve.err");
+  EXPECT_NE(file.find("ecat-fault-"), std::string::npos) << file;
+  const auto decoded = tool.run("decode " + file);
+  EXPECT_EQ(decoded.status, 0) << decoded.err;
+  EXPECT_GT(number_after(decoded.out, R"(ethercat=(\d+))"), 100u) << decoded.out;
+}
+
+}  // namespace

@@ -12,17 +12,19 @@
 // client allowed to write) sets them.
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <filesystem>
 #include <memory>
+#include <mutex>
+#include <optional>
 #include <string>
 
 #include <fmt/format.h>
 
 #include <ecat/app/open_master.hpp>
+#include <ecat/link/recording_link.hpp>
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/master.hpp>
-
-#include <ecat/link/recording_link.hpp>
 
 #include "command.hpp"
 #include "interrupt.hpp"
@@ -40,9 +42,38 @@ struct Options {
   bool writes = false;
   double timeout_s = 60.0;
   double duration_s = 0.0;
-  std::string pcap;                // --pcap FILE: every frame
+  std::string pcap;                 // --pcap FILE: every frame
   double flight_recorder_s = 10.0;  // --flight-recorder SECONDS: the recent past in memory, 0 off
+  std::string fault_dumps;          // --fault-dumps DIR: the recorder written there on a fault
 };
+
+// A state worth a dump: the session left its running states by itself (recovering, blocked) or
+// ended.
+bool fault_state(ecat::master::MasterState s) {
+  using ecat::master::MasterState;
+  return s == MasterState::recovering || s == MasterState::activation_blocked ||
+         s == MasterState::idle;
+}
+
+// The flight recorder's window written to DIR/ecat-fault-<UTC time>-<what>.pcapng.
+void dump_on_fault(const ecat::link::FrameRecorder& recorder, const std::string& dir,
+                   const std::string& what, const std::string& link_name) {
+  const auto now = std::chrono::system_clock::now();
+  const std::time_t t = std::chrono::system_clock::to_time_t(now);
+  std::tm utc{};
+  ::gmtime_r(&t, &utc);
+  const std::string path = fmt::format("{}/ecat-fault-{:04}{:02}{:02}-{:02}{:02}{:02}-{}.pcapng",
+                                       dir, utc.tm_year + 1900, utc.tm_mon + 1, utc.tm_mday,
+                                       utc.tm_hour, utc.tm_min, utc.tm_sec, what);
+  const auto frames = recorder.snapshot();
+  if (auto written = ecat::tool::write_recorded_frames(path, frames, link_name); !written) {
+    fmt::print(stderr, "ecat serve: {}: writing the flight recorder failed: {}\n", what,
+               written.error().describe());
+    return;
+  }
+  fmt::print(stderr, "ecat serve: {}: the last {} frames written to {}\n", what, frames.size(),
+             path);
+}
 
 // The flight recorder's memory: about what 10 s of a busy 4 kHz ring take, bounded.
 std::size_t flight_recorder_budget(double seconds) {
@@ -119,8 +150,35 @@ int serve(const Options& o) {
                                               std::chrono::duration<double>(o.duration_s))
                                     : std::chrono::steady_clock::time_point::max();
   int code = 0;
+  // A fault raised (a slave's or the session's) or the session leaving its running states asks
+  // for a dump; the loop writes it (never the event dispatcher's thread).
+  std::mutex fault_mutex;
+  std::optional<std::string> fault;
+  if (flight && !o.fault_dumps.empty()) {
+    master.subscribe_events([&](const ecat::master::Event& e, std::uint64_t) {
+      const bool raised = e.kind == ecat::master::EventKind::fault_raised;
+      const bool left = e.kind == ecat::master::EventKind::master_state &&
+                        fault_state(static_cast<ecat::master::MasterState>(e.to));
+      if (!raised && !left) return;
+      std::lock_guard lock(fault_mutex);
+      if (!fault) fault = raised ? "fault" : std::string(e.to_name());
+    });
+  }
+  std::optional<std::chrono::steady_clock::time_point> last_dump;
   while (!ecat::tool::interrupted() && std::chrono::steady_clock::now() < end) {
-    if (master.state() == ecat::master::MasterState::idle) {
+    const auto state = master.state();
+    std::optional<std::string> reason;
+    {
+      std::lock_guard lock(fault_mutex);
+      reason.swap(fault);
+    }
+    // At most one dump per 10 s: a flapping session does not fill the disk. The recorder keeps
+    // recording meanwhile, so the dump holds the lead-up and the first moments after.
+    if (reason && (!last_dump || std::chrono::steady_clock::now() - *last_dump > 10s)) {
+      dump_on_fault(*flight, o.fault_dumps, *reason, o.backend.empty() ? o.ring : o.backend);
+      last_dump = std::chrono::steady_clock::now();
+    }
+    if (state == ecat::master::MasterState::idle) {
       // The session ended by itself (link lost for good, a fatal DC policy).
       const auto failure = master.last_failure();
       fmt::print(stderr, "ecat serve: the session ended: {}\n",
@@ -159,6 +217,10 @@ ecat::tool::Command setup(CLI::App& parent) {
                   "Keep the frames of the last SECONDS in memory for `ecat capture --attach` "
                   "(default 10, 0: off)")
       ->check(ecat::tool::number_in(0, 3600, "seconds"));
+  app->add_option("--fault-dumps", o->fault_dumps,
+                  "When the session goes recovering, blocked or idle by itself, write the flight "
+                  "recorder to a pcapng file in this folder (at most one per 10 s)")
+      ->check(CLI::ExistingDirectory);
   return {app, [o] { return serve(*o); }};
 }
 
