@@ -22,6 +22,7 @@
 #include <ecat/master/slave.hpp>
 #include <ecat/version.hpp>
 #include <ecat/wire/al.hpp>
+#include <ecat/wire/bytes.hpp>
 #include <ecat/wire/eoe.hpp>
 
 #include "master/json_view.hpp"
@@ -32,13 +33,13 @@ namespace {
 
 using detail::Json;
 
-constexpr std::array<std::string_view, 32> kOps{
+constexpr std::array<std::string_view, 33> kOps{
     "ping",         "status",       "slaves",        "slave",      "domains",   "domain.data",
     "dc",           "counters",     "events.follow", "sdo.upload", "sdo.list",  "sdo.describe",
     "signal.read",  "reg.read",     "sii.read",      "pdos",       "foe.read",  "soe.read",
     "sdo.download", "output.write", "state.request", "reg.write",  "sii.write", "alias.write",
     "foe.write",    "soe.write",    "help",          "version",    "al_status", "capture.frames",
-    "eoe.stats",    "eoe.set_ip"};
+    "eoe.stats",    "eoe.set_ip",   "rescan"};
 constexpr std::array<std::string_view, 9> kWriteOps{"sdo.download", "output.write", "state.request",
                                                     "reg.write",    "sii.write",    "alias.write",
                                                     "foe.write",    "soe.write",    "eoe.set_ip"};
@@ -570,6 +571,62 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
     }
     if (auto done = (*slave)->eoe_set_ip(p); !done) return done.error();
     return Json::object();
+  }
+  if (op == "rescan") {
+    // What is on the wire now, read without disturbing the session: the slave count (BRD of
+    // the ESC type register: every slave increments the working counter), and at every position
+    // the station address and AL status (APRD, read only). Slaves the session does not know, and
+    // session slaves the wire no longer has, are listed.
+    bus::Bus* bus = master.bus();
+    if (bus == nullptr) return Error(Errc::not_ready, "no session runs");
+    bus::Transaction count;
+    count.brd(0x0000, 1);
+    auto counted = bus->transact(std::move(count));
+    if (!counted) return counted.error();
+    const std::size_t on_wire = (*counted)[0].wkc;
+    bus::Transaction each;
+    for (std::size_t pos = 0; pos < on_wire; ++pos) {
+      each.aprd(static_cast<std::uint16_t>(pos), 0x0010, 2);  // position addressed
+      each.aprd(static_cast<std::uint16_t>(pos), 0x0130, 2);
+    }
+    Result<bus::TransactionResult> read = bus::TransactionResult{};
+    if (on_wire > 0) read = bus->transact(std::move(each));
+    if (!read) return read.error();
+    const auto known = master.slaves();
+    Json list = Json::array();
+    std::size_t unknown = 0;
+    for (std::size_t pos = 0; pos < on_wire; ++pos) {
+      const auto station_bytes = (*read)[2 * pos];
+      const auto al_bytes = (*read)[2 * pos + 1];
+      Json j{{"position", pos}};
+      if (station_bytes.wkc == 1 && station_bytes.data.size() == 2) {
+        j["station"] = wire::load_le16(station_bytes.data.data());
+      }
+      if (al_bytes.wkc == 1 && al_bytes.data.size() == 2) {
+        const auto code = static_cast<std::uint8_t>(al_bytes.data[0] & 0x0F);
+        const auto state = wire::al_state_from_code(code);
+        j["al_state"] = state ? std::string(wire::to_string(*state)) : fmt::format("0x{:x}", code);
+        j["al_error"] = (al_bytes.data[0] & 0x10) != 0;
+      }
+      const auto it = std::find_if(known.begin(), known.end(),
+                                   [&](const SlaveSummary& k) { return k.position == pos; });
+      if (it != known.end() && j.contains("station") && j["station"] == it->station) {
+        j["name"] = it->name;
+      } else {
+        ++unknown;
+        j["name"] = nullptr;
+      }
+      list.push_back(std::move(j));
+    }
+    Json missing = Json::array();
+    for (const auto& k : known) {
+      if (k.position >= on_wire) missing.push_back(k.name);
+    }
+    return Json{{"on_wire", on_wire},
+                {"in_session", known.size()},
+                {"unknown", unknown},
+                {"missing", std::move(missing)},
+                {"slaves", std::move(list)}};
   }
   if (op == "sii.read") {
     auto slave = find_slave(master, r);

@@ -120,6 +120,15 @@ TEST(InstrumentTool, StandaloneCommandsRunTheirOwnSession) {
   r = tool.run("sii_read --ring '" + default_ring() + "' --name inputs --decode");
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_NE(r.out.find("EL1809"), std::string::npos) << r.out;
+  // rescan: the wire against the session (here the same five slaves, held in PREOP).
+  r = tool.run("rescan --ring '" + default_ring() + "' --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto rescan = json::parse(r.out);
+  EXPECT_EQ(rescan["on_wire"], 5);
+  EXPECT_EQ(rescan["unknown"], 0);
+  EXPECT_EQ(rescan["slaves"][4]["name"], "drive");
+  EXPECT_EQ(rescan["slaves"][4]["station"], 0x1004);
+  EXPECT_EQ(rescan["slaves"][4]["al_state"], "PREOP");
   r = tool.run("domains --ring '" + default_ring() + "' --json");
   ASSERT_EQ(r.status, 0) << r.err;
   // Laid out, not cycling: the slaves are held in PREOP, nothing moves.
@@ -226,7 +235,8 @@ TEST(InstrumentTool, EoeSetsIpParametersAndShowsCounters) {
     out << "version: 1\nsimulator:\n  slaves:\n    - {name: dev, profile: eoe_device}\n"
            "slaves:\n  - {name: dev}\n";
   }
-  auto r = tool.run("eoe --ring '" + ring + "' --name dev --ip 192.168.7.2 --subnet-mask "
+  auto r = tool.run("eoe --ring '" + ring +
+                    "' --name dev --ip 192.168.7.2 --subnet-mask "
                     "255.255.255.0");
   ASSERT_EQ(r.status, 0) << r.out << r.err;
   EXPECT_EQ(r.out, "dev: IP parameters set\n");

@@ -1766,6 +1766,25 @@ int cmd_eoe(const EoeCommandOptions& o) {
                 [&](const Json&) { fmt::print("{}: IP parameters set\n", *name); });
 }
 
+// What is on the wire now against what the session knows (attached: without disturbing it).
+int cmd_rescan(const Common& o) {
+  int code = 0;
+  auto c = Connection::open(o.target, &code);
+  if (!c) return code;
+  auto r = c->call(Json{{"op", "rescan"}});
+  return finish(r, o.target.json, [](const Json& j) {
+    fmt::print("{} slaves on the wire, {} in the session\n", j.value("on_wire", 0),
+               j.value("in_session", 0));
+    for (const auto& s : j["slaves"]) {
+      fmt::print("{:>3}  0x{:04x}  {:<14} {}{}\n", s.value("position", 0), s.value("station", 0),
+                 s["name"].is_string() ? s["name"].get<std::string>() : "(not in the session)",
+                 s.value("al_state", "?"), s.value("al_error", false) ? " +error" : "");
+    }
+    for (const auto& m : j["missing"])
+      fmt::print("     {} is no longer on the wire\n", show(m));
+  });
+}
+
 // ---- Registration -----------------------------------------------------------------------------
 
 template <class O>
@@ -2029,6 +2048,15 @@ ecat::tool::Command setup_eoe(CLI::App& parent) {
   return {app, [o] { return cmd_eoe(*o); }};
 }
 
+ecat::tool::Command setup_rescan(CLI::App& parent) {
+  auto o = std::make_shared<Common>();
+  auto* app = base(parent, "rescan",
+                   "Read what is on the wire now (count, stations, AL states) against the "
+                   "session, without disturbing it",
+                   *o, false, false);
+  return {app, [o] { return cmd_rescan(*o); }};
+}
+
 ecat::tool::Command setup_version(CLI::App& parent) {
   auto o = std::make_shared<Common>();
   auto* app =
@@ -2043,7 +2071,7 @@ const bool registered = [] {
         &setup_sdos,      &setup_events, &setup_foe_read,  &setup_foe_write, &setup_soe_read,
         &setup_soe_write, &setup_alias,  &setup_sii_write, &setup_pdos,      &setup_crc,
         &setup_diag,      &setup_config, &setup_graph,     &setup_cstruct,   &setup_xml,
-        &setup_eoe,       &setup_version}) {
+        &setup_eoe,       &setup_rescan, &setup_version}) {
     ecat::tool::register_command(setup);
   }
   return true;
