@@ -88,6 +88,13 @@ TEST(InstrumentTool, StandaloneCommandsRunTheirOwnSession) {
   r = tool.run("pdos --ring '" + default_ring() + "' --name drive");
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_NE(r.out.find("0x6040:00 16 bits \"Controlword\""), std::string::npos) << r.out;
+  // As read from the device: the drive's 0x1C12/0x1C13 and mapping objects, by SDO.
+  r = tool.run("pdos --ring '" + default_ring() + "' --name drive --read --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto as_read = json::parse(r.out)["as_read"];
+  ASSERT_TRUE(as_read.contains("sync_managers")) << as_read.dump();
+  EXPECT_EQ(as_read["sync_managers"][0]["pdos"][0]["index"], "0x1600");
+  EXPECT_EQ(as_read["sync_managers"][0]["pdos"][0]["entries"][0]["index"], "0x6040");
   r = tool.run("alias --ring '" + default_ring() + "' --name inputs 0x0042 --json");
   ASSERT_EQ(r.status, 0) << r.out << r.err;
   EXPECT_EQ(json::parse(r.out)["alias"], 0x42);

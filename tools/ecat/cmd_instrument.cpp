@@ -1114,13 +1114,65 @@ int cmd_sii_write(const SiiOptions& o) {
   });
 }
 
-int cmd_pdos(const Common& o) {
+struct PdosOptions {
+  Common common;
+  bool read = false;
+};
+
+// The assignment (0x1C10 + SM) and mapping objects as the device holds them now, read by SDO
+// (complete access, as the master reads a CoE layout): {"sync_managers": [{sync_manager, pdos:
+// [{index, entries: [{index, subindex, bit_length}]}]}]}, or why not.
+Json pdos_as_read(Connection& c, const std::string& name, const Json& configured) {
+  const auto upload = [&](unsigned index) -> std::optional<std::vector<std::uint8_t>> {
+    auto r = c.call(Json{{"op", "sdo.upload"},
+                         {"slave", name},
+                         {"index", index},
+                         {"subindex", 0},
+                         {"complete_access", true}});
+    if (!r) return std::nullopt;
+    return from_hex(r->value("data", ""));
+  };
+  Json sms = Json::array();
+  for (const auto& sm : configured["sync_managers"]) {
+    const unsigned number = sm.value("sync_manager", 0u);
+    const auto assignment = upload(0x1C10 + number);
+    if (!assignment || assignment->size() < 2) {
+      return Json{{"error", fmt::format("0x{:04x} (the assignment of SM{}) does not read",
+                                        0x1C10 + number, number)}};
+    }
+    // Complete access from subindex 0: the count padded to 16 bits, then the entries.
+    const std::size_t count = (*assignment)[0];
+    Json pdos = Json::array();
+    for (std::size_t i = 0; i < count && 2 + 2 * i + 1 < assignment->size(); ++i) {
+      const unsigned pdo = (*assignment)[2 + 2 * i] | ((*assignment)[3 + 2 * i] << 8);
+      Json entries = Json::array();
+      if (const auto mapping = upload(pdo); mapping && mapping->size() >= 2) {
+        for (std::size_t k = 0; k < (*mapping)[0] && 2 + 4 * k + 3 < mapping->size(); ++k) {
+          const std::size_t at = 2 + 4 * k;
+          const unsigned value = (*mapping)[at] | ((*mapping)[at + 1] << 8) |
+                                 ((*mapping)[at + 2] << 16) |
+                                 (static_cast<unsigned>((*mapping)[at + 3]) << 24);
+          entries.push_back({{"index", fmt::format("0x{:04x}", value >> 16)},
+                             {"subindex", (value >> 8) & 0xFF},
+                             {"bit_length", value & 0xFF}});
+        }
+      }
+      pdos.push_back({{"index", fmt::format("0x{:04x}", pdo)}, {"entries", std::move(entries)}});
+    }
+    sms.push_back({{"sync_manager", number}, {"pdos", std::move(pdos)}});
+  }
+  return Json{{"sync_managers", std::move(sms)}};
+}
+
+int cmd_pdos(const PdosOptions& po) {
+  const Common& o = po.common;
   int code = 0;
   auto c = Connection::open(o.target, &code);
   if (!c) return code;
   auto name = slave_name(*c, o.slave);
   if (!name) return finish(name.error(), o.target.json, {});
   auto r = c->call(Json{{"op", "pdos"}, {"slave", *name}});
+  if (r && po.read) (*r)["as_read"] = pdos_as_read(*c, *name, *r);
   return finish(r, o.target.json, [](const Json& j) {
     const auto print_pdo = [](const Json& p, const char* indent) {
       fmt::print("{}{} {} \"{}\"{}\n", indent, show(p["index"]), p.value("direction", ""),
@@ -1139,6 +1191,23 @@ int cmd_pdos(const Common& o) {
     if (!j["unassigned"].empty()) fmt::print("not assigned:\n");
     for (const auto& p : j["unassigned"])
       print_pdo(p, "  ");
+    if (!j.contains("as_read")) return;
+    const auto& read = j["as_read"];
+    fmt::print("as read from the device (CoE):\n");
+    if (read.contains("error")) {
+      fmt::print("  {}\n", show(read["error"]));
+      return;
+    }
+    for (const auto& sm : read["sync_managers"]) {
+      fmt::print("SM{}\n", sm.value("sync_manager", 0));
+      for (const auto& p : sm["pdos"]) {
+        fmt::print("  {}\n", show(p["index"]));
+        for (const auto& e : p["entries"]) {
+          fmt::print("    {}:{:02x} {:>2} bits\n", show(e["index"]), e.value("subindex", 0),
+                     e.value("bit_length", 0));
+        }
+      }
+    }
   });
 }
 
@@ -1976,9 +2045,12 @@ ecat::tool::Command setup_sii_write(CLI::App& parent) {
 }
 
 ecat::tool::Command setup_pdos(CLI::App& parent) {
-  auto o = std::make_shared<Common>();
-  auto* app =
-      base(parent, "pdos", "A slave's PDO assignment and mapping, as configured", *o, true, true);
+  auto o = std::make_shared<PdosOptions>();
+  auto* app = base(parent, "pdos",
+                   "A slave's PDO assignment and mapping, as configured (and --read: as the "
+                   "device holds them, by SDO)",
+                   o->common, true, true);
+  app->add_flag("--read", o->read, "Also read the assignment and mapping objects from the device");
   return {app, [o] { return cmd_pdos(*o); }};
 }
 
