@@ -255,6 +255,75 @@ TEST(InstrumentTool, EoeSetsIpParametersAndShowsCounters) {
   EXPECT_EQ(json::parse(r.out)["code"], "invalid_argument");
 }
 
+// The commands the other tests do not reach: data, states, events, reg_write, version attached
+// to a service allowing writes; soe_read/soe_write on a SERCOS drive and sii_write standalone.
+TEST(InstrumentTool, TheRemainingCommandsTextAndJson) {
+  ToolRunner tool("remaining");
+  const std::string socket = (tool.dir() / "r.sock").string();
+  const std::string script = fmt::format(
+      R"("$ECAT" serve '{ring}' --control '{sock}' --writes --timeout 20 2>serve.err &
+pid=$!
+for i in $(seq 1 400); do "$ECAT" master --attach '{sock}' --json 2>/dev/null | grep -q '"state": "operational"' && break; sleep 0.05; done
+cd '{dir}'
+"$ECAT" data --attach '{sock}' > image.bin
+"$ECAT" data --attach '{sock}' --json > image.json
+"$ECAT" events --attach '{sock}' --json --duration 3 > events.jsonl &
+epid=$!
+sleep 0.5
+"$ECAT" states --attach '{sock}' safeop > states.txt
+"$ECAT" states --attach '{sock}' op --json > states.json
+"$ECAT" reg_write --attach '{sock}' -p 1 0x0f80 0102 --json > reg_write.json
+"$ECAT" reg_read --attach '{sock}' -p 1 0x0f80 2 > reg_read.txt
+"$ECAT" version --attach '{sock}' --json > version.json
+wait $epid
+kill -TERM $pid; wait $pid; echo $? > serve.code)",
+      fmt::arg("ring", default_ring()), fmt::arg("sock", socket),
+      fmt::arg("dir", tool.dir().string()));
+  (void)tool.run_script("cd '" + tool.dir().string() + "' && " + script);
+  const auto file = [&](const char* name) { return read_text_file(tool.dir() / name); };
+  EXPECT_EQ(file("serve.code"), "0\n") << file("serve.err");
+  EXPECT_EQ(file("image.bin").size(), 40u);  // the default ring's image, raw
+  EXPECT_EQ(json::parse(file("image.json"))["size"], 40);
+  EXPECT_EQ(file("states.txt"), "now deactivated\n");
+  EXPECT_EQ(json::parse(file("states.json"))["state"], "operational");
+  EXPECT_EQ(json::parse(file("reg_write.json"))["wkc"], 1);
+  EXPECT_EQ(file("reg_read.txt"), "01 02\n");  // ESC RAM beyond the registers: written, read
+  EXPECT_FALSE(json::parse(file("version.json"))["master"].get<std::string>().empty());
+  // The event stream saw the session leave OP and come back, one JSON object per line.
+  const auto events = file("events.jsonl");
+  EXPECT_NE(events.find(R"("to":"deactivated")"), std::string::npos) << events;
+  EXPECT_NE(events.find(R"("to":"operational")"), std::string::npos) << events;
+
+  // SoE on a SERCOS drive (no CoE), standalone: read, write where PREOP allows it, a refusal.
+  const auto soe_ring = (tool.dir() / "soe.yaml").string();
+  {
+    std::ofstream out(soe_ring);
+    out << "version: 1\nsimulator:\n  slaves:\n    - {name: axis, profile: soe_drive}\n"
+           "slaves:\n  - {name: axis}\n";
+  }
+  auto r = tool.run("soe_read --ring '" + soe_ring + "' --name axis S-0-0001 --type uint16");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_FALSE(r.out.empty());
+  r = tool.run("soe_write --ring '" + soe_ring + "' --name axis S-0-0001 1000 --type uint16");
+  EXPECT_EQ(r.status, 0) << r.err;
+  r = tool.run("soe_read --ring '" + soe_ring + "' --name axis S-0-0017 --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(json::parse(r.out)["size"], 126);  // the IDN list: two read fragments
+  r = tool.run("soe_write --ring '" + soe_ring + "' --name axis S-0-0051 0 --type int32 --json");
+  EXPECT_EQ(r.status, 1);  // position feedback is read only
+  EXPECT_EQ(json::parse(r.out)["ok"], false);
+  r = tool.run("soe_read --ring '" + soe_ring + "' --name axis X-1 --json");
+  EXPECT_EQ(r.status, 2);
+
+  // sii_write: the image as read, written back (verified word by word).
+  const auto image = (tool.dir() / "inputs.bin").string();
+  r = tool.run("sii_read --ring '" + default_ring() + "' --name inputs -o '" + image + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = tool.run("sii_write --ring '" + default_ring() + "' --name inputs '" + image + "'");
+  EXPECT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("written to the EEPROM and verified"), std::string::npos) << r.out;
+}
+
 TEST(InstrumentTool, ClearErrorsWithoutAMaster) {
   ToolRunner tool("errors");
   auto r = tool.run("slaves --attach '" + (tool.dir() / "absent.sock").string() + "' --json");
