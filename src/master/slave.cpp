@@ -99,31 +99,11 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   // Mailbox SyncManagers (SM0 master -> slave, SM1 slave -> master) from the SII.
   const auto& mbx = sii->decoded.image.standard_mailbox;
   if (mbx.present()) {
-    wire::SyncManagerConfig out;
-    out.physical_start = mbx.recv_offset;
-    out.length = mbx.recv_size;
-    out.control = wire::kMailboxOutControl;
-    out.activate.enable = true;
-    wire::SyncManagerConfig in;
-    in.physical_start = mbx.send_offset;
-    in.length = mbx.send_size;
-    in.control = wire::kMailboxInControl;
-    in.activate.enable = true;
-    bus::Transaction tx;
-    const std::array<std::uint8_t, 1> off{0};
-    tx.fpwr(station, reg::kSyncManagerBase + reg::kSyncManagerActivateOffset, off, 1);
-    tx.fpwr(station, reg::kSyncManagerBase + 8 + reg::kSyncManagerActivateOffset, off, 1);
-    tx.fpwr(station, reg::kSyncManagerBase, out.encode(), 1);
-    tx.fpwr(station, reg::kSyncManagerBase + 8, in.encode(), 1);
-    auto written = co_await exec::transact(loop, bus, std::move(tx));
+    auto written = co_await write_mailbox_sync_managers(loop, bus, station, mbx);
     if (!written) {
       co_return written.error().context(fmt::format("{}: writing the mailbox SyncManagers", who()));
     }
-    MailboxConfig mc;
-    mc.out_offset = mbx.recv_offset;
-    mc.out_size = mbx.recv_size;
-    mc.in_offset = mbx.send_offset;
-    mc.in_size = mbx.send_size;
+    const MailboxConfig mc = *written;
     std::lock_guard lock(mutex);
     // One Mailbox per slave for its whole life: after the SyncManagers were written again (a
     // rebuild) it is reset, so counters start over as the slave's do.
@@ -314,6 +294,35 @@ void Slave::Impl::record_al_error(const Error& error) {
   }
 }
 
+exec::Task<Result<MailboxConfig>> write_mailbox_sync_managers(exec::EventLoop& loop, bus::Bus& bus,
+                                                              std::uint16_t station,
+                                                              const wire::SiiMailbox& mbx) {
+  wire::SyncManagerConfig out;
+  out.physical_start = mbx.recv_offset;
+  out.length = mbx.recv_size;
+  out.control = wire::kMailboxOutControl;
+  out.activate.enable = true;
+  wire::SyncManagerConfig in;
+  in.physical_start = mbx.send_offset;
+  in.length = mbx.send_size;
+  in.control = wire::kMailboxInControl;
+  in.activate.enable = true;
+  bus::Transaction tx;
+  const std::array<std::uint8_t, 1> off{0};
+  tx.fpwr(station, reg::kSyncManagerBase + reg::kSyncManagerActivateOffset, off, 1);
+  tx.fpwr(station, reg::kSyncManagerBase + 8 + reg::kSyncManagerActivateOffset, off, 1);
+  tx.fpwr(station, reg::kSyncManagerBase, out.encode(), 1);
+  tx.fpwr(station, reg::kSyncManagerBase + 8, in.encode(), 1);
+  auto written = co_await exec::transact(loop, bus, std::move(tx));
+  if (!written) co_return written.error();
+  MailboxConfig mc;
+  mc.out_offset = mbx.recv_offset;
+  mc.out_size = mbx.recv_size;
+  mc.in_offset = mbx.send_offset;
+  mc.in_size = mbx.send_size;
+  co_return mc;
+}
+
 exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_ptr<Session> keep) {
   if (firmware_update) {
     co_return Error(Errc::busy, fmt::format("{}: a firmware update is in progress; {} is refused "
@@ -323,8 +332,7 @@ exec::Task<Result<void>> Slave::Impl::go_to(wire::AlState target, std::shared_pt
   co_return co_await walk_to(target, std::move(keep));
 }
 
-exec::Task<Result<void>> Slave::Impl::walk_to(wire::AlState target,
-                                              std::shared_ptr<Session> keep) {
+exec::Task<Result<void>> Slave::Impl::walk_to(wire::AlState target, std::shared_ptr<Session> keep) {
   (void)keep;
   auto& loop = session.loop;
   auto& bus = *session.bus;

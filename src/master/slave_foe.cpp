@@ -37,7 +37,6 @@ using namespace std::chrono_literals;
 
 namespace {
 
-
 // How long a caller waits for a transfer of `bytes` at most: every packet may take its timeout
 // twice (the Mailbox's repeat request) plus one run of BUSY. Only a bound for the blocking call;
 // the transfer's own timeouts end it first.
@@ -57,36 +56,6 @@ std::size_t packet_hint(const Mailbox* standard, const Mailbox* boot) {
     if (p != 0) packet = packet == 0 ? p : std::min(packet, p);
   }
   return std::max<std::size_t>(packet, 1);
-}
-
-// Writes SM0/SM1 as mailbox SyncManagers at `mbx`'s offsets (disabled first, as bring_up does).
-exec::Task<Result<MailboxConfig>> write_mailbox_sync_managers(exec::EventLoop& loop, bus::Bus& bus,
-                                                              std::uint16_t station,
-                                                              const wire::SiiMailbox& mbx) {
-  wire::SyncManagerConfig out;
-  out.physical_start = mbx.recv_offset;
-  out.length = mbx.recv_size;
-  out.control = wire::kMailboxOutControl;
-  out.activate.enable = true;
-  wire::SyncManagerConfig in;
-  in.physical_start = mbx.send_offset;
-  in.length = mbx.send_size;
-  in.control = wire::kMailboxInControl;
-  in.activate.enable = true;
-  bus::Transaction tx;
-  const std::array<std::uint8_t, 1> off{0};
-  tx.fpwr(station, reg::kSyncManagerBase + reg::kSyncManagerActivateOffset, off, 1);
-  tx.fpwr(station, reg::kSyncManagerBase + 8 + reg::kSyncManagerActivateOffset, off, 1);
-  tx.fpwr(station, reg::kSyncManagerBase, out.encode(), 1);
-  tx.fpwr(station, reg::kSyncManagerBase + 8, in.encode(), 1);
-  auto written = co_await exec::transact(loop, bus, std::move(tx));
-  if (!written) co_return written.error();
-  MailboxConfig mc;
-  mc.out_offset = mbx.recv_offset;
-  mc.out_size = mbx.recv_size;
-  mc.in_offset = mbx.send_offset;
-  mc.in_size = mbx.send_size;
-  co_return mc;
 }
 
 }  // namespace
@@ -202,9 +171,9 @@ exec::Task<Result<void>> Slave::Impl::firmware_update_task(std::string name,
     if (!boot) {
       failure = boot.error().context(fmt::format("{}: firmware update: entering BOOTSTRAP", who()));
     } else if (!boot_mailbox) {
-      failure = Error(Errc::internal,
-                      fmt::format("{}: firmware update: in BOOTSTRAP without a bootstrap mailbox",
-                                  who()));
+      failure = Error(
+          Errc::internal,
+          fmt::format("{}: firmware update: in BOOTSTRAP without a bootstrap mailbox", who()));
     } else {
       auto written = co_await master::foe_write(*boot_mailbox, name, std::move(image), options);
       note_mailbox_counters();
@@ -265,10 +234,9 @@ Result<std::vector<std::uint8_t>> Slave::foe_read(std::string_view name,
     impl.note_mailbox_counters();
     co_return file;
   };
-  return blocking(
-      impl_->session,
-      task(*impl_, std::string(name), options, impl_->session.shared_from_this()), bound,
-      fmt::format("FoE read of '{}' from slave {}", name, name_));
+  return blocking(impl_->session,
+                  task(*impl_, std::string(name), options, impl_->session.shared_from_this()),
+                  bound, fmt::format("FoE read of '{}' from slave {}", name, name_));
 }
 
 Result<void> Slave::foe_write(std::string_view name, std::vector<std::uint8_t> data) {
@@ -292,10 +260,10 @@ Result<void> Slave::foe_write(std::string_view name, std::vector<std::uint8_t> d
     impl.note_mailbox_counters();
     co_return done;
   };
-  return blocking(impl_->session,
-                     task(*impl_, std::string(name), std::move(data), options,
-                          impl_->session.shared_from_this()),
-                     bound, fmt::format("FoE write of '{}' to slave {}", name, name_));
+  return blocking(
+      impl_->session,
+      task(*impl_, std::string(name), std::move(data), options, impl_->session.shared_from_this()),
+      bound, fmt::format("FoE write of '{}' to slave {}", name, name_));
 }
 
 Result<void> Slave::update_firmware(std::string_view name, std::vector<std::uint8_t> image) {
@@ -311,11 +279,10 @@ Result<void> Slave::update_firmware(std::string_view name, std::vector<std::uint
   }
   // The transfer, and the state changes and the rebuild around it.
   const auto bound = transfer_bound(image.size(), packet, options) + 60s;
-  return blocking(
-      impl_->session,
-      impl_->firmware_update_task(std::string(name), std::move(image), options,
-                                  impl_->session.shared_from_this()),
-      bound, fmt::format("firmware update of slave {}", name_));
+  return blocking(impl_->session,
+                  impl_->firmware_update_task(std::string(name), std::move(image), options,
+                                              impl_->session.shared_from_this()),
+                  bound, fmt::format("firmware update of slave {}", name_));
 }
 
 }  // namespace ecat::master

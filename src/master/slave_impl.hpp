@@ -25,6 +25,13 @@ namespace ecat::master {
 
 class EoeClient;  // <ecat/master/eoe.hpp>
 
+// Writes SM0/SM1 as the mailbox SyncManagers of `mbx` (both disabled first, then configured
+// and enabled, in one transaction): the standard mailbox at bring-up, the bootstrap mailbox on
+// the way into BOOTSTRAP. Returns the configuration of the Mailbox that uses them.
+exec::Task<Result<MailboxConfig>> write_mailbox_sync_managers(exec::EventLoop& loop, bus::Bus& bus,
+                                                              std::uint16_t station,
+                                                              const wire::SiiMailbox& mbx);
+
 struct Slave::Impl {
   Impl(Slave& owner, Session& s, SlaveConfig c);
 

@@ -35,7 +35,6 @@ using namespace std::chrono_literals;
 
 namespace {
 
-
 // A generous bound for the blocking call: every word may take the busy timeout and its retries,
 // twice over (the compare read and the write), plus the verify read.
 std::chrono::nanoseconds write_timeout(std::size_t words, const SiiWriteOptions& options) {
@@ -117,8 +116,7 @@ Result<void> Slave::write_sii(std::span<const std::uint8_t> image) {
   return write_sii(image, SiiWriteOptions{});
 }
 
-Result<void> Slave::write_sii(std::span<const std::uint8_t> image,
-                              const SiiWriteOptions& options) {
+Result<void> Slave::write_sii(std::span<const std::uint8_t> image, const SiiWriteOptions& options) {
   if (image.empty() || image.size() % 2 != 0) {
     return Error(Errc::invalid_argument,
                  fmt::format("SII image for slave {}: {} bytes; an image is a whole number of "
@@ -139,10 +137,10 @@ Result<void> Slave::write_sii(std::uint32_t word_address, std::vector<std::uint1
                               const SiiWriteOptions& options) {
   const auto timeout = write_timeout(words.size(), options);
   auto keep = impl_->session.shared_from_this();
-  return blocking(impl_->session,
-                     write_task(*impl_, WriteKind::words, word_address, std::move(words),
-                                options, keep),
-                     timeout, fmt::format("SII write of slave {}", name_));
+  return blocking(
+      impl_->session,
+      write_task(*impl_, WriteKind::words, word_address, std::move(words), options, keep), timeout,
+      fmt::format("SII write of slave {}", name_));
 }
 
 Result<void> Slave::write_alias(std::uint16_t alias) {
@@ -153,10 +151,9 @@ Result<void> Slave::write_alias(std::uint16_t alias, const SiiWriteOptions& opti
   const auto timeout = write_timeout(2, options);
   auto keep = impl_->session.shared_from_this();
   std::vector<std::uint16_t> words(1, alias);
-  return blocking(
-      impl_->session,
-      write_task(*impl_, WriteKind::alias, 0, std::move(words), options, keep), timeout,
-      fmt::format("alias write of slave {}", name_));
+  return blocking(impl_->session,
+                  write_task(*impl_, WriteKind::alias, 0, std::move(words), options, keep), timeout,
+                  fmt::format("alias write of slave {}", name_));
 }
 
 }  // namespace ecat::master

@@ -22,7 +22,6 @@ namespace {
 
 using namespace std::chrono_literals;
 
-
 // The mailbox is usable (PREOP or above, a mailbox at all) and the SII declares the protocol.
 // Only the declaration is asked for: an SoE-only drive (no CoE) is fine. (A template: Slave::Impl
 // is private to Slave, and this helper is not a member.)

@@ -68,18 +68,19 @@ StandardApplication::StandardApplication(StandardConfig config)
     coe_ = std::make_unique<CoeServer>(od_, config_.coe);
     if ((config_.sii.mailbox_protocols & wire::mailbox_protocol::kFoe) != 0) {
       foe_ = std::make_unique<FoeServer>(od_, config_.foe);
-      coe_->set_protocol_handler(
-          wire::MailboxType::foe,
-          [this](Esc& esc, const wire::MailboxHeader&, wire::Bytes data) {
-            return foe_->handle(esc, data);
-          });
+      coe_->set_protocol_handler(wire::MailboxType::foe,
+                                 [this](Esc& esc, const wire::MailboxHeader&, wire::Bytes data) {
+                                   return foe_->handle(esc, data);
+                                 });
     }
   }
   if (coe_ && (config_.sii.mailbox_protocols & wire::mailbox_protocol::kSoe) != 0) {
     soe_ = std::make_unique<SoeServer>(*coe_, config_.soe);
-    coe_->set_protocol_handler(wire::MailboxType::soe,
-                               [this](Esc& esc, const wire::MailboxHeader& header,
-                                      wire::Bytes data) { return soe_->handle(esc, header, data); });
+    coe_->set_protocol_handler(
+        wire::MailboxType::soe,
+        [this](Esc& esc, const wire::MailboxHeader& header, wire::Bytes data) {
+          return soe_->handle(esc, header, data);
+        });
   }
   if (coe_ && (config_.sii.mailbox_protocols & wire::mailbox_protocol::kEoe) != 0) {
     eoe_ = std::make_unique<EoeServer>(*coe_, config_.eoe);

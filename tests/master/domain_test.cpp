@@ -558,9 +558,9 @@ TEST(DomainStateTest, ConfiguredAndBuiltInLimits) {
   // 1000 registrations (four blocks of entries) and an image of 1000 x 3 bytes: far beyond the
   // reference's fixed 256 registrations and 2035 bytes.
   for (std::uint16_t i = 0; i < 1000; ++i) {
-    auto r = grows->register_pdo({static_cast<std::uint16_t>(0x2000 + i / 16),
-                                  static_cast<std::uint8_t>(i % 16)},
-                                 3, i % 2 == 0 ? PdoDirection::input : PdoDirection::output);
+    auto r = grows->register_pdo(
+        {static_cast<std::uint16_t>(0x2000 + i / 16), static_cast<std::uint8_t>(i % 16)}, 3,
+        i % 2 == 0 ? PdoDirection::input : PdoDirection::output);
     ASSERT_TRUE(r.ok()) << r.error().message();
     EXPECT_EQ(*r, 0x00010000u + 3u * i);
   }

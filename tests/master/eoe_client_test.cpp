@@ -22,19 +22,13 @@
 #include <ecat/wire/eoe.hpp>
 
 #include "master/master_test_support.hpp"
+#include "master/scripted_mailbox.hpp"
 
 namespace ecat::master {
 namespace {
 
 using namespace std::chrono_literals;
-using test::SimBench;
 using Bytes = std::vector<std::uint8_t>;
-
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: mbx, profile: mailbox}
-)";
 
 Bytes frame_of(std::size_t size, std::uint8_t first = 0) {
   Bytes frame(size);
@@ -171,57 +165,7 @@ TEST(EoeReassembly, OversizeAndShortFramesAreDropped) {
   EXPECT_EQ(client.stats().other_dropped, 1u);
 }
 
-// What the scripted device does with each EoE request: the replies (mailbox data, type EoE).
-struct Script {
-  std::vector<Bytes> requests;
-  std::deque<std::vector<Bytes>> answers;  // per request, in order; none left: no reply
-};
-
-class EoeClientTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    bench_ = SimBench::make(kRing);
-    ASSERT_TRUE(bench_);
-    auto configs = bench_->run(test::bring_all_to_preop(bench_->loop, *bench_->bus, 1));
-    ASSERT_TRUE(configs.ok()) << configs.error().describe();
-    mailbox_ = std::make_unique<Mailbox>(bench_->loop, *bench_->bus, test::station_at(0),
-                                         configs->front());
-    script_ = std::make_shared<Script>();
-    bench_->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
-      sim::coe_server_of(segment.esc(0))
-          ->set_protocol_handler(
-              wire::MailboxType::eoe,
-              [script = script_](sim::Esc&, const wire::MailboxHeader&, wire::Bytes data) {
-                script->requests.emplace_back(data.begin(), data.end());
-                std::vector<sim::MailboxReply> replies;
-                if (script->answers.empty()) return replies;
-                for (auto& a : script->answers.front())
-                  replies.push_back({wire::MailboxType::eoe, a});
-                script->answers.pop_front();
-                return replies;
-              });
-      return 0;
-    });
-  }
-  void answer(std::vector<Bytes> replies) {
-    bench_->server->with_segment([&](sim::Segment&, sim::FaultInjector&) {
-      script_->answers.push_back(std::move(replies));
-      return 0;
-    });
-  }
-  std::vector<Bytes> requests() {
-    return bench_->server->with_segment(
-        [&](sim::Segment&, sim::FaultInjector&) { return script_->requests; });
-  }
-  template <class T>
-  T run(exec::Task<T> task) {
-    return bench_->run(std::move(task));
-  }
-
-  std::unique_ptr<SimBench> bench_;
-  std::unique_ptr<Mailbox> mailbox_;
-  std::shared_ptr<Script> script_;
-};
+class EoeClientTest : public test::ScriptedMailboxTest<wire::MailboxType::eoe> {};
 
 TEST_F(EoeClientTest, AFrameGoesOutInFragmentsAndTheAnswerIsReassembled) {
   const Bytes frame = frame_of(100);

@@ -619,9 +619,8 @@ TEST(MasterBootstrap, RequestWalksThroughInitToBootstrapAndBack) {
   });
   ASSERT_FALSE(file.empty());
   // The "mailbox" profile has a bootstrap mailbox of its own (FoE): the plain one is edited out.
-  const auto plain_file = edited_eeprom("mailbox", "no-bootstrap", [](wire::SiiImage& image) {
-    image.bootstrap_mailbox = {};
-  });
+  const auto plain_file = edited_eeprom(
+      "mailbox", "no-bootstrap", [](wire::SiiImage& image) { image.bootstrap_mailbox = {}; });
   ASSERT_FALSE(plain_file.empty());
   auto server = test::make_sim_server(fmt::format(R"(version: 1
 simulator:

@@ -24,72 +24,15 @@
 #include <ecat/wire/soe.hpp>
 
 #include "master/master_test_support.hpp"
+#include "master/scripted_mailbox.hpp"
 
 namespace ecat::master {
 namespace {
 
 using namespace std::chrono_literals;
-using test::SimBench;
 using Bytes = std::vector<std::uint8_t>;
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: mbx, profile: mailbox}
-)";
-
-// What the scripted drive does with each request: the replies (mailbox data of type SoE).
-struct Script {
-  std::vector<Bytes> requests;             // every SoE request as it arrived
-  std::deque<std::vector<Bytes>> answers;  // per request, in order; none left: no reply
-};
-
-class SoeClientTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    bench_ = SimBench::make(kRing);
-    ASSERT_TRUE(bench_);
-    auto configs = bench_->run(test::bring_all_to_preop(bench_->loop, *bench_->bus, 1));
-    ASSERT_TRUE(configs.ok()) << configs.error().describe();
-    mailbox_ = std::make_unique<Mailbox>(bench_->loop, *bench_->bus, test::station_at(0),
-                                         configs->front());
-    script_ = std::make_shared<Script>();
-    bench_->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
-      sim::coe_server_of(segment.esc(0))
-          ->set_protocol_handler(
-              wire::MailboxType::soe,
-              [script = script_](sim::Esc&, const wire::MailboxHeader&, wire::Bytes data) {
-                script->requests.emplace_back(data.begin(), data.end());
-                std::vector<sim::MailboxReply> replies;
-                if (script->answers.empty()) return replies;
-                for (auto& a : script->answers.front())
-                  replies.push_back({wire::MailboxType::soe, a});
-                script->answers.pop_front();
-                return replies;
-              });
-      return 0;
-    });
-  }
-
-  void answer(std::vector<Bytes> replies) {
-    bench_->server->with_segment([&](sim::Segment&, sim::FaultInjector&) {
-      script_->answers.push_back(std::move(replies));
-      return 0;
-    });
-  }
-  std::vector<Bytes> requests() {
-    return bench_->server->with_segment(
-        [&](sim::Segment&, sim::FaultInjector&) { return script_->requests; });
-  }
-  template <class T>
-  T run(exec::Task<T> task) {
-    return bench_->run(std::move(task));
-  }
-
-  std::unique_ptr<SimBench> bench_;
-  std::unique_ptr<Mailbox> mailbox_;
-  std::shared_ptr<Script> script_;
-};
+class SoeClientTest : public test::ScriptedMailboxTest<wire::MailboxType::soe> {};
 
 TEST_F(SoeClientTest, AReadRequestAsSoemSendsItAndItsValue) {
   answer({{0x02, 0x40, 0x01, 0x00, 0xE8, 0x03}});

@@ -3,8 +3,8 @@
 #include <chrono>
 #include <cstddef>
 #include <memory>
-#include <utility>
 #include <string>
+#include <utility>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>

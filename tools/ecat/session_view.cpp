@@ -102,8 +102,8 @@ nlohmann::ordered_json status_json(master::Master& master) {
   return master::detail::status_json(master);
 }
 
-std::optional<Setup> prepare(const std::string& ring_file, const std::string& backend,
-                             bool dynamic, const std::string& pcap) {
+std::optional<Setup> prepare(const std::string& ring_file, const std::string& backend, bool dynamic,
+                             const std::string& pcap) {
   Setup setup;
   std::string spec = backend;
   if (!ring_file.empty()) {

@@ -50,8 +50,8 @@ Result<std::unique_ptr<Esc>> make_mailbox_device(const DeviceConfig& config) {
   sii.standard_mailbox = {0x1000, 64, 0x1040, 64};
   // FoE (a file store, firmware updates in BOOTSTRAP through a larger bootstrap mailbox).
   sii.bootstrap_mailbox = {0x1200, 256, 0x1300, 256};
-  sii.mailbox_protocols = wire::mailbox_protocol::kCoe | wire::mailbox_protocol::kFoe |
-                          wire::mailbox_protocol::kVoe;
+  sii.mailbox_protocols =
+      wire::mailbox_protocol::kCoe | wire::mailbox_protocol::kFoe | wire::mailbox_protocol::kVoe;
   SiiStrings strings(sii);
   wire::SiiGeneral general;
   general.order_index = strings.add("ECAT-MBX");
