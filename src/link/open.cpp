@@ -1,5 +1,7 @@
 #include <charconv>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <arpa/inet.h>
 #include <fmt/format.h>
@@ -7,6 +9,7 @@
 #include <ecat/link/open.hpp>
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/udp_link.hpp>
+#include <ecat/link/xdp_link.hpp>
 #include <ecat/log.hpp>
 
 namespace ecat::link {
@@ -14,7 +17,8 @@ namespace ecat::link {
 namespace {
 
 constexpr std::string_view kAcceptedForms =
-    "accepted forms: raw:IFACE, udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
+    "accepted forms: raw:IFACE[,busy_poll=US][,spin], xdp:IFACE[,queue=N][,busy_poll=US][,spin]"
+    "[,native|,generic][,copy|,zero_copy], udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
 
 Error bad_spec(std::string_view spec, std::string_view why) {
   return Error(Errc::invalid_argument,
@@ -77,21 +81,111 @@ Result<std::unique_ptr<Link>> open_udp(std::string_view spec, std::string_view r
   return std::unique_ptr<Link>(std::move(*link));
 }
 
+// "IFACE,option,key=value,..." of raw: and xdp: specs.
+struct InterfaceSpec {
+  std::string interface;
+  std::vector<std::pair<std::string_view, std::string_view>> options;  // key, value ("" if none)
+};
+
+InterfaceSpec split_interface_spec(std::string_view rest) {
+  InterfaceSpec out;
+  std::size_t comma = rest.find(',');
+  out.interface = std::string(rest.substr(0, comma));
+  while (comma != std::string_view::npos) {
+    rest = rest.substr(comma + 1);
+    comma = rest.find(',');
+    const std::string_view item = rest.substr(0, comma);
+    const auto equals = item.find('=');
+    if (equals == std::string_view::npos) {
+      out.options.emplace_back(item, std::string_view());
+    } else {
+      out.options.emplace_back(item.substr(0, equals), item.substr(equals + 1));
+    }
+  }
+  return out;
+}
+
+Result<int> parse_number(std::string_view spec, std::string_view key, std::string_view text,
+                         int max) {
+  int value = 0;
+  const auto* end = text.data() + text.size();
+  const auto [ptr, ec] = std::from_chars(text.data(), end, value);
+  if (text.empty() || ec != std::errc() || ptr != end || value < 0 || value > max) {
+    return bad_spec(spec, fmt::format("{}='{}' is not a number from 0 to {}", key, text, max));
+  }
+  return value;
+}
+
+Result<std::unique_ptr<Link>> open_raw(std::string_view spec, std::string_view rest) {
+  const InterfaceSpec parts = split_interface_spec(rest);
+  if (parts.interface.empty()) return bad_spec(spec, "no interface after 'raw:'");
+  RawLinkOptions options;
+  options.interface = parts.interface;
+  for (const auto& [key, value] : parts.options) {
+    if (key == "busy_poll") {
+      auto us = parse_number(spec, key, value, 1'000'000);
+      if (!us) return std::move(us).error();
+      options.busy_poll_us = *us;
+    } else if (key == "spin" && value.empty()) {
+      options.spin = true;
+    } else {
+      return bad_spec(spec, fmt::format("unknown raw link option '{}'", key));
+    }
+  }
+  ECAT_LOG(LogLevel::debug, "link", fmt::format("opening raw Ethernet link on {}", rest));
+  auto link = RawLink::open(std::move(options));
+  if (!link) return std::move(link).error();
+  ECAT_LOG(LogLevel::info, "link", fmt::format("opened raw Ethernet link on {}", rest));
+  return std::unique_ptr<Link>(std::move(*link));
+}
+
+Result<std::unique_ptr<Link>> open_xdp(std::string_view spec, std::string_view rest) {
+  const InterfaceSpec parts = split_interface_spec(rest);
+  if (parts.interface.empty()) return bad_spec(spec, "no interface after 'xdp:'");
+  XdpLinkOptions options;
+  options.interface = parts.interface;
+  for (const auto& [key, value] : parts.options) {
+    if (key == "queue") {
+      auto queue = parse_number(spec, key, value, 4095);
+      if (!queue) return std::move(queue).error();
+      options.queue_id = static_cast<std::uint32_t>(*queue);
+    } else if (key == "busy_poll") {
+      auto us = parse_number(spec, key, value, 1'000'000);
+      if (!us) return std::move(us).error();
+      options.busy_poll_us = *us;
+    } else if (key == "spin" && value.empty()) {
+      options.spin = true;
+    } else if (key == "native" && value.empty()) {
+      options.attach = XdpAttachMode::native;
+    } else if (key == "generic" && value.empty()) {
+      options.attach = XdpAttachMode::generic;
+    } else if (key == "copy" && value.empty()) {
+      options.copy = XdpCopyMode::copy;
+    } else if (key == "zero_copy" && value.empty()) {
+      options.copy = XdpCopyMode::zero_copy;
+    } else {
+      return bad_spec(spec, fmt::format("unknown xdp link option '{}'", key));
+    }
+  }
+  ECAT_LOG(LogLevel::debug, "link", fmt::format("opening AF_XDP link on {}", rest));
+  auto link = XdpLink::open(std::move(options));
+  if (!link) return std::move(link).error();
+  const XdpLinkInfo info = (*link)->info();
+  ECAT_LOG(
+      LogLevel::info, "link",
+      fmt::format("opened AF_XDP link on {} (queue {}, {} XDP, {} mode{})", rest, info.queue_id,
+                  info.native ? "native" : "generic", info.zero_copy ? "zero-copy" : "copy",
+                  info.busy_poll ? ", busy polling" : ""));
+  return std::unique_ptr<Link>(std::move(*link));
+}
+
 Result<std::unique_ptr<Link>> open_spec(std::string_view spec) {
   const auto colon = spec.find(':');
   if (colon == std::string_view::npos) return bad_spec(spec, "no kind prefix");
   const std::string_view kind = spec.substr(0, colon);
   const std::string_view rest = spec.substr(colon + 1);
-  if (kind == "raw") {
-    if (rest.empty()) return bad_spec(spec, "no interface after 'raw:'");
-    RawLinkOptions options;
-    options.interface = std::string(rest);
-    ECAT_LOG(LogLevel::debug, "link", fmt::format("opening raw Ethernet link on {}", rest));
-    auto link = RawLink::open(std::move(options));
-    if (!link) return std::move(link).error();
-    ECAT_LOG(LogLevel::info, "link", fmt::format("opened raw Ethernet link on {}", rest));
-    return std::unique_ptr<Link>(std::move(*link));
-  }
+  if (kind == "raw") return open_raw(spec, rest);
+  if (kind == "xdp") return open_xdp(spec, rest);
   if (kind == "udp") return open_udp(spec, rest);
   if (kind == "sim") {
     return Error(Errc::unsupported,

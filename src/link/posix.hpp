@@ -87,7 +87,11 @@ class Interrupter {
 // the descriptor number.
 class UseGuard {
  public:
-  explicit UseGuard(UniqueFd& fd) noexcept : fd_(fd) {}
+  explicit UseGuard(UniqueFd& fd) noexcept : fd_(&fd) {}
+  // For resources that are more than one descriptor: `release(context)` frees them.
+  using ReleaseFunction = void (*)(void* context) noexcept;
+  UseGuard(ReleaseFunction release_function, void* context) noexcept
+      : release_(release_function), context_(context) {}
   UseGuard(const UseGuard&) = delete;
   UseGuard& operator=(const UseGuard&) = delete;
 
@@ -112,12 +116,19 @@ class UseGuard {
 
  private:
   void release() noexcept {
-    if (!released_.exchange(true)) fd_.reset();
+    if (released_.exchange(true)) return;
+    if (fd_ != nullptr) {
+      fd_->reset();
+    } else {
+      release_(context_);
+    }
   }
   std::atomic<int> users_{0};
   std::atomic<bool> closed_{false};
   std::atomic<bool> released_{false};
-  UniqueFd& fd_;
+  UniqueFd* fd_ = nullptr;
+  ReleaseFunction release_ = nullptr;
+  void* context_ = nullptr;
 };
 
 // enter()/leave() as a scope.

@@ -5,6 +5,7 @@
 
 #include <ecat/link/open.hpp>
 #include <ecat/link/udp_link.hpp>
+#include <ecat/link/xdp_link.hpp>
 
 namespace ecat::link {
 namespace {
@@ -12,7 +13,8 @@ namespace {
 using namespace std::chrono_literals;
 
 constexpr const char* kForms =
-    "accepted forms: raw:IFACE, udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
+    "accepted forms: raw:IFACE[,busy_poll=US][,spin], xdp:IFACE[,queue=N][,busy_poll=US][,spin]"
+    "[,native|,generic][,copy|,zero_copy], udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
 
 void expect_invalid(const std::string& spec, const std::string& why) {
   auto r = open_link(spec);
@@ -26,6 +28,16 @@ TEST(OpenLinkTest, MalformedSpecsNameTheSpecAndTheForms) {
   expect_invalid("eth0", "no kind prefix");
   expect_invalid("tcp:1.2.3.4", "unknown kind 'tcp'");
   expect_invalid("raw:", "no interface after 'raw:'");
+  expect_invalid("raw:,spin", "no interface after 'raw:'");
+  expect_invalid("raw:eth0,fast", "unknown raw link option 'fast'");
+  expect_invalid("raw:eth0,spin=1", "unknown raw link option 'spin'");
+  expect_invalid("raw:eth0,busy_poll=", "busy_poll='' is not a number from 0 to 1000000");
+  expect_invalid("raw:eth0,busy_poll=-5", "busy_poll='-5' is not a number from 0 to 1000000");
+  expect_invalid("xdp:", "no interface after 'xdp:'");
+  expect_invalid("xdp:eth0,queue=4096", "queue='4096' is not a number from 0 to 4095");
+  expect_invalid("xdp:eth0,queue=x", "queue='x' is not a number from 0 to 4095");
+  expect_invalid("xdp:eth0,busy_poll=1e3", "busy_poll='1e3' is not a number from 0 to 1000000");
+  expect_invalid("xdp:eth0,zerocopy", "unknown xdp link option 'zerocopy'");
   expect_invalid("udp:", "no host after 'udp:'");
   expect_invalid("udp::34980", "the host is empty");
   expect_invalid("udp:host:", "port '' is not a number from 1 to 65535");
@@ -53,6 +65,25 @@ TEST(OpenLinkTest, RawWithMissingInterfaceIsNotFound) {
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code(), Errc::not_found);
   EXPECT_EQ(r.error().message(), "network interface 'ecat-none9' does not exist (see `ip link`)");
+}
+
+TEST(OpenLinkTest, RawOptionsReachTheLink) {
+  // Parsed, then the interface is looked up: the options themselves were accepted.
+  auto r = open_link("raw:ecat-none9,busy_poll=50,spin");
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code(), Errc::not_found);
+}
+
+TEST(OpenLinkTest, XdpWithMissingInterfaceIsNotFoundOrNotBuilt) {
+  auto r = open_link("xdp:ecat-none9,queue=1,busy_poll=20,spin,generic,copy");
+  ASSERT_FALSE(r.ok());
+  if (xdp_link_available()) {
+    EXPECT_EQ(r.error().code(), Errc::not_found);
+    EXPECT_EQ(r.error().message(), "network interface 'ecat-none9' does not exist (see `ip link`)");
+  } else {
+    EXPECT_EQ(r.error().code(), Errc::unsupported);
+    EXPECT_NE(r.error().message().find("no AF_XDP link"), std::string::npos);
+  }
 }
 
 TEST(OpenLinkTest, RawWithOverlongNameIsInvalid) {

@@ -10,7 +10,12 @@
 namespace ecat::link {
 
 // Accepted specs:
-//   raw:IFACE          EtherCAT on Ethernet through network interface IFACE (needs CAP_NET_RAW)
+//   raw:IFACE          EtherCAT on Ethernet through network interface IFACE (needs CAP_NET_RAW),
+//                      RawLink; options after commas: busy_poll=US (SO_BUSY_POLL), spin (receive
+//                      never sleeps), e.g. raw:eth0,busy_poll=50,spin
+//   xdp:IFACE          the same through an AF_XDP socket (XdpLink; needs CAP_NET_ADMIN, CAP_NET_RAW
+//                      and CAP_BPF, and ecat built with libxdp); options: queue=N, busy_poll=US,
+//                      spin, native or generic (XDP attach mode), copy or zero_copy
 //   udp:HOST:PORT      EtherCAT over UDP to HOST (IPv4 address or name) at PORT
 //   udp:[IPV6]:PORT    the same with an IPv6 address
 //   udp:HOST           port 34980 (0x88A4); HOST may also be a bare IPv6 address
