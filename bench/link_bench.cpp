@@ -5,7 +5,8 @@
 // terminal over a veth pair in a private network namespace, the master's domain at 1 kHz against
 // the simulator, over AF_PACKET and over AF_XDP, with and without busy polling, against a bare
 // echo paced the same way (the floor): median and p99 of each, and the median's ratio to the
-// floor's. --samples N sets the cycles per row (default 2000). Needs root; prints why not.
+// floor's. --samples N sets the cycles per row (default 3000), taken in --rounds R turns
+// (default 3). Needs root; prints why not.
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -274,7 +275,7 @@ ecat::Result<std::unique_ptr<Link>> open_end(const std::string& spec, bool respo
 
 struct Row {
   std::string path;
-  Percentiles rtt;
+  std::vector<std::int64_t> ns;  // every round's samples
   std::string error;
 };
 
@@ -312,7 +313,7 @@ Row master_row(const std::string& master_spec, const std::string& segment_spec, 
   const auto until = Clock::now() + samples * 4ms + 10s;
   while (!recorder.full() && Clock::now() < until)
     std::this_thread::sleep_for(5ms);
-  row.rtt = percentiles(recorder.samples());
+  row.ns = recorder.samples();
   (void)master.stop();
   (*server)->stop();
   return row;
@@ -327,11 +328,11 @@ Row echo_row(const std::string& master_spec, const std::string& segment_spec, st
   auto master_end = open_end(master_spec, false);
   if (!master_end) return row.error = master_end.error().describe(), row;
   ecat::bench::Echo echo(**segment_end);
-  row.rtt = percentiles(paced_echo(**master_end, lrw_frame(image_size), 1ms, samples));
+  row.ns = paced_echo(**master_end, lrw_frame(image_size), 1ms, samples);
   return row;
 }
 
-void one_terminal_table(std::size_t samples) {
+void one_terminal_table(std::size_t samples, std::size_t rounds) {
   fmt::print(
       "\n== one terminal over veth, 1 kHz: AF_PACKET vs AF_XDP vs the paced echo floor "
       "(us)\n");
@@ -340,51 +341,75 @@ void one_terminal_table(std::size_t samples) {
     fmt::print("skipped: {}\n", pair.problem());
     return;
   }
-  std::size_t image_size = 0;
-  std::vector<Row> rows;
-  rows.push_back(master_row("raw:m", "raw:s", samples, image_size));
-  if (image_size == 0) image_size = 2;  // EL1809: 16 inputs
-  const Row floor = echo_row("raw:m", "raw:s", samples, image_size);
-  rows.push_back(echo_row("xdp:m", "raw:s", samples, image_size));
-  rows.push_back(master_row("xdp:m", "raw:s", samples, image_size));
-  rows.push_back(master_row("raw:m,busy_poll=50,spin", "raw:s", samples, image_size));
-  rows.push_back(master_row("xdp:m,busy_poll=50", "raw:s", samples, image_size));
-  rows.push_back(master_row("xdp:m,busy_poll=50", "xdp:s", samples, image_size));
-  fmt::print("{:<46} {:>6} {:>9} {:>9} {:>9}\n", "path", "n", "p50", "p99", "p50/floor");
-  const auto print = [&](const Row& r, bool is_floor) {
-    if (!r.error.empty()) {
-      fmt::print("{:<46} error: {}\n", r.path, r.error);
-      return;
-    }
-    fmt::print("{:<46} {:>6} {:>9.1f} {:>9.1f} {:>9}\n", r.path + (is_floor ? " (floor)" : ""),
-               r.rtt.n, r.rtt.p50, r.rtt.p99,
-               is_floor || floor.rtt.p50 <= 0 ? std::string("1.00")
-                                              : fmt::format("{:.2f}", r.rtt.p50 / floor.rtt.p50));
+  struct Spec {
+    bool echo;
+    const char* master;
+    const char* segment;
   };
-  print(floor, true);
-  for (const auto& r : rows)
-    print(r, false);
+  // The floor first. Rows take turns round by round, so that a burst of load elsewhere on the
+  // machine falls on all of them rather than on one.
+  const std::vector<Spec> specs{
+      {true, "raw:m", "raw:s"},
+      {false, "raw:m", "raw:s"},
+      {true, "xdp:m", "raw:s"},
+      {false, "xdp:m", "raw:s"},
+      {false, "raw:m", "raw:s,spin"},
+      {false, "xdp:m", "raw:s,spin"},
+      {false, "raw:m,busy_poll=50,spin", "raw:s"},
+      {false, "xdp:m,busy_poll=50", "raw:s"},
+      {false, "xdp:m", "xdp:s"},
+      {false, "raw:m,spin", "raw:s,spin"},
+  };
+  std::vector<Row> rows(specs.size());
+  std::size_t image_size = 2;  // EL1809: 16 inputs (the master reports it)
+  const std::size_t per_round = std::max<std::size_t>(samples / rounds, 10);
+  for (std::size_t round = 0; round < rounds; ++round) {
+    for (std::size_t i = 0; i < specs.size(); ++i) {
+      const Spec& spec = specs[i];
+      Row got = spec.echo ? echo_row(spec.master, spec.segment, per_round, image_size)
+                          : master_row(spec.master, spec.segment, per_round, image_size);
+      rows[i].path = got.path;
+      if (!got.error.empty()) rows[i].error = got.error;
+      rows[i].ns.insert(rows[i].ns.end(), got.ns.begin(), got.ns.end());
+    }
+  }
+  const Percentiles floor = percentiles(rows[0].ns);
+  fmt::print("{:<48} {:>6} {:>9} {:>9} {:>9}\n", "path", "n", "p50", "p99", "p50/floor");
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const Row& r = rows[i];
+    if (!r.error.empty()) {
+      fmt::print("{:<48} error: {}\n", r.path, r.error);
+      continue;
+    }
+    const Percentiles p = percentiles(r.ns);
+    fmt::print("{:<48} {:>6} {:>9.1f} {:>9.1f} {:>9.2f}\n", r.path + (i == 0 ? " (floor)" : ""),
+               p.n, p.p50, p.p99, floor.p50 > 0 ? p.p50 / floor.p50 : 0.0);
+  }
   fmt::print(
-      "Ring: EK1100 + EL1809 ({}-byte LRW). master + sim: the domain's submission to completion "
-      "of each valid cycle (DomainStats::last_latency), the simulator (SimServer) serving the "
-      "other end of the pair (raw: AF_PACKET responder with the EtherCAT socket filter; xdp: "
-      "XdpLink responder). bare echo: send() to receive() of the same frame once per 1 ms period, "
-      "a thread echoing it on the other end. busy_poll=US: SO_BUSY_POLL and a receive that never "
-      "sleeps; spin: the same without the socket option.\n",
-      image_size);
+      "Ring: EK1100 + EL1809 ({}-byte LRW), {} rounds of {} cycles per row. master + sim: the "
+      "domain's submission to completion of each valid cycle (DomainStats::last_latency), the "
+      "simulator (SimServer) serving the other end of the pair (raw: an AF_PACKET responder with "
+      "the EtherCAT socket filter; xdp: an XdpLink responder). bare echo: send() to receive() of "
+      "the same frame once per 1 ms period, a thread echoing it on the other end (sleeping in "
+      "receive, as the simulator's thread does). spin: receive never sleeps; busy_poll=US: "
+      "SO_BUSY_POLL too (AF_XDP: and SO_PREFER_BUSY_POLL); both cost a core while waiting.\n",
+      image_size, rounds, per_round);
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   bool table_only = false;
-  std::size_t samples = 2000;
+  std::size_t samples = 3000;
+  std::size_t rounds = 3;
   int kept = 1;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--table-only") == 0) {
       table_only = true;
     } else if (std::strcmp(argv[i], "--samples") == 0 && i + 1 < argc) {
       samples = static_cast<std::size_t>(std::max(10L, std::strtol(argv[++i], nullptr, 10)));
+    } else if (std::strcmp(argv[i], "--rounds") == 0 && i + 1 < argc) {
+      rounds = static_cast<std::size_t>(std::clamp(std::strtol(argv[++i], nullptr, 10), 1L, 100L));
     } else {
       argv[kept++] = argv[i];
     }
@@ -392,7 +417,7 @@ int main(int argc, char** argv) {
   argc = kept;
   benchmark::Initialize(&argc, argv);
   if (!table_only) benchmark::RunSpecifiedBenchmarks();
-  one_terminal_table(samples);
+  one_terminal_table(samples, rounds);
   benchmark::Shutdown();
   return 0;
 }
