@@ -213,6 +213,10 @@ TEST_F(HostileInput, NumericOptionsRefuseNonFiniteAndOutOfRangeValuesWithTheRang
       {"sim set outputs.channel_1 nan --control /nonexistent",
        "'nan' is not a finite number (or true/false)"},
       {"sim set outputs.channel_1 inf --control /nonexistent", "'inf' is not a finite number"},
+      {"sim --ring '" + ring + "' --udp 127.0.0.1:0 --spin",
+       "--spin and --busy-poll apply to raw serving: give --interface IFACE"},
+      {"sim --ring '" + ring + "' --udp 127.0.0.1:0 --busy-poll 50",
+       "--spin and --busy-poll apply to raw serving"},
   };
   for (const auto& c : cases) {
     const auto r = tool_.run(c.args);

@@ -49,6 +49,10 @@ struct Options {
   std::string ring;
   std::string udp;
   std::string interface;
+  // Raw serving: latency options of the RawLink (docs/BENCHMARKS.md: a sleeping receive is most
+  // of the simulator's share of a veth round trip).
+  bool spin = false;
+  int busy_poll_us = 0;
   std::string control;
   bool summary = false;
   // Clients.
@@ -105,6 +109,8 @@ Result<std::unique_ptr<link::Link>> open_served_link(const Options& o) {
   link::RawLinkOptions options;
   options.interface = o.interface;
   options.responder = true;
+  options.spin = o.spin;
+  options.busy_poll_us = o.busy_poll_us;
   // Only EtherCAT frames reach the simulator: a shared network costs it nothing.
   options.kernel_filter = true;
   auto link = link::RawLink::open(options);
@@ -131,6 +137,9 @@ int serve(const Options& o) {
   if (o.ring.empty()) return fail(2, "--ring FILE is required to serve (see ecat sim --help)");
   if (o.udp.empty() == o.interface.empty()) {
     return fail(2, "give exactly one of --udp ADDR:PORT and --interface IFACE");
+  }
+  if ((o.spin || o.busy_poll_us != 0) && o.interface.empty()) {
+    return fail(2, "--spin and --busy-poll apply to raw serving: give --interface IFACE");
   }
   auto ring = sim::load_ring(o.ring);
   if (!ring) return fail(2, ring.error().describe());
@@ -428,6 +437,11 @@ Command setup(CLI::App& parent) {
                   "0.0.0.0 or * for every interface; port 0: any)");
   app->add_option("--interface", o->interface,
                   "Serve raw EtherCAT on network interface IFACE (needs CAP_NET_RAW)");
+  app->add_flag("--spin", o->spin,
+                "Raw serving: wait for frames without sleeping (lowest latency; costs a CPU core)");
+  app->add_option("--busy-poll", o->busy_poll_us,
+                  "Raw serving: SO_BUSY_POLL for this many microseconds before sleeping")
+      ->check(CLI::Range(0, 1000000));
   app->add_option("--control", o->control,
                   "Control socket path (default $XDG_RUNTIME_DIR/ecat-sim-PID.sock)");
   app->add_flag("--summary", o->summary, "Print a one-line summary every second");
