@@ -248,6 +248,8 @@ struct SlaveState {
   std::map<std::uint32_t, std::uint16_t> sii_words;
   std::optional<bool> sii_8_bytes;
   std::optional<bool> sii_two_address_bytes;  // 0x0502 bit 7 as read
+  std::optional<bool> sii_emulation;          // 0x0502 bit 5 as read
+  std::optional<bool> enhanced_link;          // DL status 0x0110 bit 2 as read
   // How long the EEPROM stays busy: polls after a read command that still showed busy (lower
   // bound) and the first that did not (upper bound), in capture nanoseconds.
   std::optional<std::int64_t> sii_command_ns;
@@ -263,6 +265,12 @@ struct SlaveState {
   int emulation_for = 0;
   int emulation_against = 0;
   std::optional<std::uint16_t> first_al_status;  // before any AL control write
+  // AL control writes the device refused: AL status read back with the error indicator and
+  // another state. By requested state: the AL status code (0x0134), once read.
+  std::map<std::uint8_t, std::optional<std::uint16_t>> refused;
+  bool al_outcome_pending = false;  // AL control written; neither reached nor refused yet
+  std::optional<std::uint8_t> refusal_awaiting_code;  // refused, 0x0134 not read since
+  std::set<std::uint8_t> reached;                     // states the device showed without error
   bool al_control_seen = false;
   // CoE
   SdoTransfer sdo;
@@ -455,6 +463,7 @@ void ProfileBuilder::observe_write(std::size_t slave, std::uint16_t ado, wire::B
   if (covers(reg::kAlControl)) {
     s.last_al_control = wire::load_le16(&s.shadow[reg::kAlControl]);
     s.al_control_pending = true;
+    s.al_outcome_pending = true;
     s.al_control_seen = true;
   }
 }
@@ -473,7 +482,11 @@ void ProfileBuilder::observe_read(std::size_t slave, std::uint16_t ado, wire::By
   const std::uint32_t first = ado;
   const std::uint32_t last = ado + static_cast<std::uint32_t>(data.size()) - 1;
   auto covers = [&](std::uint32_t a) { return a >= first && a <= last; };
+  if (covers(reg::kDlStatus)) {
+    s.enhanced_link = (s.shadow[reg::kDlStatus] & 0x04) != 0;
+  }
   if (covers(reg::kSiiControl)) {
+    s.sii_emulation = (s.shadow[reg::kSiiControl] & wire::sii_control::kEmulation) != 0;
     s.sii_8_bytes = (s.shadow[reg::kSiiControl] & wire::sii_control::kReadSize8) != 0;
     s.sii_two_address_bytes =
         (s.shadow[reg::kSiiControl] & wire::sii_control::kTwoAddressBytes) != 0;
@@ -509,6 +522,24 @@ void ProfileBuilder::observe_read(std::size_t slave, std::uint16_t ado, wire::By
       }
       s.al_control_pending = false;
     }
+    if (s.al_outcome_pending && s.last_al_control) {
+      // Refused: the error indicator with a state other than the one requested. A slave still
+      // on its way shows the old state without the error (al_transition): keep waiting.
+      const auto requested = static_cast<std::uint8_t>(*s.last_al_control & 0x0F);
+      if ((status & 0x0F) == requested) {
+        s.al_outcome_pending = false;
+      } else if ((status & 0x10) != 0) {
+        s.refused.try_emplace(requested);
+        s.refusal_awaiting_code = requested;
+        s.al_outcome_pending = false;
+      }
+    }
+    if ((status & 0x10) == 0) s.reached.insert(static_cast<std::uint8_t>(status & 0x0F));
+  }
+  if (covers(reg::kAlStatusCode) && covers(reg::kAlStatusCode + 1) && s.refusal_awaiting_code) {
+    const std::uint16_t code = wire::load_le16(&s.shadow[reg::kAlStatusCode]);
+    if (code != 0) s.refused[*s.refusal_awaiting_code] = code;
+    s.refusal_awaiting_code.reset();
   }
 }
 
@@ -917,6 +948,28 @@ CaptureSlaveProfile ProfileBuilder::finish_slave(std::size_t position) {
     note("esc.sii_two_address_bytes", Evidence::observed,
          fmt::format("SII control 0x0502 bit 7 read as {}", *s.sii_two_address_bytes ? 1 : 0));
   }
+  if (s.sii_emulation) {
+    out.hardware.sii_emulation = *s.sii_emulation;
+    note("esc.sii_emulation", Evidence::observed,
+         fmt::format("SII control 0x0502 bit 5 read as {}", *s.sii_emulation ? 1 : 0));
+  }
+  if (s.enhanced_link) {
+    out.hardware.enhanced_link_detection = *s.enhanced_link;
+    note("esc.enhanced_link_detection", Evidence::observed,
+         fmt::format("DL status 0x0110 bit 2 read as {}", *s.enhanced_link ? 1 : 0));
+  }
+  for (const auto& [state, code] : s.refused) {
+    // A state the device reached later in the capture was not refused for good (the master
+    // changed what the device objected to): only standing refusals are the device's.
+    if (s.reached.contains(state) || !code) continue;
+    const auto al = wire::al_state_from_code(state);
+    if (!al) continue;
+    out.hardware.al_refusals.emplace_back(*al, *code);
+    note("esc.al_refusals", Evidence::observed,
+         fmt::format("AL control {:#04x} answered by the error indicator and status code {:#06x}, "
+                     "the state never reached",
+                     state, *code));
+  }
   if (s.sii_busy_seen) {
     // Between the longest time a poll still saw busy and the shortest it saw the EEPROM done.
     const std::int64_t hi = s.sii_busy_hi.value_or(s.sii_busy_lo + s.sii_busy_lo / 4);
@@ -1113,6 +1166,35 @@ void ProfileBuilder::reconcile_hardware(std::vector<CaptureSlaveProfile>& out) {
            fmt::format("a broadcast read returned {:#04x} ORed over all slaves", target)});
     }
   }
+  // What the capture does not show: the ESC datasheet's value for the slave's ESC type
+  // (esc_type_defaults()): the SII read size and the DL control reset value.
+  for (std::size_t i = 0; i < n; ++i) {
+    const SlaveState& s = slaves_[i];
+    auto& hw = out[i].hardware;
+    const EscTypeDefaults defaults = esc_type_defaults(hw.type);
+    if (!s.sii_8_bytes) {
+      hw.sii_reads_8_bytes = defaults.sii_reads_8_bytes;
+      out[i].notes.push_back(
+          {"esc.sii_8_byte_reads", Evidence::assumed,
+           fmt::format("0x0502 never read: the {} datasheet value", defaults.name)});
+    }
+    std::uint32_t dl_control = defaults.dl_control;
+    int dl_bytes_seen = 0;
+    for (std::uint16_t b = 0; b < 4; ++b) {
+      auto it = s.initial.find(static_cast<std::uint16_t>(reg::kDlControl + b));
+      if (it == s.initial.end()) continue;
+      dl_control = (dl_control & ~(0xFFu << (8 * b))) | (std::uint32_t{it->second} << (8 * b));
+      ++dl_bytes_seen;
+    }
+    hw.dl_control = dl_control;
+    out[i].notes.push_back(
+        {"esc.dl_control", dl_bytes_seen == 4 ? Evidence::observed : Evidence::assumed,
+         dl_bytes_seen == 4
+             ? std::string("register 0x0100..0x0103 before the master wrote it")
+             : fmt::format("{} of 4 bytes read before the master wrote them; the rest the {} "
+                           "datasheet reset value",
+                           dl_bytes_seen, defaults.name)});
+  }
   // DC system time from broadcast writes when per-slave evidence is missing.
   for (std::size_t i = 0; i < n; ++i) {
     if (!out[i].hardware.dc_supported) out[i].dc_system_time = false;
@@ -1277,6 +1359,14 @@ Json hex_or_null(const std::optional<T>& value, int width) {
   return fmt::format("{:#0{}x}", *value, width);
 }
 
+Json refusals_json(const std::vector<std::pair<wire::AlState, std::uint16_t>>& refusals) {
+  Json out = Json::array();
+  for (const auto& [state, code] : refusals) {
+    out.push_back(Json{{"state", static_cast<int>(state)}, {"code", fmt::format("{:#06x}", code)}});
+  }
+  return out;
+}
+
 Json slave_json(const CaptureSlaveProfile& s) {
   const auto& hw = s.hardware;
   std::size_t read = 0;
@@ -1322,7 +1412,12 @@ Json slave_json(const CaptureSlaveProfile& s) {
                 {"dc_system_time", s.dc_system_time},
                 {"sii_8_byte_reads", hw.sii_reads_8_bytes},
                 {"sii_two_address_bytes",
-                 hw.sii_two_address_bytes ? Json(*hw.sii_two_address_bytes) : Json(nullptr)}}},
+                 hw.sii_two_address_bytes ? Json(*hw.sii_two_address_bytes) : Json(nullptr)},
+                {"sii_emulation", hw.sii_emulation},
+                {"dl_control", fmt::format("{:#010x}", hw.dl_control)},
+                {"enhanced_link_detection",
+                 hw.enhanced_link_detection ? Json(*hw.enhanced_link_detection) : Json(nullptr)},
+                {"al_refusals", refusals_json(hw.al_refusals)}}},
               {"device_emulation", s.device_emulation},
               {"mailbox", s.has_mailbox},
               {"sii", {{"bytes", s.sii.size()}, {"words_read", read}}},
@@ -1348,6 +1443,22 @@ namespace {
 
 // One slave of ring.yaml: the `eeprom` profile with everything the capture showed beyond the SII
 // image (docs/RING-FILE.md), so that the ring answers as build_capture_segment does.
+std::string_view al_state_key(wire::AlState state) {
+  switch (state) {
+    case wire::AlState::init:
+      return "init";
+    case wire::AlState::preop:
+      return "preop";
+    case wire::AlState::bootstrap:
+      return "bootstrap";
+    case wire::AlState::safeop:
+      return "safeop";
+    case wire::AlState::op:
+      return "op";
+  }
+  return "init";
+}
+
 std::string ring_slave_yaml(const CaptureSlaveProfile& s, const std::string& file) {
   const EscHardware& hw = s.hardware;
   std::string out =
@@ -1359,9 +1470,26 @@ std::string ring_slave_yaml(const CaptureSlaveProfile& s, const std::string& fil
   out += fmt::format(
       "      esc: {{type: {:#04x}, revision: {:#04x}, build: {:#06x}, fmmus: {}, "
       "sync_managers: {}, ram_kib: {}, ports: {:#04x}, features: {:#06x}, sii_busy_ns: {}, "
-      "sii_read_bytes: {}}}\n",
+      "sii_read_bytes: {}, dl_control: {:#010x}",
       hw.type, hw.revision, hw.build, hw.fmmu_count, hw.sync_manager_count, hw.ram_size_kib,
-      hw.ports.encode(), features.encode(), hw.sii_busy_ns, hw.sii_reads_8_bytes ? 8 : 4);
+      hw.ports.encode(), features.encode(), hw.sii_busy_ns, hw.sii_reads_8_bytes ? 8 : 4,
+      hw.dl_control);
+  if (hw.sii_two_address_bytes) {
+    out += fmt::format(", sii_address_bytes: {}", *hw.sii_two_address_bytes ? 2 : 1);
+  }
+  if (hw.sii_emulation) out += ", sii_emulation: true";
+  if (hw.enhanced_link_detection) {
+    out += fmt::format(", enhanced_link_detection: {}", *hw.enhanced_link_detection);
+  }
+  if (!hw.al_refusals.empty()) {
+    out += ",\n            al_refusals: [";
+    for (std::size_t r = 0; r < hw.al_refusals.size(); ++r) {
+      out += fmt::format("{}{{state: {}, code: {:#06x}}}", r == 0 ? "" : ", ",
+                         al_state_key(hw.al_refusals[r].first), hw.al_refusals[r].second);
+    }
+    out += "]";
+  }
+  out += "}\n";
   std::string start;
   if (s.station_preset && s.station) start += fmt::format("station: {:#06x}", *s.station);
   if (s.initial_al_status) {

@@ -46,6 +46,35 @@ std::uint8_t masked(std::uint8_t old_value, std::uint8_t new_value, const std::u
 
 }  // namespace
 
+// Reset values per ESC type, for what neither a capture nor an EEPROM shows. Sources: the
+// Beckhoff "EtherCAT Slave Controller" datasheet, section II (register 0x0000 type codes;
+// 0x0100..0x0103 DL control: forwarding rule bit 0 reset 1, RX FIFO size bits 16..18 reset 7,
+// everything else 0; 0x0502 bit 6 "supported number of EEPROM read bytes": 8 for ET1100,
+// ET1200 and the IP core, 4 for the ESC10/ESC20 FPGAs) and the Microchip LAN9252 datasheet (its
+// ESC core reports type 0xC0 and the ET1100 register defaults). The shared captures agree where
+// they show a value: every ET1100/ET1200 there reads 0x0502 bit 6 = 1. The search tool's stored
+// material did not hold these datasheet pages, so the table was not re-checked against them in
+// this session.
+EscTypeDefaults esc_type_defaults(std::uint8_t type) noexcept {
+  constexpr std::uint32_t kDlControlReset = 0x0007'0001;
+  switch (type) {
+    case 0x01:
+      return {"ESC10", false, kDlControlReset};
+    case 0x02:
+      return {"ESC20", false, kDlControlReset};
+    case 0x04:
+      return {"IP core", true, kDlControlReset};
+    case 0x11:
+      return {"ET1100", true, kDlControlReset};
+    case 0x12:
+      return {"ET1200", true, kDlControlReset};
+    case 0xC0:
+      return {"LAN9252", true, kDlControlReset};
+    default:
+      return {"unknown", true, kDlControlReset};
+  }
+}
+
 bool ecat_may_write_register(std::uint16_t address) noexcept {
   struct Range {
     std::uint16_t first;
@@ -101,6 +130,7 @@ Esc::Esc(EscHardware hardware, std::vector<std::uint8_t> eeprom,
       fmmus_(std::min<std::size_t>(hardware.fmmu_count, reg::kMaxFmmus)),
       application_(application ? std::move(application) : std::make_unique<BasicApplication>()) {
   if (hardware_.dc_supported) dc_ = std::make_unique<DcUnit>(*this);
+  restore_hardware_refusals();
   reset_registers();
   application_->start(*this);
 }
@@ -149,11 +179,22 @@ void Esc::reset_registers() {
   // SII word 0 bit 9 (ESC configuration 0x0141 bit 1, enhanced link detection for all ports) is
   // also mapped to DL status bit 2 (ESC datasheet section I, "ESC Configuration Area"). None of
   // the shared EEPROMs and captures sets it (0x0141 = 0x0D / 0x01, DL status 0x5A31 / 0x5613).
-  dl.enhanced_link_detection = eeprom_ok && (memory_[reg::kEscConfiguration] & 0x02) != 0;
+  // A profile's `enhanced_link_detection` (what a capture's DL status or 0x0141 showed) replaces
+  // the SII's bit; 0x0141 then shows it too.
+  if (hardware_.enhanced_link_detection) {
+    memory_[reg::kEscConfiguration] =
+        static_cast<std::uint8_t>((memory_[reg::kEscConfiguration] & ~0x02) |
+                                  (*hardware_.enhanced_link_detection ? 0x02 : 0));
+  }
+  dl.enhanced_link_detection = hardware_.enhanced_link_detection.value_or(
+      eeprom_ok && (memory_[reg::kEscConfiguration] & 0x02) != 0);
   // Nothing reloads the PDI watchdog of an ESC without a PDI (PDI control 0): the EK1100
   // (0x0140 = 0x00) reports DL status 0x5A31 in the replay captures, terminals with a PDI 0x..33.
   dl.pdi_watchdog_ok = !eeprom_ok || memory_[reg::kPdiControl] != 0;
   wire::store_le16(&memory_[reg::kDlStatus], dl.encode());
+  // DL control keeps its reset value until the master writes it (ESC datasheet section II,
+  // 0x0100..0x0103; esc_type_defaults()).
+  wire::store_le32(&memory_[reg::kDlControl], hardware_.dl_control);
 
   wire::store_le16(&memory_[reg::kAlStatus], static_cast<std::uint16_t>(wire::AlState::init));
   wire::store_le16(&memory_[reg::kWatchdogDivider], kDefaultWatchdogDivider);
@@ -182,13 +223,26 @@ void Esc::layout_written(std::uint32_t first, std::uint32_t last) {
 
 void Esc::power_cycle(std::int64_t now_ns) {
   now_ns_ = now_ns;
-  al_refusals_.fill(std::nullopt);
+  restore_hardware_refusals();
   reset_registers();
   application_->start(*this);
 }
 
 void Esc::set_al_refusal(wire::AlState state, std::optional<std::uint16_t> status_code) {
-  al_refusals_[static_cast<std::size_t>(state) & 0x0F] = status_code;
+  auto& slot = al_refusals_[static_cast<std::size_t>(state) & 0x0F];
+  slot = status_code;
+  if (status_code) return;
+  // Lifting an injected refusal leaves the device's own (EscHardware::al_refusals).
+  for (const auto& [refused, code] : hardware_.al_refusals) {
+    if (refused == state) slot = code;
+  }
+}
+
+void Esc::restore_hardware_refusals() {
+  al_refusals_.fill(std::nullopt);
+  for (const auto& [state, code] : hardware_.al_refusals) {
+    al_refusals_[static_cast<std::size_t>(state) & 0x0F] = code;
+  }
 }
 
 std::optional<std::uint16_t> Esc::al_refusal(wire::AlState state) const noexcept {
@@ -784,7 +838,8 @@ std::uint16_t Esc::sii_fixed_bits() const noexcept {
   namespace sc = wire::sii_control;
   const bool two_bytes =
       hardware_.sii_two_address_bytes.value_or(eeprom_.size() > kOneAddressByteEepromBytes);
-  return static_cast<std::uint16_t>((hardware_.sii_reads_8_bytes ? sc::kReadSize8 : 0) |
+  return static_cast<std::uint16_t>((hardware_.sii_emulation ? sc::kEmulation : 0) |
+                                    (hardware_.sii_reads_8_bytes ? sc::kReadSize8 : 0) |
                                     (two_bytes ? sc::kTwoAddressBytes : 0));
 }
 

@@ -375,25 +375,88 @@ class RingParser {
     return ok();
   }
 
+  Result<void> optional_bool(const SpecNode& node, const std::string& path, std::string_view key,
+                             std::optional<bool>& out) {
+    const SpecNode* v = node.find(key);
+    if (v == nullptr) return ok();
+    auto b = tree::to_bool(c_, *v, tree::join_path(path, key));
+    if (!b) return std::move(b).error();
+    out = *b;
+    return ok();
+  }
+
+  // {state: op, code: 0x001D}: the device refuses `state` with AL status code `code`.
+  Result<std::pair<wire::AlState, std::uint16_t>> parse_al_refusal(const SpecNode& node,
+                                                                   const std::string& path) {
+    if (auto r = tree::check_keys(c_, node, path, {"state", "code"}); !r) {
+      return std::move(r).error();
+    }
+    auto state_node = tree::require(c_, node, path, "state");
+    if (!state_node) return std::move(state_node).error();
+    const std::string sp = tree::join_path(path, "state");
+    auto name = tree::to_text(c_, **state_node, sp);
+    if (!name) return std::move(name).error();
+    std::optional<wire::AlState> state;
+    for (const auto& [n, st] :
+         {std::pair<std::string_view, wire::AlState>{"init", wire::AlState::init},
+          {"preop", wire::AlState::preop},
+          {"bootstrap", wire::AlState::bootstrap},
+          {"safeop", wire::AlState::safeop},
+          {"op", wire::AlState::op}}) {
+      if (*name == n) state = st;
+    }
+    if (!state) {
+      return spec_error(
+          c_, **state_node, sp,
+          fmt::format("'{}' is not an AL state (init, preop, bootstrap, safeop, op)", *name));
+    }
+    auto code_node = tree::require(c_, node, path, "code");
+    if (!code_node) return std::move(code_node).error();
+    // 0 would be "no error": a refusal always names its reason.
+    auto code = tree::to_int(c_, **code_node, tree::join_path(path, "code"), 1, 0xFFFF);
+    if (!code) return std::move(code).error();
+    return std::pair{*state, static_cast<std::uint16_t>(*code)};
+  }
+
   Result<void> parse_esc(const SpecNode& node, const std::string& path, EscPreset& esc) {
-    if (auto r = tree::check_keys(c_, node, path,
-                                  {"type", "revision", "build", "fmmus", "sync_managers", "ram_kib",
-                                   "ports", "features", "sii_busy_ns", "sii_read_bytes"});
+    if (auto r = tree::check_keys(
+            c_, node, path,
+            {"type", "revision", "build", "fmmus", "sync_managers", "ram_kib", "ports", "features",
+             "sii_busy_ns", "sii_read_bytes", "sii_address_bytes", "sii_emulation", "dl_control",
+             "enhanced_link_detection", "al_refusals"});
         !r) {
       return r;
     }
     // 16 FMMUs / SyncManagers is the register map's limit (0x0600.., 0x0800..).
-    for (auto r : {optional_int(node, path, "type", 0, 0xFF, esc.type),
-                   optional_int(node, path, "revision", 0, 0xFF, esc.revision),
-                   optional_int(node, path, "build", 0, 0xFFFF, esc.build),
-                   optional_int(node, path, "fmmus", 1, 16, esc.fmmu_count),
-                   optional_int(node, path, "sync_managers", 1, 16, esc.sync_manager_count),
-                   optional_int(node, path, "ram_kib", 0, 60, esc.ram_size_kib),
-                   optional_int(node, path, "ports", 0, 0xFF, esc.ports),
-                   optional_int(node, path, "features", 0, 0xFFFF, esc.features),
-                   optional_int(node, path, "sii_busy_ns", 0, 1'000'000'000, esc.sii_busy_ns),
-                   optional_int(node, path, "sii_read_bytes", 4, 8, esc.sii_read_bytes)}) {
+    for (auto r :
+         {optional_int(node, path, "type", 0, 0xFF, esc.type),
+          optional_int(node, path, "revision", 0, 0xFF, esc.revision),
+          optional_int(node, path, "build", 0, 0xFFFF, esc.build),
+          optional_int(node, path, "fmmus", 1, 16, esc.fmmu_count),
+          optional_int(node, path, "sync_managers", 1, 16, esc.sync_manager_count),
+          optional_int(node, path, "ram_kib", 0, 60, esc.ram_size_kib),
+          optional_int(node, path, "ports", 0, 0xFF, esc.ports),
+          optional_int(node, path, "features", 0, 0xFFFF, esc.features),
+          optional_int(node, path, "sii_busy_ns", 0, 1'000'000'000, esc.sii_busy_ns),
+          optional_int(node, path, "sii_read_bytes", 4, 8, esc.sii_read_bytes),
+          optional_int(node, path, "sii_address_bytes", 1, 2, esc.sii_address_bytes),
+          optional_int(node, path, "dl_control", 0, 0xFFFF'FFFF, esc.dl_control),
+          optional_bool(node, path, "sii_emulation", esc.sii_emulation),
+          optional_bool(node, path, "enhanced_link_detection", esc.enhanced_link_detection)}) {
       if (!r) return r;
+    }
+    if (const SpecNode* list = node.find("al_refusals")) {
+      const std::string lp = tree::join_path(path, "al_refusals");
+      if (!list->is_sequence()) {
+        return spec_error(
+            c_, *list, lp,
+            fmt::format("expected a list of {{state, code}}, found {}", tree::type_name(*list)));
+      }
+      for (std::size_t i = 0; i < list->items.size(); ++i) {
+        auto refusal = parse_al_refusal(list->items[i], tree::index_path(lp, i));
+        if (!refusal) return std::move(refusal).error();
+        esc.al_refusals.push_back(*refusal);
+      }
     }
     if (esc.sii_read_bytes && *esc.sii_read_bytes != 4 && *esc.sii_read_bytes != 8) {
       const std::string p = tree::join_path(path, "sii_read_bytes");

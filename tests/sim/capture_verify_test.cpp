@@ -466,6 +466,73 @@ TEST(Profile, StationsInUseBeforeTheCaptureArePresetInAscendingOrder) {
   EXPECT_EQ(report->summary_line(), "datagrams=2 wkc_match=2/2 data_match=2/2 malformed=0");
 }
 
+// Register facts the capture shows are carried into the profile and its ring: SII control bit 5,
+// DL status bit 2, an AL control write the device refused (error indicator, status code, state
+// kept); where it shows nothing, the datasheet value for the ESC type.
+TEST(Profile, CarriesRegisterFactsAndRefusedStates) {
+  Session s;
+  const auto sii = s.send({{Command::fprd, 3, fp(0x1001, reg::kSiiControl), {0, 0}}});
+  s.data(sii)[0] |= 0x20;  // EEPROM emulated by the PDI
+  const auto dl = s.send({{Command::fprd, 4, fp(0x1001, reg::kDlStatus), {0, 0}}});
+  s.data(dl)[0] |= 0x04;  // enhanced link detection
+  // Slave 1 refuses OP for good; slave 0 refuses PREOP once, then takes it.
+  s.send({{Command::fpwr, 5, fp(0x1001, reg::kAlControl), {0x08, 0}}});
+  const auto op =
+      s.send({{Command::fprd, 6, fp(0x1001, reg::kAlStatus), std::vector<std::uint8_t>(6)}});
+  s.data(op)[0] = 0x11;
+  s.data(op)[4] = 0x1D;
+  s.send({{Command::fpwr, 7, fp(0x1000, reg::kAlControl), {0x02, 0}}});
+  const auto pre =
+      s.send({{Command::fprd, 8, fp(0x1000, reg::kAlStatus), std::vector<std::uint8_t>(6)}});
+  s.data(pre)[0] = 0x11;
+  s.data(pre)[4] = 0x16;
+  s.send({{Command::fpwr, 9, fp(0x1000, reg::kAlControl), {0x02, 0}}});
+  s.send({{Command::fprd, 10, fp(0x1000, reg::kAlStatus), {0, 0}}});
+  auto profile = build_capture_profile(s.trace());
+  ASSERT_TRUE(profile.ok());
+  ASSERT_EQ(profile->slaves.size(), 2u);
+  const EscHardware& a = profile->slaves[0].hardware;
+  const EscHardware& b = profile->slaves[1].hardware;
+  EXPECT_TRUE(a.al_refusals.empty()) << "PREOP was reached later: not the device's refusal";
+  ASSERT_EQ(b.al_refusals.size(), 1u);
+  EXPECT_EQ(b.al_refusals[0].first, wire::AlState::op);
+  EXPECT_EQ(b.al_refusals[0].second, 0x001D);
+  EXPECT_TRUE(b.sii_emulation);
+  EXPECT_EQ(b.enhanced_link_detection, std::optional<bool>(true));
+  EXPECT_FALSE(a.sii_emulation);
+  EXPECT_EQ(a.enhanced_link_detection, std::nullopt);
+  // Nothing shows DL control or slave 0's read size: the datasheet's for the (assumed) type.
+  EXPECT_EQ(a.dl_control, esc_type_defaults(a.type).dl_control);
+  EXPECT_EQ(a.sii_reads_8_bytes, esc_type_defaults(a.type).sii_reads_8_bytes);
+  // The rebuilt segment answers the refused request like the device did.
+  auto segment = build_capture_segment(*profile);
+  ASSERT_TRUE(segment.ok());
+  auto report = verify_capture(s.trace(), **segment);
+  ASSERT_TRUE(report.ok());
+  EXPECT_EQ(report->wkc_matched, report->wkc_compared);
+  // Everything but slave 0's passing refusal, which the profile rightly does not keep: the
+  // rebuilt slave takes PREOP at once.
+  EXPECT_EQ(report->data_matched + 1, report->data_compared) << report->summary_line();
+  ASSERT_EQ(report->mismatches.size(), 1u);
+  EXPECT_EQ(report->mismatches[0].address, fp(0x1000, reg::kAlStatus));
+  // And so does the ring written from it.
+  const auto dir = std::filesystem::path(ECAT_BINARY_DIR) / "capture_profile_facts_test";
+  std::filesystem::remove_all(dir);
+  ASSERT_TRUE(write_capture_profile(*profile, dir.string()).ok());
+  const auto ring = test::read_file(dir / "ring.yaml");
+  const std::string text(ring.begin(), ring.end());
+  EXPECT_NE(text.find("al_refusals: [{state: op, code: 0x001d}]"), std::string::npos) << text;
+  EXPECT_NE(text.find("sii_emulation: true, enhanced_link_detection: true"), std::string::npos)
+      << text;
+  auto ring_file = load_ring((dir / "ring.yaml").string());
+  ASSERT_TRUE(ring_file.ok()) << ring_file.error().describe();
+  auto ring_segment = build_segment(*ring_file);
+  ASSERT_TRUE(ring_segment.ok()) << ring_segment.error().describe();
+  auto again = verify_capture(s.trace(), **ring_segment);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->summary_line(), report->summary_line());
+}
+
 TEST(Profile, WritesSiiImagesRingAndJson) {
   Session s;
   auto profile = build_capture_profile(s.trace());

@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -267,6 +268,63 @@ TEST(EscSiiHardware, AddressAlgorithmBitFollowsTheEepromSizeOrTheHardware) {
   EXPECT_EQ(segment.esc(0).read_u16(reg::kSiiControl), 0x0040);
   EXPECT_EQ(segment.esc(1).read_u16(reg::kSiiControl), 0x00C0);
   EXPECT_EQ(segment.esc(2).read_u16(reg::kSiiControl), 0x0000);
+}
+
+TEST(EscRegisterFacts, DatasheetDefaultsPerEscType) {
+  EXPECT_EQ(esc_type_defaults(0x11).name, "ET1100");
+  EXPECT_TRUE(esc_type_defaults(0x11).sii_reads_8_bytes);
+  EXPECT_TRUE(esc_type_defaults(0x12).sii_reads_8_bytes);
+  EXPECT_TRUE(esc_type_defaults(0x04).sii_reads_8_bytes);
+  EXPECT_TRUE(esc_type_defaults(0xC0).sii_reads_8_bytes);
+  EXPECT_FALSE(esc_type_defaults(0x02).sii_reads_8_bytes) << "ESC20 reads 4 bytes";
+  EXPECT_EQ(esc_type_defaults(0x12).dl_control, 0x00070001u);
+  EXPECT_EQ(esc_type_defaults(0x77).name, "unknown");
+  // The reset value stands in 0x0100 until the master writes it, and comes back at power-up.
+  Esc esc(EscHardware{}, eeprom_image(), nullptr);
+  EXPECT_EQ(esc.read_u32(reg::kDlControl), 0x00070001u);
+  esc.pdi_write(reg::kDlControl, std::vector<std::uint8_t>{0, 0, 0, 0});
+  esc.power_cycle(0);
+  EXPECT_EQ(esc.read_u32(reg::kDlControl), 0x00070001u);
+}
+
+TEST(EscRegisterFacts, EmulationBitAndEnhancedLinkDetectionFromTheHardware) {
+  EscHardware hw;
+  hw.sii_emulation = true;
+  hw.enhanced_link_detection = true;  // the SII's word 0 says otherwise (0x0C05)
+  Esc esc(hw, eeprom_image(), nullptr);
+  EXPECT_EQ(esc.read_u16(reg::kSiiControl) & sc::kEmulation, sc::kEmulation);
+  EXPECT_NE(esc.read_u8(reg::kDlStatus) & 0x04, 0);
+  EXPECT_NE(esc.read_u8(reg::kEscConfiguration) & 0x02, 0);
+  hw.enhanced_link_detection = false;
+  Esc off(hw, eeprom_image(), nullptr);
+  EXPECT_EQ(off.read_u8(reg::kDlStatus) & 0x04, 0);
+}
+
+// A device that refuses a state (EscHardware::al_refusals, from a capture) keeps refusing after
+// a power cycle; an injected refusal lifted again leaves the device's own.
+TEST(EscRegisterFacts, HardwareRefusalsSurvivePowerCyclesAndLiftedFaults) {
+  EscHardware hw;
+  hw.al_refusals = {{wire::AlState::preop, 0x0016}};
+  Segment segment;
+  ASSERT_TRUE(segment.add_slave("s", std::make_unique<Esc>(hw, eeprom_image(), nullptr)).ok());
+  Esc& esc = segment.esc(0);
+  auto request = [&](std::uint16_t control) {
+    std::vector<std::uint8_t> data{static_cast<std::uint8_t>(control), 0};
+    frame(segment, {{Command::apwr, reg::kAlControl, data}}, 0);
+  };
+  request(0x0002);
+  EXPECT_EQ(esc.al_state(), wire::AlState::init);
+  EXPECT_TRUE(esc.al_error());
+  EXPECT_EQ(esc.al_status_code(), 0x0016);
+  esc.set_al_refusal(wire::AlState::preop, 0x0011);
+  EXPECT_EQ(esc.al_refusal(wire::AlState::preop), std::optional<std::uint16_t>(0x0011));
+  esc.set_al_refusal(wire::AlState::preop, std::nullopt);
+  EXPECT_EQ(esc.al_refusal(wire::AlState::preop), std::optional<std::uint16_t>(0x0016));
+  esc.power_cycle(0);
+  EXPECT_EQ(esc.al_refusal(wire::AlState::preop), std::optional<std::uint16_t>(0x0016));
+  request(0x0012);
+  EXPECT_EQ(esc.al_state(), wire::AlState::init);
+  EXPECT_EQ(esc.al_status_code(), 0x0016);
 }
 
 TEST(EscSiiHardware, MissingEepromReportsDeviceInformationError) {

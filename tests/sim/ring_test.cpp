@@ -122,6 +122,39 @@ TEST(RingParse, EscPresetsAndStartStateShapeTheEsc) {
   EXPECT_EQ(b.al_state(), wire::AlState::init);
 }
 
+// The register facts a capture or an EEPROM shows (`ecat sim profile` writes them): the SII
+// control bits, DL control at power-up, enhanced link detection and refused AL states.
+TEST(RingParse, EscRegisterFactsReachTheRegisters) {
+  auto ring = parse_ring(R"(simulator:
+  slaves:
+    - name: a
+      profile: generic
+      esc: {type: 0x02, sii_address_bytes: 2, sii_emulation: true, dl_control: 0x00070003,
+            enhanced_link_detection: true, al_refusals: [{state: op, code: 0x001D}]}
+    - {name: b, profile: generic, esc: {type: 0x12}}
+)",
+                         "ring.yaml");
+  ASSERT_TRUE(ring.ok()) << ring.error().describe();
+  const EscPreset& preset = ring->slaves[0].device.esc;
+  EXPECT_EQ(preset.sii_address_bytes, 2);
+  EXPECT_EQ(preset.dl_control, 0x00070003u);
+  ASSERT_EQ(preset.al_refusals.size(), 1u);
+  EXPECT_EQ(preset.al_refusals[0].first, wire::AlState::op);
+  auto segment = build_segment(*ring);
+  ASSERT_TRUE(segment.ok()) << segment.error().describe();
+  Esc& a = (*segment)->esc(0);
+  // ESC20 (type 0x02): 4-byte SII reads unless a key says otherwise; bits 5 and 7 as given.
+  EXPECT_EQ(a.read_u16(0x0502) & 0x00E0, 0x00A0);
+  EXPECT_EQ(a.read_u32(0x0100), 0x00070003u);
+  EXPECT_NE(a.read_u8(0x0110) & 0x04, 0);
+  EXPECT_NE(a.read_u8(0x0141) & 0x02, 0);
+  EXPECT_EQ(a.al_refusal(wire::AlState::op), std::optional<std::uint16_t>(0x001D));
+  // ET1200 defaults: 8-byte reads, DL control 0x00070001.
+  const Esc& b = (*segment)->esc(1);
+  EXPECT_EQ(b.read_u16(0x0502) & 0x0040, 0x0040);
+  EXPECT_EQ(b.read_u32(0x0100), 0x00070001u);
+}
+
 TEST(RingParse, EepromObjectsAndFirmwareNone) {
   if (!has_profile("EL3202")) GTEST_SKIP() << "no EL3202 profile";
   const fs::path dir = fs::temp_directory_path() / fmt::format("ecat-ring-obj-{}", ::getpid());
@@ -325,7 +358,34 @@ TEST(RingErrors, EscStartAndObjects) {
   EXPECT_EQ(
       error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: {colour: 1}}\n"),
       "ring.yaml:3: simulator.slaves[0].esc.colour: unknown key (known: type, revision, "
-      "build, fmmus, sync_managers, ram_kib, ports, features, sii_busy_ns, sii_read_bytes)");
+      "build, fmmus, sync_managers, ram_kib, ports, features, sii_busy_ns, sii_read_bytes, "
+      "sii_address_bytes, sii_emulation, dl_control, enhanced_link_detection, al_refusals)");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+                     "{sii_address_bytes: 3}}\n"),
+            "ring.yaml:3: simulator.slaves[0].esc.sii_address_bytes: 3 is out of range (1 to 2)");
+  EXPECT_EQ(
+      error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+               "{sii_emulation: maybe}}\n"),
+      "ring.yaml:3: simulator.slaves[0].esc.sii_emulation: expected true or false, found 'maybe'");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+                     "{dl_control: 0x100000000}}\n"),
+            "ring.yaml:3: simulator.slaves[0].esc.dl_control: 0x100000000 is out of range (0 to "
+            "4294967295)");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+                     "{al_refusals: {state: op}}}\n"),
+            "ring.yaml:3: simulator.slaves[0].esc.al_refusals: expected a list of {state, code}, "
+            "found a mapping");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+                     "{al_refusals: [{state: running, code: 0x1D}]}}\n"),
+            "ring.yaml:3: simulator.slaves[0].esc.al_refusals[0].state: 'running' is not an AL "
+            "state (init, preop, bootstrap, safeop, op)");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+                     "{al_refusals: [{state: op, code: 0}]}}\n"),
+            "ring.yaml:3: simulator.slaves[0].esc.al_refusals[0].code: 0 is out of range (1 to "
+            "65535)");
+  EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, esc: "
+                     "{al_refusals: [{state: op}]}}\n"),
+            "ring.yaml:3: simulator.slaves[0].esc.al_refusals[0]: missing key 'code'");
   EXPECT_EQ(
       error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, start: {al_status: 5}}\n"),
       "ring.yaml:3: simulator.slaves[0].start.al_status: 0x0005 holds no AL state (INIT 1, PREOP "

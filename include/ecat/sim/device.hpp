@@ -12,6 +12,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <ecat/result.hpp>
@@ -34,8 +35,16 @@ struct EscPreset {
   std::optional<std::uint8_t> ports{};               // 0x0007, the port descriptor
   // 0x0008; bit 2 (DC) also decides whether the ESC has a DC unit at all.
   std::optional<std::uint16_t> features{};
-  std::optional<std::int64_t> sii_busy_ns{};     // how long an SII command keeps the busy bit
-  std::optional<std::uint8_t> sii_read_bytes{};  // 4 or 8 bytes per SII read
+  std::optional<std::int64_t> sii_busy_ns{};        // how long an SII command keeps the busy bit
+  std::optional<std::uint8_t> sii_read_bytes{};     // 4 or 8 bytes per SII read (0x0502 bit 6)
+  std::optional<std::uint8_t> sii_address_bytes{};  // 1 or 2 EEPROM address bytes (bit 7)
+  std::optional<bool> sii_emulation{};              // the PDI emulates the EEPROM (bit 5)
+  std::optional<std::uint32_t> dl_control{};        // 0x0100..0x0103 at power-up
+  std::optional<bool> enhanced_link_detection{};    // DL status bit 2, 0x0141 bit 1
+  // AL states the device refuses, with the AL status code it answers (EscHardware::al_refusals).
+  std::vector<std::pair<wire::AlState, std::uint16_t>> al_refusals{};
+  // A `type` without `sii_read_bytes` / `dl_control` takes the datasheet's values for that ESC
+  // type (esc_type_defaults()).
 
   bool empty() const noexcept;
   void apply(EscHardware& hardware) const;

@@ -15,6 +15,8 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
+#include <utility>
 #include <vector>
 
 #include <ecat/sim/application.hpp>
@@ -60,7 +62,30 @@ struct EscHardware {
   // 0x0502 bit 7 (EEPROM algorithm: two address bytes, EEPROMs above 16 kbit). Unset: from the
   // size of the EEPROM image, as an ESC whose EEPROM size pin matches its EEPROM.
   std::optional<bool> sii_two_address_bytes{};
+  // 0x0502 bit 5: the PDI emulates the EEPROM (the firmware serves SII commands; the simulator
+  // serves them from the image as before, the bit only reads back).
+  bool sii_emulation = false;
+  // DL control 0x0100..0x0103 at power-up: forwarding rule (bit 0) = 1, RX FIFO size (bits
+  // 16..18) = 7, loop control auto, station alias off (esc_type_defaults()).
+  std::uint32_t dl_control = 0x0007'0001;
+  // DL status bit 2 (enhanced link detection) and ESC configuration 0x0141 bit 1 at power-up.
+  // Unset: from SII word 0 bit 9, as a real ESC loads it.
+  std::optional<bool> enhanced_link_detection{};
+  // AL states the device refuses whatever the master does (a firmware that rejects its
+  // configuration): AL control requesting one leaves the state as it is, with the AL error
+  // indicator and the status code. Part of the device, so power cycles keep it (set_al_refusal
+  // adds to it; lifting a refusal restores these).
+  std::vector<std::pair<wire::AlState, std::uint16_t>> al_refusals{};
 };
+
+// What the ESC datasheets give for an ESC type (register 0x0000) where neither a capture nor
+// an EEPROM shows a value (esc_type_defaults()).
+struct EscTypeDefaults {
+  std::string_view name;          // "ET1100", "ET1200", "ESC20", "IP core", "LAN9252", "unknown"
+  bool sii_reads_8_bytes = true;  // 0x0502 bit 6
+  std::uint32_t dl_control = 0;   // 0x0100..0x0103 reset value
+};
+EscTypeDefaults esc_type_defaults(std::uint8_t type) noexcept;
 
 // Per-frame facts the segment hands to each ESC: when the frame reached this ESC's ports and its
 // processing unit, for DC receive-time latching. Times are in segment nanoseconds.
@@ -205,6 +230,8 @@ class Esc {
   };
 
   void reset_registers();
+  // al_refusals_ as the device has them (EscHardware::al_refusals), nothing injected.
+  void restore_hardware_refusals();
   // Tells the observer when [first, last] touches a register of the layout.
   void layout_written(std::uint32_t first, std::uint32_t last);
   AccessResult access(std::uint32_t address, std::span<std::uint8_t> data, bool do_read,

@@ -317,11 +317,17 @@ namespace ecat::sim {
 
 bool EscPreset::empty() const noexcept {
   return !type && !revision && !build && !fmmu_count && !sync_manager_count && !ram_size_kib &&
-         !ports && !features && !sii_busy_ns && !sii_read_bytes;
+         !ports && !features && !sii_busy_ns && !sii_read_bytes && !sii_address_bytes &&
+         !sii_emulation && !dl_control && !enhanced_link_detection && al_refusals.empty();
 }
 
 void EscPreset::apply(EscHardware& hw) const {
-  if (type) hw.type = *type;
+  if (type) {
+    hw.type = *type;
+    const EscTypeDefaults defaults = esc_type_defaults(*type);
+    hw.sii_reads_8_bytes = defaults.sii_reads_8_bytes;
+    hw.dl_control = defaults.dl_control;
+  }
   if (revision) hw.revision = *revision;
   if (build) hw.build = *build;
   if (fmmu_count) hw.fmmu_count = *fmmu_count;
@@ -334,6 +340,11 @@ void EscPreset::apply(EscHardware& hw) const {
   }
   if (sii_busy_ns) hw.sii_busy_ns = *sii_busy_ns;
   if (sii_read_bytes) hw.sii_reads_8_bytes = *sii_read_bytes == 8;
+  if (sii_address_bytes) hw.sii_two_address_bytes = *sii_address_bytes == 2;
+  if (sii_emulation) hw.sii_emulation = *sii_emulation;
+  if (dl_control) hw.dl_control = *dl_control;
+  if (enhanced_link_detection) hw.enhanced_link_detection = *enhanced_link_detection;
+  if (!al_refusals.empty()) hw.al_refusals = al_refusals;
 }
 
 }  // namespace ecat::sim
