@@ -150,6 +150,16 @@ void CoeServer::queue_reply(Esc& esc, wire::MailboxType type, wire::Bytes data) 
   send_response(esc, std::move(response), 0, 0);
 }
 
+std::string_view to_string(HandlerFaultKind kind) noexcept {
+  switch (kind) {
+    case HandlerFaultKind::drop_reply:
+      return "drop_reply";
+    case HandlerFaultKind::garble_reply:
+      return "garble_reply";
+  }
+  return "unknown";
+}
+
 void CoeServer::set_protocol_handler(wire::MailboxType type, ProtocolHandler handler) {
   if (handler) {
     handlers_[type] = std::move(handler);
@@ -179,6 +189,7 @@ void CoeServer::add_protocol_fault(const ProtocolFaultRule& rule) {
 void CoeServer::clear_faults() {
   abort_rules_.clear();
   protocol_faults_.clear();
+  handler_faults_.clear();
 }
 
 std::optional<std::uint32_t> CoeServer::take_abort_rule(std::uint16_t index, std::uint8_t subindex,
@@ -274,7 +285,20 @@ void CoeServer::handle_request(Esc& esc, wire::Bytes buffer) {
   if (header->type == wire::MailboxType::coe) {
     responses = handle_coe(esc, data);
   } else if (auto it = handlers_.find(header->type); it != handlers_.end()) {
-    for (auto& reply : it->second(esc, *header, data)) {
+    auto replies = it->second(esc, *header, data);
+    const auto fault =
+        std::find_if(handler_faults_.begin(), handler_faults_.end(),
+                     [&](const HandlerFaultRule& f) { return f.type == header->type; });
+    if (fault != handler_faults_.end() && !replies.empty()) {
+      const HandlerFaultKind kind = fault->kind;
+      if (fault->once) handler_faults_.erase(fault);
+      ++stats_.faults_applied;
+      if (kind == HandlerFaultKind::drop_reply) replies.clear();
+      for (auto& reply : replies) {
+        if (reply.data.size() > 3) reply.data.resize(3);
+      }
+    }
+    for (auto& reply : replies) {
       Response r;
       r.type = reply.type;
       r.data = std::move(reply.data);

@@ -59,6 +59,8 @@ std::string_view to_string(EoeFaultKind kind) noexcept {
       return "drop_request_fragment";
     case EoeFaultKind::drop_reply:
       return "drop_reply";
+    case EoeFaultKind::corrupt_fragment_offset:
+      return "corrupt_fragment_offset";
   }
   return "unknown";
 }
@@ -194,6 +196,25 @@ std::vector<MailboxReply> EoeServer::reply_frame(Esc& esc, std::span<const std::
   for (auto it = faults_.begin(); it != faults_.end(); ++it) {
     if (it->kind != EoeFaultKind::drop_reply_fragment || it->value >= parts.size()) continue;
     lost = *it;
+    if (it->once) faults_.erase(it);
+    ++stats_.faults_applied;
+    break;
+  }
+  // A wrong offset in fragment `value` (fragment 0's offset field holds the frame size instead).
+  for (auto it = faults_.begin(); it != faults_.end(); ++it) {
+    if (it->kind != EoeFaultKind::corrupt_fragment_offset || it->value == 0 ||
+        it->value >= parts.size()) {
+      continue;
+    }
+    auto& part = parts[it->value];
+    auto message = wire::decode_eoe(part);
+    auto* fragment = message ? std::get_if<wire::EoeFragment>(&*message) : nullptr;
+    if (fragment == nullptr) break;
+    fragment->header.offset_blocks =
+        static_cast<std::uint8_t>((fragment->header.offset_blocks + 1) & 0x3F);
+    auto bytes = wire::encode_eoe(wire::EoeMessage{std::move(*fragment)});
+    if (!bytes) break;
+    part = std::move(*bytes);
     if (it->once) faults_.erase(it);
     ++stats_.faults_applied;
     break;

@@ -51,6 +51,17 @@ constexpr std::array<FaultKindInfo, kFaultKindCount> kKinds{{
     {FaultKind::mailbox_protocol_fault, "mailbox_protocol_fault",
      "SLAVE INDEX:SUB STAGE KIND[=VALUE]", "corrupt mailbox responses for INDEX:SUB at STAGE"},
     {FaultKind::dc_jump, "dc_jump", "SLAVE NS", "step the slave's DC clock by NS nanoseconds"},
+    {FaultKind::foe_fault, "foe_fault", "SLAVE MODE [PACKET [VALUE]]",
+     "FoE: MODE (error, busy, drop_reply, wrong_packet, wrong_password) at the reply after "
+     "PACKET (0) packets; VALUE: error code or BUSY answers"},
+    {FaultKind::soe_fault, "soe_fault", "SLAVE MODE IDN [VALUE [DRIVE [WRITE]]]",
+     "SoE: MODE (error_response, drop_fragment, drop_response) for IDN; VALUE: error code or "
+     "fragment"},
+    {FaultKind::eoe_fault, "eoe_fault", "SLAVE MODE [VALUE]",
+     "EoE: MODE (drop_reply_fragment, drop_request_fragment, drop_reply, "
+     "corrupt_fragment_offset) with fragment number VALUE"},
+    {FaultKind::voe_fault, "voe_fault", "SLAVE MODE",
+     "VoE: MODE (drop_reply, garble_reply) for the next VoE reply"},
     {FaultKind::link_down, "link_down", "SLAVE PORT", "take the link on the slave's PORT down"},
     {FaultKind::link_up, "link_up", "SLAVE PORT", "bring the link on the slave's PORT up"},
     {FaultKind::master_link_down, "master_link_down", "", "take the master's link down"},
@@ -79,6 +90,23 @@ std::optional<ProtocolFaultKind> protocol_kind_from_string(std::string_view name
     if (to_string(k) == name) return k;
   }
   return std::nullopt;
+}
+
+constexpr std::array<FoeFaultMode, 5> kFoeModes{
+    FoeFaultMode::error, FoeFaultMode::busy, FoeFaultMode::drop_reply, FoeFaultMode::wrong_packet,
+    FoeFaultMode::wrong_password};
+constexpr std::array<SoeFaultKind, 3> kSoeModes{
+    SoeFaultKind::error_response, SoeFaultKind::drop_fragment, SoeFaultKind::drop_response};
+constexpr std::array<EoeFaultKind, 4> kEoeModes{
+    EoeFaultKind::drop_reply_fragment, EoeFaultKind::drop_request_fragment,
+    EoeFaultKind::drop_reply, EoeFaultKind::corrupt_fragment_offset};
+constexpr std::array<HandlerFaultKind, 2> kVoeModes{HandlerFaultKind::drop_reply,
+                                                    HandlerFaultKind::garble_reply};
+
+// The mailbox protocol kinds: their `mode` by name, a rule that fires once unless `once: false`.
+bool is_protocol_kind(FaultKind kind) {
+  return kind == FaultKind::foe_fault || kind == FaultKind::soe_fault ||
+         kind == FaultKind::eoe_fault || kind == FaultKind::voe_fault;
 }
 
 std::optional<MailboxStage> stage_from_string(std::string_view name) {
@@ -241,6 +269,10 @@ bool needs_slave(FaultKind kind) {
     case FaultKind::mailbox_abort:
     case FaultKind::mailbox_protocol_fault:
     case FaultKind::dc_jump:
+    case FaultKind::foe_fault:
+    case FaultKind::soe_fault:
+    case FaultKind::eoe_fault:
+    case FaultKind::voe_fault:
     case FaultKind::link_down:
     case FaultKind::link_up:
       return true;
@@ -263,6 +295,22 @@ std::optional<FaultKind> fault_kind_from_string(std::string_view name) noexcept 
     if (k.name == name) return k.kind;
   }
   return std::nullopt;
+}
+
+std::string_view to_string(FoeFaultMode mode) noexcept {
+  switch (mode) {
+    case FoeFaultMode::error:
+      return "error";
+    case FoeFaultMode::busy:
+      return "busy";
+    case FoeFaultMode::drop_reply:
+      return "drop_reply";
+    case FoeFaultMode::wrong_packet:
+      return "wrong_packet";
+    case FoeFaultMode::wrong_password:
+      return "wrong_password";
+  }
+  return "?";
 }
 
 FaultClass fault_class(FaultKind kind) noexcept {
@@ -289,6 +337,10 @@ FaultClass fault_class(FaultKind kind) noexcept {
     case FaultKind::mailbox_abort:
     case FaultKind::mailbox_protocol_fault:
     case FaultKind::dc_jump:
+    case FaultKind::foe_fault:
+    case FaultKind::soe_fault:
+    case FaultKind::eoe_fault:
+    case FaultKind::voe_fault:
       return FaultClass::slave;
     case FaultKind::link_down:
     case FaultKind::link_up:
@@ -418,6 +470,38 @@ Fault dc_jump(std::string slave, std::chrono::nanoseconds step) {
   f.effect.ns = step.count();
   return f;
 }
+Fault foe_fault(std::string slave, FoeFaultMode mode, std::uint32_t packet, std::uint32_t value) {
+  auto f = make(FaultKind::foe_fault, std::move(slave));
+  f.effect.foe = mode;
+  f.effect.packet = packet;
+  f.effect.value = value;
+  if (value == 0 && mode == FoeFaultMode::error) {
+    f.effect.value = static_cast<std::uint32_t>(wire::FoeErrorCode::not_defined);
+  }
+  if (value == 0 && mode == FoeFaultMode::busy) f.effect.value = 1;
+  return f;
+}
+Fault soe_fault(std::string slave, SoeFaultKind kind, std::uint16_t idn, std::uint32_t value,
+                std::uint8_t drive, bool write) {
+  auto f = make(FaultKind::soe_fault, std::move(slave));
+  f.effect.soe = kind;
+  f.effect.idn = idn;
+  f.effect.value = value;
+  f.effect.drive = drive;
+  f.effect.write = write;
+  return f;
+}
+Fault eoe_fault(std::string slave, EoeFaultKind kind, std::uint32_t value) {
+  auto f = make(FaultKind::eoe_fault, std::move(slave));
+  f.effect.eoe = kind;
+  f.effect.value = value;
+  return f;
+}
+Fault voe_fault(std::string slave, HandlerFaultKind kind) {
+  auto f = make(FaultKind::voe_fault, std::move(slave));
+  f.effect.voe = kind;
+  return f;
+}
 Fault link_down(std::string slave, std::uint8_t port) {
   auto f = make(FaultKind::link_down, std::move(slave));
   f.effect.port = port;
@@ -532,6 +616,28 @@ std::string describe(const FaultEffect& e) {
                          to_string(e.stage), e.once.value_or(false) ? " (once)" : "");
     case FaultKind::dc_jump:
       return fmt::format("DC clock jump {:+} ns on {}", e.ns, e.slave);
+    case FaultKind::foe_fault: {
+      std::string what(to_string(e.foe));
+      if (e.foe == FoeFaultMode::error) what += fmt::format(" 0x{:04X}", e.value);
+      if (e.foe == FoeFaultMode::busy) what += fmt::format(" x{}", e.value);
+      return fmt::format("FoE {} on {} after {}", what, e.slave,
+                         plural(e.packet, "packet", "packets"));
+    }
+    case FaultKind::soe_fault: {
+      std::string what(to_string(e.soe));
+      if (e.soe == SoeFaultKind::error_response) what = fmt::format("error 0x{:04X}", e.value);
+      if (e.soe == SoeFaultKind::drop_fragment) what += fmt::format(" {}", e.value);
+      return fmt::format("SoE {} on {} drive {} IDN {}{}{}", what, e.slave, e.drive, e.idn,
+                         e.write ? " (write)" : "", e.once.value_or(true) ? " (once)" : "");
+    }
+    case FaultKind::eoe_fault: {
+      std::string what(to_string(e.eoe));
+      if (e.eoe != EoeFaultKind::drop_reply) what += fmt::format(" {}", e.value);
+      return fmt::format("EoE {} on {}{}", what, e.slave, e.once.value_or(true) ? " (once)" : "");
+    }
+    case FaultKind::voe_fault:
+      return fmt::format("VoE {} on {}{}", to_string(e.voe), e.slave,
+                         e.once.value_or(true) ? " (once)" : "");
     case FaultKind::link_down:
       return fmt::format("link down on {} port {}", e.slave, e.port);
     case FaultKind::link_up:
@@ -634,6 +740,26 @@ Result<void> validate_effect(const FaultEffect& e) {
     case FaultKind::link_down:
     case FaultKind::link_up:
       if (e.port > 3) return bad(fmt::format("port {} does not exist (0..3)", e.port));
+      break;
+    case FaultKind::foe_fault:
+      if (e.foe == FoeFaultMode::busy && (e.value == 0 || e.value > 0xFFFF)) {
+        return bad(fmt::format("busy takes 1..65535 BUSY answers, not {}", e.value));
+      }
+      break;
+    case FaultKind::soe_fault:
+      if (e.drive > 7) return bad(fmt::format("drive {} does not exist (0..7)", e.drive));
+      if (e.value > 0xFFFF) return bad(fmt::format("value 0x{:X} exceeds 16 bits", e.value));
+      if (e.soe == SoeFaultKind::drop_fragment && e.value == 0) {
+        return bad("drop_fragment needs a fragment number (1..)");
+      }
+      break;
+    case FaultKind::eoe_fault:
+      if (e.value > 63) return bad(fmt::format("fragment number {} exceeds 63", e.value));
+      if (e.eoe == EoeFaultKind::corrupt_fragment_offset && e.value == 0) {
+        return bad(
+            "corrupt_fragment_offset needs a fragment number 1..63 (fragment 0 holds "
+            "the frame size)");
+      }
       break;
     default:
       break;
@@ -781,6 +907,31 @@ Json effect_json(const Fault& f) {
     case FaultKind::dc_jump:
       j["ns"] = e.ns;
       break;
+    case FaultKind::foe_fault:
+      j["mode"] = to_string(e.foe);
+      j["packet"] = e.packet;
+      if (e.foe == FoeFaultMode::error) j["value"] = hex(e.value, 4);
+      if (e.foe == FoeFaultMode::busy) j["value"] = e.value;
+      break;
+    case FaultKind::soe_fault:
+      j["mode"] = to_string(e.soe);
+      j["idn"] = e.idn;
+      if (e.soe != SoeFaultKind::drop_response) {
+        j["value"] = e.soe == SoeFaultKind::error_response ? Json(hex(e.value, 4)) : Json(e.value);
+      }
+      j["drive"] = e.drive;
+      j["write"] = e.write;
+      if (e.once) j["once"] = *e.once;
+      break;
+    case FaultKind::eoe_fault:
+      j["mode"] = to_string(e.eoe);
+      if (e.eoe != EoeFaultKind::drop_reply) j["value"] = e.value;
+      if (e.once) j["once"] = *e.once;
+      break;
+    case FaultKind::voe_fault:
+      j["mode"] = to_string(e.voe);
+      if (e.once) j["once"] = *e.once;
+      break;
     case FaultKind::link_down:
     case FaultKind::link_up:
       j["port"] = e.port;
@@ -904,6 +1055,23 @@ Result<MailboxStage> stage_key(const SpecContext& c, const SpecNode& node, const
       });
 }
 
+// The `mode` of a mailbox protocol fault, one of `modes` by name.
+template <class T, std::size_t N>
+Result<T> mode_key(const SpecContext& c, const SpecNode& node, const std::string& path,
+                   const std::array<T, N>& modes) {
+  return read_key<T>(c, node, path, "mode", std::nullopt,
+                     [&](const SpecNode& value, const std::string& p) -> Result<T> {
+                       auto text = to_text(c, value, p);
+                       if (!text) return std::move(text).error();
+                       for (auto m : modes) {
+                         if (to_string(m) == *text) return m;
+                       }
+                       return spec_error(
+                           c, value, p,
+                           fmt::format("unknown mode '{}' (known: {})", *text, list_names(modes)));
+                     });
+}
+
 // The when of a scheduling form: `after_ms` / `wait_ms` set the delay, `after_milestone` /
 // `wait_for` the milestone.
 Result<void> parse_trigger(const SpecContext& c, const SpecNode& node, const std::string& path,
@@ -931,7 +1099,9 @@ std::vector<std::string> effect_keys(FaultKind kind) {
     const auto names = argument_keys(argument.name);
     keys.insert(keys.end(), names.begin(), names.end());
   }
-  if (kind == FaultKind::mailbox_abort || kind == FaultKind::mailbox_protocol_fault) {
+  if (kind == FaultKind::mailbox_abort || kind == FaultKind::mailbox_protocol_fault ||
+      kind == FaultKind::soe_fault || kind == FaultKind::eoe_fault ||
+      kind == FaultKind::voe_fault) {
     keys.emplace_back("once");
   }
   return keys;
@@ -1099,8 +1269,78 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
       e.port = *port;
       break;
     }
+    case FaultKind::foe_fault: {
+      ECAT_TRY(mode, mode_key(c, node, path, kFoeModes));
+      e.foe = *mode;
+      ECAT_TRY(packet,
+               int_key<std::uint32_t>(c, node, path, "packet", 0, 0xFFFF'FFFF, std::uint32_t{0}));
+      e.packet = *packet;
+      if (e.foe == FoeFaultMode::error) {
+        ECAT_TRY(code, int_key<std::uint32_t>(
+                           c, node, path, "value", 0, 0xFFFF'FFFF,
+                           static_cast<std::uint32_t>(wire::FoeErrorCode::not_defined)));
+        e.value = *code;
+      } else if (e.foe == FoeFaultMode::busy) {
+        ECAT_TRY(count,
+                 int_key<std::uint32_t>(c, node, path, "value", 1, 0xFFFF, std::uint32_t{1}));
+        e.value = *count;
+      } else if (const SpecNode* v = node.find("value")) {
+        return spec_error(c, *v, join_path(path, "value"),
+                          fmt::format("{} takes no value", to_string(e.foe)));
+      }
+      break;
+    }
+    case FaultKind::soe_fault: {
+      ECAT_TRY(mode, mode_key(c, node, path, kSoeModes));
+      e.soe = *mode;
+      ECAT_TRY(idn, int_key<std::uint16_t>(c, node, path, "idn", 0, 0xFFFF));
+      e.idn = *idn;
+      if (e.soe == SoeFaultKind::drop_response) {
+        if (const SpecNode* v = node.find("value")) {
+          return spec_error(c, *v, join_path(path, "value"), "drop_response takes no value");
+        }
+      } else {
+        const bool fragment = e.soe == SoeFaultKind::drop_fragment;
+        ECAT_TRY(value, int_key<std::uint32_t>(c, node, path, "value", fragment ? 1 : 0, 0xFFFF));
+        e.value = *value;
+      }
+      ECAT_TRY(drive, int_key<std::uint8_t>(c, node, path, "drive", 0, 7, std::uint8_t{0}));
+      e.drive = *drive;
+      if (const SpecNode* w = node.find("write")) {
+        ECAT_TRY(write, to_bool(c, *w, join_path(path, "write")));
+        e.write = *write;
+      }
+      break;
+    }
+    case FaultKind::eoe_fault: {
+      ECAT_TRY(mode, mode_key(c, node, path, kEoeModes));
+      e.eoe = *mode;
+      if (e.eoe == EoeFaultKind::drop_reply) {
+        if (const SpecNode* v = node.find("value")) {
+          return spec_error(c, *v, join_path(path, "value"), "drop_reply takes no value");
+        }
+      } else {
+        const bool offset = e.eoe == EoeFaultKind::corrupt_fragment_offset;
+        ECAT_TRY(value, int_key<std::uint32_t>(c, node, path, "value", offset ? 1 : 0, 63,
+                                               offset ? std::optional<std::uint32_t>()
+                                                      : std::optional<std::uint32_t>(0)));
+        e.value = *value;
+      }
+      break;
+    }
+    case FaultKind::voe_fault: {
+      ECAT_TRY(mode, mode_key(c, node, path, kVoeModes));
+      e.voe = *mode;
+      break;
+    }
     default:
       break;
+  }
+  if (is_protocol_kind(*kind)) {
+    if (const SpecNode* once = node.find("once")) {
+      ECAT_TRY(value, to_bool(c, *once, join_path(path, "once")));
+      e.once = *value;
+    }
   }
   if (const SpecNode* next = node.find("next")) {
     ECAT_TRY(n, to_int(c, *next, join_path(path, "next"), 1, 1'000'000'000));
@@ -1337,6 +1577,33 @@ struct ResolvedMilestone {
   MailboxStage step = MailboxStage::upload_init;
 };
 
+// The FoE server's rule for a foe_fault.
+FoeFault foe_rule(const FaultEffect& e) {
+  FoeFault f;
+  f.after_packets = e.packet;
+  switch (e.foe) {
+    case FoeFaultMode::error:
+      f.kind = FoeFaultKind::error;
+      f.code = e.value;
+      break;
+    case FoeFaultMode::busy:
+      f.kind = FoeFaultKind::busy;
+      f.count = e.value;
+      break;
+    case FoeFaultMode::drop_reply:
+      f.kind = FoeFaultKind::drop_reply;
+      break;
+    case FoeFaultMode::wrong_packet:
+      f.kind = FoeFaultKind::wrong_packet;
+      break;
+    case FoeFaultMode::wrong_password:
+      f.kind = FoeFaultKind::error;
+      f.code = static_cast<std::uint32_t>(wire::FoeErrorCode::no_rights);
+      break;
+  }
+  return f;
+}
+
 // The part the abort and protocol fault rules share: which object, at which stage, how often.
 template <class Rule>
 Rule mailbox_rule(const FaultEffect& e, bool once) {
@@ -1522,6 +1789,19 @@ struct FaultInjector::Impl {
       return Error(Errc::unsupported,
                    fmt::format("{}: slave '{}' has no CoE mailbox", to_string(e.kind), e.slave));
     }
+    const auto missing = [&](std::string_view what) {
+      return Error(Errc::unsupported,
+                   fmt::format("{}: slave '{}' has no {}", to_string(e.kind), e.slave, what));
+    };
+    if (e.kind == FaultKind::foe_fault && foe_server_of(esc) == nullptr) return missing("FoE");
+    if (e.kind == FaultKind::soe_fault && soe_server_of(esc) == nullptr) return missing("SoE");
+    if (e.kind == FaultKind::eoe_fault && eoe_server_of(esc) == nullptr) return missing("EoE");
+    if (e.kind == FaultKind::voe_fault) {
+      const CoeServer* coe = coe_server_of(esc);
+      if (coe == nullptr || !coe->has_protocol_handler(wire::MailboxType::voe)) {
+        return missing("VoE");
+      }
+    }
     if (e.kind == FaultKind::dc_jump && esc.dc() == nullptr) {
       return Error(Errc::unsupported, fmt::format("dc_jump: slave '{}' has no DC unit", e.slave));
     }
@@ -1622,6 +1902,27 @@ struct FaultInjector::Impl {
       }
       case FaultKind::dc_jump:
         if (DcUnit* dc = segment.esc(slave).dc()) dc->jump(e.ns);
+        break;
+      case FaultKind::foe_fault:
+        if (FoeServer* foe = foe_server_of(segment.esc(slave))) foe->add_fault(foe_rule(e));
+        break;
+      case FaultKind::soe_fault:
+        if (SoeServer* soe = soe_server_of(segment.esc(slave))) {
+          soe->add_fault(SoeFaultRule{e.drive, e.idn, e.write, e.soe,
+                                      static_cast<std::uint16_t>(e.value), e.once.value_or(true)});
+        }
+        break;
+      case FaultKind::eoe_fault:
+        if (EoeServer* eoe = eoe_server_of(segment.esc(slave))) {
+          eoe->add_fault(
+              EoeFaultRule{e.eoe, static_cast<std::uint8_t>(e.value), e.once.value_or(true)});
+        }
+        break;
+      case FaultKind::voe_fault:
+        if (CoeServer* coe = coe_server_of(segment.esc(slave))) {
+          coe->add_handler_fault(
+              HandlerFaultRule{wire::MailboxType::voe, e.voe, e.once.value_or(true)});
+        }
         break;
       case FaultKind::link_down:
       case FaultKind::link_up: {
@@ -1876,6 +2177,9 @@ void FaultInjector::clear() {
   for (std::size_t i = 0; i < s.segment.size(); ++i) {
     Esc& esc = s.segment.esc(i);
     if (CoeServer* coe = coe_server_of(esc)) coe->clear_faults();
+    if (FoeServer* foe = foe_server_of(esc)) foe->clear_faults();
+    if (SoeServer* soe = soe_server_of(esc)) soe->clear_faults();
+    if (EoeServer* eoe = eoe_server_of(esc)) eoe->clear_faults();
     if (s.latched[i] && esc.al_error() && esc.al_status_code() == *s.latched[i]) {
       esc.pdi_set_al_status(esc.al_state(), false, 0);
     }
@@ -1928,6 +2232,33 @@ FaultInfo FaultInjector::info(std::int64_t now_ns) const {
         FaultEffect e = rule_effect(FaultKind::mailbox_protocol_fault, s.segment.name(i), rule);
         e.protocol = rule.fault;
         info.active.push_back(describe(e));
+      }
+      for (const auto& rule : coe->handler_faults()) {
+        if (rule.type != wire::MailboxType::voe) continue;
+        info.active.push_back(describe(fault::voe_fault(s.segment.name(i), rule.kind).effect) +
+                              (rule.once ? "" : " (sticky)"));
+      }
+    }
+    if (const FoeServer* foe = foe_server_of(esc)) {
+      for (const auto& rule : foe->faults()) {
+        info.active.push_back(fmt::format("FoE {} on {} after {}", to_string(rule.kind),
+                                          s.segment.name(i),
+                                          plural(rule.after_packets, "packet", "packets")));
+      }
+    }
+    if (const SoeServer* soe = soe_server_of(esc)) {
+      for (const auto& rule : soe->faults()) {
+        auto f = fault::soe_fault(s.segment.name(i), rule.kind, rule.idn, rule.value, rule.drive,
+                                  rule.write);
+        f.effect.once = rule.once;
+        info.active.push_back(describe(f.effect));
+      }
+    }
+    if (const EoeServer* eoe = eoe_server_of(esc)) {
+      for (const auto& rule : eoe->faults()) {
+        auto f = fault::eoe_fault(s.segment.name(i), rule.kind, rule.value);
+        f.effect.once = rule.once;
+        info.active.push_back(describe(f.effect));
       }
     }
     if (s.latched[i] && esc.al_error() && esc.al_status_code() == *s.latched[i]) {

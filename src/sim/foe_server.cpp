@@ -113,6 +113,8 @@ std::string_view to_string(FoeFaultKind kind) noexcept {
       return "drop_reply";
     case FoeFaultKind::wrong_packet:
       return "wrong_packet";
+    case FoeFaultKind::busy:
+      return "busy";
   }
   return "unknown";
 }
@@ -175,6 +177,8 @@ std::vector<MailboxReply> FoeServer::apply_fault(const FoeFault& fault, wire::Fo
       if (auto* d = std::get_if<wire::FoeData>(&message)) ++d->packet_number;
       if (auto* a = std::get_if<wire::FoeAck>(&message)) ++a->packet_number;
       return reply(message);
+    case FoeFaultKind::busy:
+      break;  // taken in data(), before the packet is
   }
   return reply(message);
 }
@@ -276,6 +280,7 @@ std::vector<MailboxReply> FoeServer::write_request(Esc& esc, const wire::FoeWrit
   transfer_.firmware = firmware;
   transfer_.password = request.password;
   transfer_.busy_left = config_.busy_per_packet;
+  transfer_.busy_total = config_.busy_per_packet;
   wire::FoeMessage ack0 = wire::FoeAck{0};
   if (auto fault = take_fault(0)) return apply_fault(*fault, std::move(ack0));
   return reply(ack0);
@@ -290,12 +295,22 @@ std::vector<MailboxReply> FoeServer::data(Esc& esc, const wire::FoeData& data) {
     return error(FoeErrorCode::packet_number_wrong,
                  fmt::format("DATA {}, expected {}", data.packet_number, expected));
   }
+  // An injected BUSY (FoeFaultKind::busy) for this packet: `count` answers before it is taken.
+  for (auto it = faults_.begin(); it != faults_.end(); ++it) {
+    if (it->kind != FoeFaultKind::busy || it->after_packets != expected - 1) continue;
+    transfer_.busy_left = std::max(transfer_.busy_left, it->count);
+    transfer_.busy_total = std::max(transfer_.busy_total, it->count);
+    faults_.erase(it);
+    ++stats_.faults_applied;
+    break;
+  }
   if (transfer_.busy_left > 0) {
     // Still flashing the previous packet: the master sends this one again.
     --transfer_.busy_left;
-    return reply(
-        wire::FoeBusy{static_cast<std::uint16_t>(config_.busy_per_packet - transfer_.busy_left),
-                      static_cast<std::uint16_t>(config_.busy_per_packet)});
+    return reply(wire::FoeBusy{
+        static_cast<std::uint16_t>(
+            std::min<std::uint32_t>(transfer_.busy_total - transfer_.busy_left, 0xFFFF)),
+        static_cast<std::uint16_t>(std::min<std::uint32_t>(transfer_.busy_total, 0xFFFF))});
   }
   const std::size_t max = packet_size(esc, kRequestSm);
   if (data.data.size() > max) {
@@ -316,6 +331,7 @@ std::vector<MailboxReply> FoeServer::data(Esc& esc, const wire::FoeData& data) {
   transfer_.buffer.insert(transfer_.buffer.end(), data.data.begin(), data.data.end());
   transfer_.packet = expected;
   transfer_.busy_left = config_.busy_per_packet;
+  transfer_.busy_total = config_.busy_per_packet;
   ++stats_.data_taken;
   const bool last = data.data.size() < max;
   if (auto fault = take_fault(expected - 1)) {

@@ -25,6 +25,7 @@
 #include <ecat/master/eoe.hpp>
 #include <ecat/master/eoe_tap.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/sim/control.hpp>
 #include <ecat/sim/eoe_server.hpp>
 #include <ecat/sim/server.hpp>
 #include <ecat/wire/eoe.hpp>
@@ -362,6 +363,33 @@ TEST(EoeTap, WithoutTheCapabilityTheErrorNamesIt) {
   ASSERT_FALSE(tap.ok());
   EXPECT_EQ(tap.error().code(), Errc::permission_denied);
   EXPECT_NE(tap.error().message().find("CAP_NET_ADMIN"), std::string::npos);
+}
+
+// The EoE faults through the fault language: a lost reply fragment from the ring file, a wrong
+// fragment offset through the control channel. The master's reassembly drops each frame and
+// counts it; the next echo works.
+TEST_F(EoeScenario, RingAndControlChannelFaultsLoseOneFrameEach) {
+  RingSpec spec = eoe_spec(", options: {ip: 192.168.7.2}");
+  spec.ring_yaml +=
+      "  faults:\n    - {kind: eoe_fault, slave: eoe, mode: drop_reply_fragment, "
+      "value: 1}\n";
+  ring_ = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring_);
+  ASSERT_TRUE(eoe().eoe_send(echo_request(1, 200)).ok());
+  EXPECT_TRUE(collect(eoe(), 300ms).empty());
+  const std::string reply = sim::handle_control_request(
+      *ring_->server, R"({"op":"fault.inject","fault":{"kind":"eoe_fault","slave":"eoe",)"
+                      R"("mode":"corrupt_fragment_offset","value":1}})");
+  ASSERT_EQ(reply.rfind(R"({"ok":true)", 0), 0u) << reply;
+  ASSERT_TRUE(eoe().eoe_send(echo_request(2, 200)).ok());
+  EXPECT_TRUE(collect(eoe(), 300ms).empty());
+  auto stats = eoe().eoe_stats();
+  ASSERT_TRUE(stats.ok());
+  EXPECT_EQ(stats->frames_dropped, 2u);
+  ASSERT_TRUE(eoe().eoe_send(echo_request(3, 200)).ok());
+  auto replies = collect(eoe(), 2s);
+  ASSERT_EQ(replies.size(), 1u);
+  EXPECT_EQ(replies[0][41], 3);
 }
 
 }  // namespace

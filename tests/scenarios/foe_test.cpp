@@ -15,6 +15,7 @@
 
 #include <ecat/master/foe.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/sim/control.hpp>
 #include <ecat/sim/foe_server.hpp>
 #include <ecat/sim/server.hpp>
 #include <ecat/sim/standard_application.hpp>
@@ -246,6 +247,63 @@ TEST_F(FoeWithoutProcessData, BootstrapThroughRequestUsesTheBootstrapMailbox) {
   auto read = mbx().foe_read("boot.log");
   ASSERT_TRUE(read) << read.error().describe();
   EXPECT_EQ(*read, pattern(500));
+}
+
+// The same faults through the fault language: one in the ring file (injected when the simulator
+// starts), the others through the control channel, as `ecat sim fault inject` sends them.
+class FoeRingFaults : public Foe {
+ protected:
+  void SetUp() override {
+    RingSpec spec;
+    spec.kind = RingKind::segmented;
+    spec.ring_yaml = ring_yaml(RingKind::segmented) +
+                     "  faults:\n"
+                     "    - {kind: foe_fault, slave: mailbox, mode: error, packet: 3, "
+                     "value: 0x800B}\n";
+    spec.adjust = [](master::MasterConfig& config) {
+      for (auto& s : config.slaves) {
+        if (s.name == "mailbox") s.startup_sdos.clear();
+      }
+    };
+    ring_ = ScenarioRing::operational(spec);
+    ASSERT_TRUE(ring_);
+  }
+  void control(const std::string& fault) {
+    const std::string reply = sim::handle_control_request(
+        *ring_->server, R"({"op":"fault.inject","fault":)" + fault + "}");
+    ASSERT_EQ(reply.rfind(R"({"ok":true)", 0), 0u) << reply;
+  }
+};
+
+TEST_F(FoeRingFaults, RingAndControlChannelFaultsFailTransfersClearlyAndTheNextOneWorks) {
+  auto aborted = mbx().foe_write("a.bin", pattern(1000));
+  ASSERT_FALSE(aborted);
+  EXPECT_EQ(master::foe_error_code(aborted.error()), 0x800Bu);
+  EXPECT_EQ(aborted.error().describe(),
+            "FoE write of 'a.bin' to slave 0x1003: error 0x800B program error: injected fault");
+
+  control(R"({"kind":"foe_fault","slave":"mailbox","mode":"wrong_password"})");
+  auto refused = mbx().foe_write("b.bin", pattern(100));
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(master::foe_error_code(refused.error()), 0x800Au);
+
+  // BUSY three times at the third DATA packet: the master sends it again and the file arrives.
+  control(R"({"kind":"foe_fault","slave":"mailbox","mode":"busy","packet":2,"value":3})");
+  ASSERT_TRUE(mbx().foe_write("c.bin", pattern(1000)));
+  EXPECT_EQ(with_foe([](sim::FoeServer& foe, sim::Esc&) { return foe.stats().busy_sent; }), 3u);
+
+  // A lost ACK: the transfer times out naming the packet, and the slave drops it.
+  control(R"({"kind":"foe_fault","slave":"mailbox","mode":"drop_reply","packet":4})");
+  master::FoeOptions quick;
+  quick.timeout = 100ms;
+  auto lost = mbx().foe_write("d.bin", pattern(1000), quick);
+  ASSERT_FALSE(lost);
+  EXPECT_EQ(lost.error().code(), Errc::timeout);
+
+  auto back = mbx().foe_read("c.bin");
+  ASSERT_TRUE(back) << back.error().describe();
+  EXPECT_EQ(*back, pattern(1000));
+  EXPECT_EQ(ring_->state(), MasterState::operational);
 }
 
 }  // namespace

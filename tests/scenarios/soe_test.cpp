@@ -16,6 +16,7 @@
 
 #include <ecat/master/master.hpp>
 #include <ecat/master/soe.hpp>
+#include <ecat/sim/control.hpp>
 #include <ecat/sim/server.hpp>
 #include <ecat/sim/soe_server.hpp>
 #include <ecat/wire/soe.hpp>
@@ -205,6 +206,64 @@ TEST_F(SoeScenario, TheDriveGoesToOpWithItsSiiProcessData) {
   auto refused = drive().soe_write(0, 0x0020, wire::kSoeElementValue, {0x02, 0x00});
   ASSERT_FALSE(refused.ok());
   EXPECT_EQ(master::soe_error_code(refused.error()), 0x7005);
+}
+
+// The SoE and VoE faults through the fault language: a lost fragment from the ring file, the
+// others through the control channel.
+class SoeRingFaults : public SoeScenario {
+ protected:
+  void SetUp() override {
+    RingSpec spec = soe_spec();
+    spec.ring_yaml +=
+        "  faults:\n"
+        "    - {kind: soe_fault, slave: drive, mode: drop_fragment, idn: 0x800A, value: 2}\n";
+    ring_ = ScenarioRing::create(spec);
+    ASSERT_TRUE(ring_);
+    ASSERT_TRUE(eventually(
+        [&] {
+          auto s = ring_->master->slave("drive");
+          return s && (*s)->state() == SlaveState::safeop;
+        },
+        10s));
+  }
+  void control(const std::string& fault) {
+    const std::string reply = sim::handle_control_request(
+        *ring_->server, R"({"op":"fault.inject","fault":)" + fault + "}");
+    ASSERT_EQ(reply.rfind(R"({"ok":true)", 0), 0u) << reply;
+  }
+};
+
+TEST_F(SoeRingFaults, LostFragmentErrorCodeAndVoeFaultsFailCleanly) {
+  auto lost = drive().soe_read(0, 0x800A);
+  ASSERT_FALSE(lost.ok());
+  EXPECT_NE(lost.error().message().find("(a fragment was lost)"), std::string::npos)
+      << lost.error().message();
+  auto whole = drive().soe_read(0, 0x800A);
+  ASSERT_TRUE(whole.ok()) << whole.error().describe();
+  EXPECT_EQ(whole->size(), 260u);
+
+  control(R"({"kind":"soe_fault","slave":"drive","mode":"error_response","idn":1,)"
+          R"("value":"0x800B"})");
+  auto general = drive().soe_read(0, 0x0001);
+  ASSERT_FALSE(general.ok());
+  EXPECT_EQ(master::soe_error_code(general.error()), 0x800B);
+
+  // VoE: a garbled reply is a malformed message, a dropped one a timeout; then the echo works.
+  control(R"({"kind":"voe_fault","slave":"mbx","mode":"garble_reply"})");
+  ASSERT_TRUE(mbx().voe_send(0x00000ACE, 0x0010, {1, 2, 3}).ok());
+  auto garbled = mbx().voe_receive();
+  ASSERT_FALSE(garbled.ok());
+  EXPECT_EQ(garbled.error().code(), Errc::malformed) << garbled.error().describe();
+  control(R"({"kind":"voe_fault","slave":"mbx","mode":"drop_reply"})");
+  ASSERT_TRUE(mbx().voe_send(0x00000ACE, 0x0010, {4}).ok());
+  auto dropped = mbx().voe_receive(200ms);
+  ASSERT_FALSE(dropped.ok());
+  EXPECT_EQ(dropped.error().code(), Errc::timeout);
+  ASSERT_TRUE(mbx().voe_send(0x00000ACE, 0x0010, {5}).ok());
+  auto echo = mbx().voe_receive();
+  ASSERT_TRUE(echo.ok()) << echo.error().describe();
+  EXPECT_EQ(echo->data, (Bytes{5}));
+  EXPECT_FALSE(ring_->any_slave_fault());
 }
 
 }  // namespace

@@ -630,6 +630,10 @@ std::vector<Fault> every_kind() {
       fault::mailbox_protocol_fault("m", 0x2000, 1, MailboxStage::download_segment,
                                     {ProtocolFaultKind::segment_command, 0x20}),
       fault::dc_jump("d", 123456ns),
+      fault::foe_fault("fw", FoeFaultMode::error, 3, 0x800B),
+      fault::soe_fault("drive", SoeFaultKind::drop_fragment, 17, 2),
+      fault::eoe_fault("net", EoeFaultKind::corrupt_fragment_offset, 1),
+      fault::voe_fault("mbx", HandlerFaultKind::garble_reply),
       fault::link_down("io", 1),
       fault::link_up("io", 2),
       fault::master_link_down(),
@@ -648,6 +652,21 @@ TEST(FaultForms, JsonRoundTripsEveryKindAndForm) {
       fault::script({fault::drop_responses(), fault::wait(2ms),
                      fault::wait_for(fault::mailbox_step("m", MailboxStage::download_init, 1)),
                      fault::after(fault::wkc_offset(1), 1ms)}));
+  // Every mode of the mailbox protocol kinds, with and without their optional keys.
+  for (auto mode : {FoeFaultMode::busy, FoeFaultMode::drop_reply, FoeFaultMode::wrong_packet,
+                    FoeFaultMode::wrong_password}) {
+    all.push_back(fault::foe_fault("fw", mode, 2, mode == FoeFaultMode::busy ? 4 : 0));
+  }
+  all.push_back(fault::soe_fault("drive", SoeFaultKind::error_response, 0x8001, 0x7004, 1, true));
+  all.push_back(fault::soe_fault("drive", SoeFaultKind::drop_response, 32, 0));
+  for (auto mode : {EoeFaultKind::drop_reply_fragment, EoeFaultKind::drop_request_fragment,
+                    EoeFaultKind::drop_reply}) {
+    auto f = fault::eoe_fault("net", mode, mode == EoeFaultKind::drop_reply ? 0 : 2);
+    f.effect.once = false;
+    all.push_back(f);
+  }
+  all.push_back(fault::after_milestone(fault::voe_fault("mbx", HandlerFaultKind::drop_reply),
+                                       fault::healthy_exchanges(5)));
   for (const auto& f : all) {
     const std::string json = to_json(f);
     auto parsed = parse_fault_json(json);
@@ -667,6 +686,13 @@ TEST(FaultForms, JsonRoundTripsEveryKindAndForm) {
             R"({"after_ms":250,"fault":{"kind":"delay_replies","ms":1.5}})");
   EXPECT_EQ(to_json(fault::script({fault::wait(1234567ns), fault::power_cycle("a")})),
             R"({"script":[{"wait_ms":1.234567},{"kind":"power_cycle","slave":"a"}]})");
+  EXPECT_EQ(to_json(fault::foe_fault("fw", FoeFaultMode::error, 3, 0x800B)),
+            R"({"kind":"foe_fault","slave":"fw","mode":"error","packet":3,"value":"0x800B"})");
+  EXPECT_EQ(to_json(fault::soe_fault("drive", SoeFaultKind::drop_fragment, 17, 2)),
+            R"({"kind":"soe_fault","slave":"drive","mode":"drop_fragment","idn":17,"value":2,)"
+            R"("drive":0,"write":false})");
+  EXPECT_EQ(to_json(fault::voe_fault("mbx", HandlerFaultKind::garble_reply)),
+            R"({"kind":"voe_fault","slave":"mbx","mode":"garble_reply"})");
   // Names are escaped (the control channel's clients parse this).
   EXPECT_EQ(to_json(fault::disconnect("a\"b")), R"({"kind":"disconnect","slave":"a\"b"})");
 }
@@ -698,6 +724,37 @@ TEST(FaultForms, JsonErrorsNameTheKeyPath) {
                     R"("stage":"upload_init","protocol":"invalid_segment_padding"})"),
             "fault.stage: invalid_segment_padding cannot apply at stage upload_init");
   EXPECT_THAT(message(R"({"kind":)"), HasSubstr("invalid JSON at byte 8"));
+  // The mailbox protocol kinds name the key that is wrong.
+  EXPECT_EQ(message(R"({"kind":"foe_fault","slave":"f","mode":"explode"})"),
+            "fault.mode: unknown mode 'explode' (known: error, busy, drop_reply, wrong_packet, "
+            "wrong_password)");
+  EXPECT_EQ(message(R"({"kind":"foe_fault","slave":"f"})"), "fault: missing key 'mode'");
+  EXPECT_EQ(message(R"({"kind":"foe_fault","slave":"f","mode":"busy","value":0})"),
+            "fault.value: 0 is out of range (1 to 65535)");
+  EXPECT_EQ(message(R"({"kind":"foe_fault","slave":"f","mode":"drop_reply","value":1})"),
+            "fault.value: drop_reply takes no value");
+  EXPECT_EQ(message(R"({"kind":"foe_fault","slave":"f","mode":"error","packet":-1})"),
+            "fault.packet: -1 is out of range (0 to 4294967295)");
+  EXPECT_EQ(message(R"({"kind":"soe_fault","slave":"d","mode":"error_response","value":1})"),
+            "fault: missing key 'idn'");
+  EXPECT_EQ(message(R"({"kind":"soe_fault","slave":"d","mode":"drop_fragment","idn":17,)"
+                    R"("value":0})"),
+            "fault.value: 0 is out of range (1 to 65535)");
+  EXPECT_EQ(message(R"({"kind":"soe_fault","slave":"d","mode":"drop_response","idn":1,)"
+                    R"("drive":8})"),
+            "fault.drive: 8 is out of range (0 to 7)");
+  EXPECT_EQ(message(R"({"kind":"soe_fault","slave":"d","mode":"drop_response","idn":1,)"
+                    R"("write":"yes"})"),
+            "fault.write: expected true or false, found 'yes'");
+  EXPECT_EQ(message(R"({"kind":"eoe_fault","slave":"n","mode":"corrupt_fragment_offset"})"),
+            "fault: missing key 'value'");
+  EXPECT_EQ(message(R"({"kind":"eoe_fault","slave":"n","mode":"drop_reply_fragment",)"
+                    R"("value":64})"),
+            "fault.value: 64 is out of range (0 to 63)");
+  EXPECT_EQ(message(R"({"kind":"voe_fault","slave":"m","mode":"garble_reply","value":1})"),
+            "fault.value: unknown key (known: kind, slave, mode, once)");
+  EXPECT_EQ(message(R"({"kind":"voe_fault","slave":"m","mode":"drop_reply","once":2})"),
+            "fault.once: expected true or false, found '2'");
   EXPECT_EQ(message(R"(["drop_responses"])"), "fault: expected a fault (a mapping), found a list");
 }
 
@@ -744,6 +801,19 @@ TEST(FaultForms, CommandLineWords) {
   EXPECT_EQ(f.error().message(),
             "latch_al_error.code: 0x10000 is out of range (0 to 65535) (usage: latch_al_error "
             "SLAVE CODE)");
+  f = parse({"foe_fault", "fw", "busy", "2", "3"});
+  ASSERT_TRUE(f.ok()) << f.error().describe();
+  EXPECT_EQ(describe(*f), "FoE busy x3 on fw after 2 packets");
+  f = parse({"soe_fault", "drive", "error_response", "47", "0x7004"});
+  ASSERT_TRUE(f.ok()) << f.error().describe();
+  EXPECT_EQ(describe(*f), "SoE error 0x7004 on drive drive 0 IDN 47 (once)");
+  f = parse({"eoe_fault", "net", "drop_reply"});
+  ASSERT_TRUE(f.ok()) << f.error().describe();
+  EXPECT_EQ(f->effect.eoe, EoeFaultKind::drop_reply);
+  f = parse({"voe_fault", "mbx"});
+  ASSERT_FALSE(f.ok());
+  EXPECT_EQ(f.error().message(),
+            "voe_fault: expected 2 arguments, got 1 (usage: voe_fault SLAVE MODE)");
   f = parse({"nonsense"});
   ASSERT_FALSE(f.ok());
   EXPECT_THAT(f.error().message(), HasSubstr("unknown fault kind 'nonsense'"));
@@ -882,6 +952,75 @@ TEST_F(MailboxFaults, MailboxStepMilestoneAndOnceOnlyScriptSteps) {
   EXPECT_EQ(master->upload(0, 0x2001, 1).value->size(), 12u);  // segmented: one upload_init
   EXPECT_TRUE(segment.esc(0).al_error());
   EXPECT_EQ(segment.esc(0).al_status_code(), 0x0011);
+}
+
+// The mailbox protocol kinds reach the servers of the devices that have them, and are refused
+// for devices that do not.
+TEST(ProtocolFaults, RulesReachTheServersAndClearRemovesThem) {
+  for (const char* p : {"mailbox", "soe_drive", "eoe_device"}) {
+    if (!has_profile(p)) GTEST_SKIP() << "profile " << p << " not available";
+  }
+  Segment segment;
+  test::add_device(segment, "mbx", test::profile("mailbox"));
+  test::add_device(segment, "drive", test::profile("soe_drive"));
+  test::add_device(segment, "net", test::profile("eoe_device"));
+  test::SimMaster master(segment);
+  master.assign_stations();
+  master.bring_to_preop(0);
+  FaultInjector injector(segment);
+  const auto inject = [&](const Fault& f) { return injector.inject(f, master.now()); };
+  ASSERT_TRUE(inject(fault::foe_fault("mbx", FoeFaultMode::wrong_password)));
+  ASSERT_TRUE(inject(fault::foe_fault("mbx", FoeFaultMode::busy, 2, 3)));
+  ASSERT_TRUE(inject(fault::soe_fault("drive", SoeFaultKind::error_response, 47, 0x7004)));
+  ASSERT_TRUE(inject(fault::eoe_fault("net", EoeFaultKind::corrupt_fragment_offset, 1)));
+  ASSERT_TRUE(inject(fault::voe_fault("mbx", HandlerFaultKind::garble_reply)));
+  const auto& foe = foe_server_of(segment.esc(0))->faults();
+  ASSERT_EQ(foe.size(), 2u);
+  EXPECT_EQ(foe[0].kind, FoeFaultKind::error);
+  EXPECT_EQ(foe[0].code, 0x800Au) << "wrong_password: FoE error 'no rights'";
+  EXPECT_EQ(foe[1].kind, FoeFaultKind::busy);
+  EXPECT_EQ(foe[1].after_packets, 2u);
+  EXPECT_EQ(foe[1].count, 3u);
+  const auto& soe = soe_server_of(segment.esc(1))->faults();
+  ASSERT_EQ(soe.size(), 1u);
+  EXPECT_EQ(soe[0].idn, 47);
+  EXPECT_EQ(soe[0].value, 0x7004);
+  EXPECT_TRUE(soe[0].once);
+  ASSERT_EQ(eoe_server_of(segment.esc(2))->faults().size(), 1u);
+  EXPECT_THAT(injector.info(master.now()).active,
+              ::testing::IsSupersetOf({"VoE garble_reply on mbx (once)",
+                                       "SoE error 0x7004 on drive drive 0 IDN 47 (once)",
+                                       "EoE corrupt_fragment_offset 1 on net (once)"}));
+
+  // VoE: the echo comes back cut to 3 bytes (no VoE header), once; then whole again.
+  const std::vector<std::uint8_t> voe{0x02, 0x00, 0x00, 0x00, 0x10, 0x00, 0xAB};
+  ASSERT_TRUE(master.write_mailbox(0, wire::MailboxType::voe, voe));
+  auto reply = master.read_mailbox(0);
+  ASSERT_TRUE(reply.has_value());
+  EXPECT_EQ(reply->second.size(), 3u);
+  ASSERT_TRUE(master.write_mailbox(0, wire::MailboxType::voe, voe));
+  reply = master.read_mailbox(0);
+  ASSERT_TRUE(reply.has_value());
+  EXPECT_EQ(reply->second.size(), voe.size());
+
+  injector.clear();
+  EXPECT_TRUE(foe_server_of(segment.esc(0))->faults().empty());
+  EXPECT_TRUE(soe_server_of(segment.esc(1))->faults().empty());
+  EXPECT_TRUE(eoe_server_of(segment.esc(2))->faults().empty());
+
+  // A device without the protocol: refused, naming the slave and what it lacks.
+  auto refused = inject(fault::foe_fault("drive", FoeFaultMode::drop_reply));
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().message(), "foe_fault: slave 'drive' has no FoE");
+  refused = inject(fault::soe_fault("mbx", SoeFaultKind::drop_response, 1, 0));
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().message(), "soe_fault: slave 'mbx' has no SoE");
+  refused = inject(fault::eoe_fault("drive", EoeFaultKind::drop_reply));
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().message(), "eoe_fault: slave 'drive' has no EoE");
+  refused = inject(fault::voe_fault("net", HandlerFaultKind::drop_reply));
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().message(), "voe_fault: slave 'net' has no VoE");
 }
 
 TEST(ProfileFaults, RetreatTakesADigitalOutputTerminalOutOfOp) {

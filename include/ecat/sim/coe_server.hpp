@@ -122,6 +122,21 @@ struct CoeServerStats {
 };
 
 // A reply mailbox another protocol handler produces: type and mailbox data.
+// Faults on the replies of a protocol handler (VoE and the other non-CoE types a device serves
+// through set_protocol_handler).
+enum class HandlerFaultKind : std::uint8_t {
+  drop_reply,    // the handler's replies to the next request are not sent
+  garble_reply,  // they are cut to 3 bytes: shorter than any protocol header (VoE needs 6)
+};
+// "drop_reply", "garble_reply".
+std::string_view to_string(HandlerFaultKind kind) noexcept;
+
+struct HandlerFaultRule {
+  wire::MailboxType type = wire::MailboxType::voe;
+  HandlerFaultKind kind = HandlerFaultKind::drop_reply;
+  bool once = true;  // removed after it fired; otherwise until clear_faults()
+};
+
 struct MailboxReply {
   wire::MailboxType type = wire::MailboxType::coe;
   std::vector<std::uint8_t> data;
@@ -154,12 +169,15 @@ class CoeServer {
   // Queues any mailbox (type + data) behind the pending replies.
   void queue_reply(Esc& esc, wire::MailboxType type, wire::Bytes data);
   void set_protocol_handler(wire::MailboxType type, ProtocolHandler handler);
+  bool has_protocol_handler(wire::MailboxType type) const { return handlers_.contains(type); }
   void set_step_observer(StepObserver observer) { step_observer_ = std::move(observer); }
 
   // ---- Fault hooks --------------------------------------------------------------------------
   // Both replace an existing rule for the same (index, subindex, stage).
   void add_abort_rule(const SdoAbortRule& rule);
   void add_protocol_fault(const ProtocolFaultRule& rule);
+  void add_handler_fault(const HandlerFaultRule& rule) { handler_faults_.push_back(rule); }
+  const std::vector<HandlerFaultRule>& handler_faults() const noexcept { return handler_faults_; }
   void clear_faults();
   const std::vector<SdoAbortRule>& abort_rules() const noexcept { return abort_rules_; }
   const std::vector<ProtocolFaultRule>& protocol_faults() const noexcept {
@@ -231,6 +249,7 @@ class CoeServer {
   std::optional<Pending> in_sm_;      // the reply the reply SM holds now
   std::optional<Pending> last_sent_;  // the last reply copied into the reply SM (repeats)
   std::map<wire::MailboxType, ProtocolHandler> handlers_;
+  std::vector<HandlerFaultRule> handler_faults_;
   std::vector<SdoAbortRule> abort_rules_;
   std::vector<ProtocolFaultRule> protocol_faults_;
   StepObserver step_observer_;

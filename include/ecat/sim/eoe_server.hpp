@@ -51,8 +51,11 @@ enum class EoeFaultKind : std::uint8_t {
   drop_reply_fragment,    // the next reply frame that has fragment number `value` goes without it
   drop_request_fragment,  // fragment number `value` of the next request frame is ignored
   drop_reply,             // the next reply frame is not sent at all
+  // the next reply frame that has fragment number `value` (1..) carries a wrong fragment offset
+  // (one block more than the bytes sent before it): the master's reassembly must drop the frame
+  corrupt_fragment_offset,
 };
-// "drop_reply_fragment", "drop_request_fragment", "drop_reply".
+// "drop_reply_fragment", "drop_request_fragment", "drop_reply", "corrupt_fragment_offset".
 std::string_view to_string(EoeFaultKind kind) noexcept;
 
 struct EoeFaultRule {
@@ -104,6 +107,7 @@ class EoeServer {
 
   void add_fault(const EoeFaultRule& rule) { faults_.push_back(rule); }
   void clear_faults() { faults_.clear(); }
+  const std::vector<EoeFaultRule>& faults() const noexcept { return faults_; }
 
   const EoeServerStats& stats() const noexcept { return stats_; }
   const EoeServerConfig& config() const noexcept { return config_; }

@@ -30,7 +30,10 @@
 
 #include <ecat/result.hpp>
 #include <ecat/sim/coe_server.hpp>
+#include <ecat/sim/eoe_server.hpp>
+#include <ecat/sim/foe_server.hpp>
 #include <ecat/sim/segment.hpp>
+#include <ecat/sim/soe_server.hpp>
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/frame.hpp>
 
@@ -60,13 +63,24 @@ enum class FaultKind : std::uint8_t {
   mailbox_abort,           // SDO abort `code` for (index, subindex) at `stage`
   mailbox_protocol_fault,  // corrupt the mailbox response for (index, subindex) at `stage`
   dc_jump,                 // the slave's DC local clock steps by `ns`
+  foe_fault,               // the slave's FoE server misbehaves once (`foe`, `packet`, `value`)
+  soe_fault,               // an SoE rule for (`drive`, `idn`): error code, lost fragment/response
+  eoe_fault,               // the slave's EoE server loses or corrupts a fragment (`eoe`, `value`)
+  voe_fault,               // the slave's VoE replies are dropped or garbled (`voe`)
   // ---- Segment faults: cabling, applied once.
   link_down,         // the link on `port` of the slave goes down (port 0: towards the master)
   link_up,           // ... and comes back
   master_link_down,  // the master's own cable to the first slave
   master_link_up,
 };
-constexpr std::size_t kFaultKindCount = 24;
+constexpr std::size_t kFaultKindCount = 28;
+
+// What a foe_fault does. `error`, `drop_reply`, `wrong_packet` and `busy` are the FoE server's
+// own faults (FoeFaultKind); `wrong_password` is an ERROR 0x800A (FoE "no rights") to the
+// request, as a server demanding a password the master did not send.
+enum class FoeFaultMode : std::uint8_t { error, busy, drop_reply, wrong_packet, wrong_password };
+// "error", "busy", "drop_reply", "wrong_packet", "wrong_password".
+std::string_view to_string(FoeFaultMode mode) noexcept;
 
 enum class FaultClass : std::uint8_t { exchange, reply, slave, segment };
 
@@ -100,6 +114,20 @@ struct FaultEffect {
   std::uint8_t mask = 0xFF;     // corrupt_byte
   std::uint8_t frame_type = 0;  // unsupported_type
   std::uint8_t port = 0;        // link_down, link_up (0..3)
+  // foe_fault, soe_fault, eoe_fault, voe_fault: what goes wrong (the `mode` key).
+  FoeFaultMode foe = FoeFaultMode::error;
+  SoeFaultKind soe = SoeFaultKind::error_response;
+  EoeFaultKind eoe = EoeFaultKind::drop_reply_fragment;
+  HandlerFaultKind voe = HandlerFaultKind::drop_reply;
+  // foe_fault: the DATA (write) or ACK (read) packets of a transfer before the one it hits.
+  std::uint32_t packet = 0;
+  // foe_fault: the error code (error; 0x8000 by default) or the BUSY answers (busy; 1).
+  // soe_fault: the SoE error code (error_response) or the fragment (drop_fragment, 1-based).
+  // eoe_fault: the fragment number (0..63).
+  std::uint32_t value = 0;
+  std::uint16_t idn = 0;   // soe_fault
+  std::uint8_t drive = 0;  // soe_fault (0..7)
+  bool write = false;      // soe_fault: a rule for writes of the IDN, else reads
 };
 
 struct Milestone {
@@ -166,6 +194,17 @@ Fault mailbox_abort(std::string slave, std::uint16_t index, std::uint8_t subinde
 Fault mailbox_protocol_fault(std::string slave, std::uint16_t index, std::uint8_t subindex,
                              MailboxStage stage, ProtocolFault protocol);
 Fault dc_jump(std::string slave, std::chrono::nanoseconds step);
+// FoE: `mode` at the reply to the packet after `packet` DATA/ACK packets (0: the request).
+// `value`: the error code (error) or the BUSY answers (busy). Fires once.
+Fault foe_fault(std::string slave, FoeFaultMode mode, std::uint32_t packet = 0,
+                std::uint32_t value = 0);
+// SoE: `kind` for reads (or writes) of `idn` on `drive`; `value` the error code or fragment.
+Fault soe_fault(std::string slave, SoeFaultKind kind, std::uint16_t idn, std::uint32_t value,
+                std::uint8_t drive = 0, bool write = false);
+// EoE: `kind` with fragment number `value`.
+Fault eoe_fault(std::string slave, EoeFaultKind kind, std::uint32_t value = 0);
+// VoE: the replies to the next VoE request dropped or garbled.
+Fault voe_fault(std::string slave, HandlerFaultKind kind);
 Fault link_down(std::string slave, std::uint8_t port);
 Fault link_up(std::string slave, std::uint8_t port);
 Fault master_link_down();

@@ -89,8 +89,9 @@ enum class FoeFaultKind : std::uint8_t {
   error,         // answer with ERROR `code` (text "injected fault") and drop the transfer
   drop_reply,    // take the packet but send no reply
   wrong_packet,  // the reply's packet number one too high
+  busy,          // writes: answer the DATA packet with BUSY `count` times before taking it
 };
-// "error", "drop_reply", "wrong_packet".
+// "error", "drop_reply", "wrong_packet", "busy".
 std::string_view to_string(FoeFaultKind kind) noexcept;
 
 // Fires at the reply to the packet that follows `after_packets` DATA (write) or ACK (read)
@@ -99,6 +100,7 @@ struct FoeFault {
   FoeFaultKind kind = FoeFaultKind::error;
   std::uint32_t after_packets = 0;
   std::uint32_t code = static_cast<std::uint32_t>(wire::FoeErrorCode::not_defined);
+  std::uint32_t count = 1;  // busy: BUSY answers (1..)
 };
 
 struct FoeServerStats {
@@ -161,6 +163,7 @@ class FoeServer {
     std::size_t offset = 0;    // reads: next byte to send
     bool last_sent = false;    // reads: the short packet is out, its ACK ends the read
     std::uint32_t busy_left = 0;
+    std::uint32_t busy_total = 0;      // BUSY answers this packet gets in all
     std::vector<std::uint8_t> buffer;  // writes
   };
 
