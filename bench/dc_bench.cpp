@@ -43,6 +43,8 @@
 #include <ecat/sim/server.hpp>
 #include <ecat/wire/registers.hpp>
 
+#include "build_info.hpp"
+
 namespace {
 
 using namespace std::chrono_literals;
@@ -243,6 +245,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  fmt::print("{}\n", ecat::bench::build_info());
   fmt::print(
       "{:>6} {:>9} {:>7} {:>5} {:>9} {:>10} {:>9} {:>9} {:>8} {:>8} {:>8} {:>10} {:>9} {:>8}\n",
       "slaves", "init_ms", "frames", "conv", "lock_ms", "resid_mean", "resid_max", "settle_ms",

@@ -32,6 +32,8 @@
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/registers.hpp>
 
+#include "build_info.hpp"
+
 namespace {
 
 using namespace std::chrono_literals;
@@ -264,4 +266,12 @@ BENCHMARK(BM_DomainCycle)
 
 }  // namespace
 
-BENCHMARK_MAIN();
+// BENCHMARK_MAIN, plus what the figures were measured with (bench/build_info.hpp) in the context.
+int main(int argc, char** argv) {
+  benchmark::AddCustomContext("ecat build", ecat::bench::build_info());
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

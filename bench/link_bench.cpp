@@ -32,6 +32,7 @@
 #include <ecat/sim/server.hpp>
 #include <ecat/wire/frame.hpp>
 
+#include "build_info.hpp"
 #include "veth_namespace.hpp"
 
 namespace {
@@ -398,7 +399,9 @@ void one_terminal_table(std::size_t samples, std::size_t rounds) {
 
 }  // namespace
 
+// BENCHMARK_MAIN, plus what the figures were measured with (bench/build_info.hpp) in the context.
 int main(int argc, char** argv) {
+  benchmark::AddCustomContext("ecat build", ecat::bench::build_info());
   bool table_only = false;
   std::size_t samples = 3000;
   std::size_t rounds = 3;
@@ -416,6 +419,7 @@ int main(int argc, char** argv) {
   }
   argc = kept;
   benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   if (!table_only) benchmark::RunSpecifiedBenchmarks();
   one_terminal_table(samples, rounds);
   benchmark::Shutdown();

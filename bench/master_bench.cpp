@@ -26,6 +26,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -40,6 +41,7 @@
 #include <vector>
 
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/master/config.hpp>
@@ -52,6 +54,7 @@
 #include <ecat/sim/server.hpp>
 #include <ecat/wire/frame.hpp>
 
+#include "build_info.hpp"
 #include "support/counting_allocator.hpp"
 #include "veth_namespace.hpp"
 
@@ -71,6 +74,9 @@ struct Mode {
   bool startup_only = false;
   std::optional<std::size_t> terminals;  // section 3 at this size only
   std::optional<int> fifo;
+  std::optional<int> jitter_seconds;  // section 2's length per rate
+  std::optional<int> alloc_seconds;   // section 5's window
+  std::string only;                   // run one section: jitter, hot, alloc
 };
 
 double ms_since(Clock::time_point from, Clock::time_point to) {
@@ -237,7 +243,9 @@ class TickProbe final : public ecat::master::CyclicParticipant {
     const std::size_t i = count_.load(std::memory_order_relaxed);
     if (i >= late_ns_.size()) return;
     missed_.fetch_add(tick.missed, std::memory_order_relaxed);
-    late_ns_[i] = (tick.woke_at - tick.deadline).count();
+    // Against the deadline that was due, not the latest one passed: comparable with cyclictest.
+    const auto due = tick.deadline - static_cast<std::int64_t>(tick.missed) * period_;
+    late_ns_[i] = (tick.woke_at - due).count();
     count_.store(i + 1, std::memory_order_release);
   }
   std::chrono::nanoseconds cycle_period() const noexcept override { return period_; }
@@ -428,46 +436,141 @@ void section_veth(const Mode& mode) {
 // ---- 2. cycle-start jitter
 // ------------------------------------------------------------------------
 
+// cyclictest (Debian's rt-tests) at the same rate, priority and length: the machine's own floor
+// for a thread that sleeps to absolute deadlines. Its histogram (1 us buckets) gives the
+// percentiles; samples beyond the histogram count at its reported maximum.
+struct Cyclictest {
+  std::string note;  // why there are no figures ("not installed", its error)
+  Distribution d;
+  bool ok = false;
+};
+
+bool on_path(const char* program) {
+  const char* path = std::getenv("PATH");
+  std::string dirs = path ? path : "/usr/bin:/bin";
+  std::size_t at = 0;
+  while (at <= dirs.size()) {
+    const std::size_t colon = std::min(dirs.find(':', at), dirs.size());
+    const std::string candidate = dirs.substr(at, colon - at) + "/" + program;
+    if (::access(candidate.c_str(), X_OK) == 0) return true;
+    at = colon + 1;
+  }
+  return false;
+}
+
+Cyclictest run_cyclictest(std::chrono::nanoseconds period, std::size_t loops,
+                          std::optional<int> fifo) {
+  Cyclictest out;
+  if (!on_path("cyclictest")) {
+    out.note = "not installed (Debian package rt-tests, which scripts/setup installs)";
+    return out;
+  }
+  constexpr int kHistogramUs = 10000;
+  const auto command = fmt::format(
+      "cyclictest -q -m -t1 -p{} -i{} -l{} -h{} 2>&1", fifo.value_or(0),
+      std::chrono::duration_cast<std::chrono::microseconds>(period).count(), loops, kHistogramUs);
+  FILE* pipe = ::popen(command.c_str(), "r");
+  if (pipe == nullptr) {
+    out.note = fmt::format("cannot run it: {}", std::strerror(errno));
+    return out;
+  }
+  std::vector<std::uint64_t> buckets(kHistogramUs, 0);
+  std::uint64_t overflows = 0, max_us = 0, total = 0;
+  std::string first_line;
+  char line[512];
+  while (std::fgets(line, sizeof line, pipe) != nullptr) {
+    if (first_line.empty()) first_line = line;
+    unsigned long us = 0, count = 0;
+    if (std::sscanf(line, "%lu %lu", &us, &count) == 2 && line[0] != '#') {
+      if (us < buckets.size()) buckets[us] += count;
+      total += count;
+    } else if (std::sscanf(line, "# Histogram Overflows: %lu", &count) == 1) {
+      overflows += count;
+    } else if (std::sscanf(line, "# Max Latencies: %lu", &count) == 1) {
+      max_us = count;
+    }
+  }
+  const int status = ::pclose(pipe);
+  if (status != 0 || total + overflows == 0) {
+    while (!first_line.empty() && (first_line.back() == '\n' || first_line.back() == '\r'))
+      first_line.pop_back();
+    out.note = fmt::format("failed (exit status {}): {}", status, first_line);
+    return out;
+  }
+  std::vector<std::int64_t> ns;
+  ns.reserve(total + overflows);
+  for (std::size_t us = 0; us < buckets.size(); ++us)
+    ns.insert(ns.end(), buckets[us], static_cast<std::int64_t>(us) * 1000);
+  ns.insert(ns.end(), overflows, static_cast<std::int64_t>(max_us) * 1000);
+  out.d = distribution(std::move(ns));
+  out.d.max = static_cast<double>(max_us);
+  out.ok = true;
+  return out;
+}
+
 void section_jitter(const Mode& mode) {
-  heading("2. cycle-start jitter (us late after the absolute deadline), in-process simulator");
-  fmt::print("{:>7} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {}\n", "rate", "n", "min", "p50",
-             "p99", "p99.9", "max", "skipped", "cycle thread");
-  for (const auto period : {std::chrono::nanoseconds(1ms), std::chrono::nanoseconds(250us)}) {
-    const auto seconds = mode.full ? 60s : 3s;
+  heading("2. cycle-start lateness (us after the deadline that was due), ecat vs cyclictest");
+  fmt::print("{:>7} {:<10} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}  {}\n", "rate", "thread", "n",
+             "min", "p50", "p99", "p99.9", "max", "skipped", "setup");
+  for (const auto period : {std::chrono::nanoseconds(1ms), std::chrono::nanoseconds(250us),
+                            std::chrono::nanoseconds(125us)}) {
+    const auto seconds = mode.jitter_seconds ? std::chrono::seconds(*mode.jitter_seconds)
+                         : mode.full         ? 60s
+                                             : 3s;
     const auto samples = static_cast<std::size_t>(seconds / period);
     auto config = master_config(2, period);
-    if (mode.fifo) config.cycle_thread.fifo_priority = *mode.fifo;
-    Session session;
-    (void)session.run_memory(2, std::move(config));
+    if (mode.fifo) {
+      // A realtime user's setup, as cyclictest makes it: SCHED_FIFO, cpu_dma_latency held at 0,
+      // memory locked (and the cycle thread's stack pre-faulted).
+      config.cycle_thread.fifo_priority = *mode.fifo;
+      config.cycle_thread.cpu_dma_latency_us = 0;
+      config.cycle_thread.lock_memory = true;
+    }
     const auto rate = fmt::format("{} Hz", 1s / period);
-    if (!session.error.empty()) {
-      fmt::print("{:>7} error: {}\n", rate, session.error);
-      continue;
+    {
+      Session session;
+      (void)session.run_memory(2, std::move(config));
+      if (!session.error.empty()) {
+        fmt::print("{:>7} error: {}\n", rate, session.error);
+        continue;
+      }
+      Domain* domain = session.domain();
+      ecat::master::Cycler* cycler = domain ? domain->cycler() : nullptr;
+      if (!cycler) {
+        fmt::print("{:>7} error: the master's domain is not in a Cycler\n", rate);
+        continue;
+      }
+      TickProbe probe(period, samples);
+      if (auto r = cycler->add(probe, ecat::master::Cycler::kPriorityDc); !r) {
+        fmt::print("{:>7} error: {}\n", rate, r.error().describe());
+        continue;
+      }
+      std::this_thread::sleep_for(100ms);
+      probe.record();
+      (void)wait_for([&] { return probe.full(); }, seconds * 3 + 5s);
+      (void)cycler->remove(probe);
+      const auto d = distribution(probe.samples());
+      const auto thread = session.master->status().cycle_thread;
+      fmt::print("{:>7} {:<10} {:>7} {} {:>8}  {}\n", rate, "ecat", d.n, us_columns(d),
+                 probe.missed(), thread.empty() ? "default scheduling" : thread);
     }
-    Domain* domain = session.domain();
-    ecat::master::Cycler* cycler = domain ? domain->cycler() : nullptr;
-    if (!cycler) {
-      fmt::print("{:>7} error: the master's domain is not in a Cycler\n", rate);
-      continue;
+    const auto ct = run_cyclictest(period, samples, mode.fifo);
+    if (ct.ok) {
+      fmt::print("{:>7} {:<10} {:>7} {} {:>8}  {}\n", rate, "cyclictest", ct.d.n, us_columns(ct.d),
+                 "-",
+                 mode.fifo ? fmt::format("-p{} -m, cpu_dma_latency 0", *mode.fifo)
+                           : std::string("-p0 -m, cpu_dma_latency 0"));
+    } else {
+      fmt::print("{:>7} {:<10} {}\n", rate, "cyclictest", ct.note);
     }
-    TickProbe probe(period, samples);
-    if (auto r = cycler->add(probe, ecat::master::Cycler::kPriorityDc); !r) {
-      fmt::print("{:>7} error: {}\n", rate, r.error().describe());
-      continue;
-    }
-    std::this_thread::sleep_for(100ms);
-    probe.record();
-    (void)wait_for([&] { return probe.full(); }, seconds * 3 + 5s);
-    (void)cycler->remove(probe);
-    const auto d = distribution(probe.samples());
-    const auto thread = session.master->status().cycle_thread;
-    fmt::print("{:>7} {:>7} {} {:>8} {}\n", rate, d.n, us_columns(d), probe.missed(),
-               thread.empty() ? "default scheduling" : thread);
   }
   fmt::print(
-      "Measured by a CyclicParticipant added to the master's own Cycler (the domain's): "
-      "CycleTick::woke_at - CycleTick::deadline, the start of the tick in which the domain stages "
-      "its outputs and submits its LRW. skipped: deadlines the bus thread passed while late.\n");
+      "ecat: a CyclicParticipant added to the master's own Cycler (the domain's) records, every "
+      "tick, CycleTick::woke_at minus the deadline that was due (CycleTick::deadline - missed x "
+      "period), the start of the tick in which the domain stages its outputs and submits its LRW. "
+      "skipped: deadlines passed while the thread was late (it then runs once, never in a burst). "
+      "cyclictest: one thread, clock_nanosleep to absolute deadlines, the same rate, priority and "
+      "number of samples, run right after; 1 us buckets.\n");
 }
 
 // ---- 3. start to operational
@@ -676,7 +779,9 @@ void section_allocations(const Mode& mode, Session& session, const char* what) {
     return;
   }
   (void)wait_for([&] { return probe.ticks() > 10; }, 5s);
-  const auto window = mode.full ? 30s : 3s;
+  const auto window = mode.alloc_seconds ? std::chrono::seconds(*mode.alloc_seconds)
+                      : mode.full        ? 60s
+                                         : 3s;
   const auto before = domain->stats();
   const auto bus_before = allocs::bus_thread.load();
   const auto total_before = allocs::total.load();
@@ -706,8 +811,10 @@ void section_allocations(const Mode& mode, Session& session, const char* what) {
 }
 
 int usage(const char* self) {
-  std::fprintf(
-      stderr, "usage: %s [--quick | --full] [--startup [--terminals N]] [--fifo PRIORITY]\n", self);
+  std::fprintf(stderr,
+               "usage: %s [--quick | --full] [--startup [--terminals N]] [--fifo PRIORITY]\n"
+               "          [--only jitter|hot|alloc] [--jitter-seconds S] [--alloc-seconds S]\n",
+               self);
   return 2;
 }
 
@@ -726,31 +833,46 @@ int main(int argc, char** argv) {
       mode.terminals = static_cast<std::size_t>(std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--fifo") == 0 && i + 1 < argc) {
       mode.fifo = std::atoi(argv[++i]);
+    } else if (std::strcmp(argv[i], "--jitter-seconds") == 0 && i + 1 < argc) {
+      mode.jitter_seconds = std::max(1, std::atoi(argv[++i]));
+    } else if (std::strcmp(argv[i], "--alloc-seconds") == 0 && i + 1 < argc) {
+      mode.alloc_seconds = std::max(1, std::atoi(argv[++i]));
+    } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc) {
+      mode.only = argv[++i];
+      if (mode.only != "jitter" && mode.only != "hot" && mode.only != "alloc") {
+        return usage(argv[0]);
+      }
     } else {
       return usage(argv[0]);
     }
   }
   const auto t0 = Clock::now();
   fmt::print("master_bench ({}): figures only, nothing asserted\n", mode.full ? "full" : "quick");
+  fmt::print("{}\n", ecat::bench::build_info());
   if (mode.startup_only) {
     section_startup(mode);
     fmt::print("\n(total {:.1f} s)\n", ms_since(t0, Clock::now()) / 1e3);
     return 0;
   }
-  section_veth(mode);
-  section_jitter(mode);
-  section_startup(mode);
-  {
+  const auto runs = [&mode](const char* section) {
+    return mode.only.empty() || mode.only == section;
+  };
+  if (mode.only.empty()) section_veth(mode);
+  if (runs("jitter")) section_jitter(mode);
+  if (mode.only.empty()) section_startup(mode);
+  if (runs("hot") || runs("alloc")) {
     Session session;
     if (!session.run_memory(16, master_config(16, 1ms))) {
       fmt::print("\nerror: cannot bring up the 16-terminal session: {}\n", session.error);
     } else {
-      section_hot_path(mode, session);
-      heading("5. heap allocations per cycle in steady OP (cycle thread; must be 0)");
-      section_allocations(mode, session, "default slave health polls (AL status every 250 ms)");
+      if (runs("hot")) section_hot_path(mode, session);
+      if (runs("alloc")) {
+        heading("5. heap allocations per cycle in steady OP (cycle thread; must be 0)");
+        section_allocations(mode, session, "default slave health polls (AL status every 250 ms)");
+      }
     }
   }
-  {
+  if (runs("alloc")) {
     // The cyclic path alone: no acyclic traffic shares the bus thread.
     auto config = master_config(16, 1ms);
     for (auto& slave : config.slaves)

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include <fmt/format.h>
+#include <pthread.h>
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/wire/frame.hpp>
@@ -397,6 +398,9 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
 
   void run() {
     thread_id.store(std::this_thread::get_id(), std::memory_order_release);
+    if (!options.thread_name.empty()) {
+      pthread_setname_np(pthread_self(), options.thread_name.substr(0, 15).c_str());
+    }
     if (options.on_thread_start) {
       try {
         options.on_thread_start();

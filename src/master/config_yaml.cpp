@@ -74,11 +74,12 @@ class Reader {
   Result<void> master(const SpecNode& node, MasterConfig& config) {
     const std::string path = "master";
     if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
-    if (auto r = check_keys(
-            ctx_, node, path,
-            {"backend", "cycle_priority", "cycle_cpu", "base_station", "frame_timeout_us",
-             "scan_poll_ms", "scan_stable_ms", "scan_timeout_ms", "awaiting_preop_timeout_ms",
-             "retry_interval_ms", "link_recovery_window_ms", "control"});
+    if (auto r =
+            check_keys(ctx_, node, path,
+                       {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us",
+                        "cycle_lock_memory", "base_station", "frame_timeout_us", "scan_poll_ms",
+                        "scan_stable_ms", "scan_timeout_ms", "awaiting_preop_timeout_ms",
+                        "retry_interval_ms", "link_recovery_window_ms", "control"});
         !r) {
       return r.error();
     }
@@ -99,6 +100,14 @@ class Reader {
         auto n = to_int(ctx_, v, p, 0, 1023);
         if (!n) return n.error();
         config.cycle_thread.cpu = static_cast<int>(*n);
+      } else if (e.key == "cycle_dma_latency_us") {
+        auto n = to_int(ctx_, v, p, 0, 1'000'000);
+        if (!n) return n.error();
+        config.cycle_thread.cpu_dma_latency_us = static_cast<std::int32_t>(*n);
+      } else if (e.key == "cycle_lock_memory") {
+        auto b = to_bool(ctx_, v, p);
+        if (!b) return b.error();
+        config.cycle_thread.lock_memory = *b;
       } else if (e.key == "base_station") {
         auto n = to_int(ctx_, v, p, 1, 0xFFFF);
         if (!n) return n.error();

@@ -3,7 +3,9 @@
 #include <map>
 #include <mutex>
 #include <set>
+#include <string_view>
 #include <thread>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -40,18 +42,47 @@ wire::AlState min_target(TargetState session_target, TargetState slave_target) {
   return al_state_of(std::min(session_target, slave_target));
 }
 
+// Thread names tell the masters of a process apart (ps, top, perf): the first master alive has
+// "ecat-control" and "ecat-cycle", one made while it lives "ecat-control-2" and "ecat-cycle-2",
+// and so on (the lowest number free).
+std::mutex instance_mutex;
+std::vector<bool> instances_used;
+
+int acquire_instance() {
+  std::lock_guard lock(instance_mutex);
+  std::size_t i = 0;
+  while (i < instances_used.size() && instances_used[i])
+    ++i;
+  if (i == instances_used.size()) instances_used.push_back(false);
+  instances_used[i] = true;
+  return static_cast<int>(i) + 1;
+}
+
+void release_instance(int n) {
+  std::lock_guard lock(instance_mutex);
+  instances_used[static_cast<std::size_t>(n - 1)] = false;
+}
+
+std::string thread_name(std::string_view base, int instance) {
+  return instance == 1 ? std::string(base) : fmt::format("{}-{}", base, instance);
+}
+
 }  // namespace
 
 struct Master::Impl : DomainObserver {
-  explicit Impl(MasterConfig c) : config(std::move(c)) { loop.start_thread("ecat-control"); }
+  explicit Impl(MasterConfig c) : config(std::move(c)), instance(acquire_instance()) {
+    loop.start_thread(thread_name("ecat-control", instance));
+  }
   ~Impl() override {
     shutdown();
     loop.stop();
     loop.join();
+    release_instance(instance);
   }
 
   MasterConfig config;
-  EventHub events;  // before the loop: it outlives every task that publishes
+  const int instance;  // 1, 2, ...: numbers the threads' names (acquire_instance)
+  EventHub events;     // before the loop: it outlives every task that publishes
 
   // The control endpoint (control_endpoint.hpp): from the first start() whose configuration
   // names one until the master goes (or a start() names another). Its handler calls the
@@ -1290,10 +1321,13 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
         s->events = &impl.events;
         bus::BusOptions options;
         if (impl.config.frame_timeout) options.frame_timeout = *impl.config.frame_timeout;
-        if (impl.config.cycle_thread.fifo_priority || impl.config.cycle_thread.cpu) {
-          // The session outlives its bus, so the report has a home when the thread starts.
+        options.thread_name = thread_name("ecat-cycle", impl.instance);
+        if (asks_anything(impl.config.cycle_thread)) {
+          // The session outlives its bus, so the report and the holds have a home when the
+          // thread starts (the holds go with the session, after the bus thread ended).
           options.on_thread_start = [session = s.get()] {
-            auto report = apply_cycle_thread(session->config.cycle_thread);
+            auto report =
+                apply_cycle_thread(session->config.cycle_thread, session->cycle_thread_holds);
             std::lock_guard lock(session->report_mutex);
             session->cycle_thread_report = std::move(report);
           };

@@ -23,6 +23,7 @@
 #include <ecat/master/slave.hpp>
 #include <ecat/wire/registers.hpp>
 
+#include "master/cycle_thread.hpp"
 #include "master/event_hub.hpp"
 
 namespace ecat::master {
@@ -56,9 +57,12 @@ struct Session : std::enable_shared_from_this<Session> {
   std::uint16_t slave_count = 0;
   std::vector<wire::DlStatus> dl_status;
   std::atomic<bool> stopping{false};
-  // What the cycle thread's CycleThreadOptions came to (written once by the bus thread).
+  // What the cycle thread's CycleThreadOptions came to (written once by the bus thread), and
+  // what it holds for the session (cpu_dma_latency, the memory lock; written by the bus thread at
+  // its start, released when the session goes).
   std::mutex report_mutex;
   std::string cycle_thread_report;
+  CycleThreadHolds cycle_thread_holds;
   // Health polls pause while the session is held in PREOP since startup (until activation).
   std::atomic<bool> health_held{false};
   // Set by the master: slaves report here (called on the loop).

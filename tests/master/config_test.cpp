@@ -18,6 +18,8 @@ master:
   backend: udp:127.0.0.1:34980
   cycle_priority: 80
   cycle_cpu: 1
+  cycle_dma_latency_us: 0
+  cycle_lock_memory: true
   base_station: 0x2000
   frame_timeout_us: 800
   scan_poll_ms: 5
@@ -57,6 +59,8 @@ dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns
   EXPECT_EQ(config->backend, "udp:127.0.0.1:34980");
   EXPECT_EQ(config->cycle_thread.fifo_priority, 80);
   EXPECT_EQ(config->cycle_thread.cpu, 1);
+  EXPECT_EQ(config->cycle_thread.cpu_dma_latency_us, 0);
+  EXPECT_TRUE(config->cycle_thread.lock_memory);
   EXPECT_EQ(config->frame_timeout, std::chrono::nanoseconds(800us));
   EXPECT_EQ(config->scan.poll, std::chrono::nanoseconds(5ms));
   EXPECT_EQ(config->awaiting_preop_timeout, std::chrono::nanoseconds(7s));
@@ -151,6 +155,8 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"master: {backend: eth0}\n", "\"eth0\" is not a backend"},
         BadCase{"master: {cycle_priority: 100}\n", "master.cycle_priority"},
         BadCase{"master: {cycle_cpu: -1}\n", "master.cycle_cpu"},
+        BadCase{"master: {cycle_dma_latency_us: -1}\n", "master.cycle_dma_latency_us"},
+        BadCase{"master: {cycle_lock_memory: maybe}\n", "master.cycle_lock_memory"},
         BadCase{"domains: [{period_us: 1000}]\n", "needs an id"},
         BadCase{"domains: [{id: a, period_us: 10}]\n", "ring.yaml:1"},
         BadCase{"domains: [{id: a}, {id: a}]\n", "used twice"},

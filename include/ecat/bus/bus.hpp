@@ -79,7 +79,10 @@ struct BusOptions {
   // How long the indices of a frame that got no reply stay unused, so a late reply cannot be
   // mistaken for the reply to a new datagram. Zero means 4 x the frame timeout at that moment.
   std::chrono::nanoseconds late_reply_quarantine{0};
-  // Runs first thing on the bus thread (name it, set SCHED_FIFO, pin it to a CPU, ...).
+  // The bus thread's name as ps, top and perf show it (at most 15 characters are kept). The
+  // master names its bus thread "ecat-cycle" (the cycle thread), beside "ecat-control".
+  std::string thread_name = "ecat-bus";
+  // Runs first thing on the bus thread, after it is named (set SCHED_FIFO, pin it to a CPU, ...).
   std::function<void()> on_thread_start{};
   // After the link fails (closed, or repeated send/receive errors) the bus completes everything
   // in flight with the failure, fails new work at once, and tries Link::reopen(): first after

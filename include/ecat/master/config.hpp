@@ -432,12 +432,19 @@ struct DcConfig {
   std::optional<std::chrono::nanoseconds> frame_lead{};
 };
 
-// How the master's cycle (bus) thread runs. Both are requests: when the system refuses them
-// (no CAP_SYS_NICE, a CPU that does not exist) the session runs on and MasterStatus::cycle_thread
-// says what was refused and why.
+// How the master's cycle (bus) thread runs. All are requests: when the system refuses them
+// (no CAP_SYS_NICE, a CPU that does not exist, no CAP_IPC_LOCK or RLIMIT_MEMLOCK too small, no
+// access to /dev/cpu_dma_latency) the session runs on and MasterStatus::cycle_thread says what was
+// granted, what was refused and why. Nothing is done unless asked.
 struct CycleThreadOptions {
   std::optional<int> fifo_priority{};  // SCHED_FIFO with this priority (1..99)
   std::optional<int> cpu{};            // pinned to this CPU
+  // Held while the session runs, as cyclictest does: /dev/cpu_dma_latency open with this value
+  // (microseconds; 0 keeps the CPUs out of deep idle states, whose exit latency is the wake-up's).
+  std::optional<std::int32_t> cpu_dma_latency_us{};
+  // mlockall(MCL_CURRENT | MCL_FUTURE) while the session runs (process-wide: released when the
+  // last session that asked stops), and the cycle thread's stack pre-faulted at its start.
+  bool lock_memory = false;
 };
 
 // The built-in device drivers (drivers::builtin_registry(), <ecat/drivers/builtin.hpp>): what
