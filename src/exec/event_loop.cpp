@@ -226,10 +226,9 @@ void EventLoop::stop() {
 void EventLoop::start_thread(std::string name) {
   join();
   stop_.store(false, std::memory_order_release);
-  thread_ = std::thread([this, name = std::move(name)] {
-    pthread_setname_np(pthread_self(), name.substr(0, 15).c_str());
-    run();
-  });
+  thread_ = std::thread([this] { run(); });
+  // Named from here, so the name is there when start_thread returns.
+  pthread_setname_np(thread_.native_handle(), name.substr(0, 15).c_str());
 }
 
 void EventLoop::join() {

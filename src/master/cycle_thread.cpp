@@ -31,12 +31,14 @@ int lock_holders = 0;
 
 }  // namespace
 
-CycleThreadHolds::~CycleThreadHolds() {
+void CycleThreadHolds::release() noexcept {
   if (dma_latency_fd >= 0) ::close(dma_latency_fd);
+  dma_latency_fd = -1;
   if (memory_locked) {
     std::lock_guard lock(lock_mutex);
     if (--lock_holders == 0) (void)::munlockall();
   }
+  memory_locked = false;
 }
 
 bool asks_anything(const CycleThreadOptions& options) noexcept {

@@ -14,9 +14,12 @@ namespace ecat::master {
 class CycleThreadHolds {
  public:
   CycleThreadHolds() = default;
-  ~CycleThreadHolds();
+  ~CycleThreadHolds() { release(); }
   CycleThreadHolds(const CycleThreadHolds&) = delete;
   CycleThreadHolds& operator=(const CycleThreadHolds&) = delete;
+
+  // Closes cpu_dma_latency and leaves the memory lock (idempotent).
+  void release() noexcept;
 
   // The open /dev/cpu_dma_latency (the kernel keeps the request while it is open), or -1.
   int dma_latency_fd = -1;

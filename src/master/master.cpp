@@ -1220,6 +1220,9 @@ struct Master::Impl : DomainObserver {
     s->stopping = true;
     if (s->cycler) (void)s->cycler->stop();
     if (s->bus) s->bus->stop();
+    // The bus thread has ended: what it held for the session (cpu_dma_latency, the memory lock)
+    // goes now, not when the last task lets the session go.
+    s->cycle_thread_holds.release();
     std::lock_guard lock(mutex);
     // What the session counted to its very end (the walk back to INIT included): counters()
     // gives it until the next start, so a tool can compare a capture with the bus's own counts.
