@@ -70,6 +70,10 @@ void check_config(const ecat::master::MasterConfig& config) {
   if (config.cycle_thread.cpu) {
     REQUIRE(*config.cycle_thread.cpu >= 0 && *config.cycle_thread.cpu <= 1023);
   }
+  if (config.cycle_thread.cpu_dma_latency_us) {
+    REQUIRE(*config.cycle_thread.cpu_dma_latency_us >= 0 &&
+            *config.cycle_thread.cpu_dma_latency_us <= 1'000'000);
+  }
   if (!config.backend.empty()) {
     REQUIRE(config.backend.size() > 4 &&
             (config.backend.starts_with("raw:") || config.backend.starts_with("udp:") ||

@@ -398,9 +398,6 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
 
   void run() {
     thread_id.store(std::this_thread::get_id(), std::memory_order_release);
-    if (!options.thread_name.empty()) {
-      pthread_setname_np(pthread_self(), options.thread_name.substr(0, 15).c_str());
-    }
     if (options.on_thread_start) {
       try {
         options.on_thread_start();
@@ -1475,6 +1472,10 @@ Result<void> Bus::start() {
   s.phase.store(Impl::Phase::running);
   try {
     s.thread = std::thread([&s] { s.run(); });
+    // Named from here, before start() returns (on_thread_start may rename it).
+    if (!o.thread_name.empty()) {
+      pthread_setname_np(s.thread.native_handle(), o.thread_name.substr(0, 15).c_str());
+    }
   } catch (const std::exception& e) {
     s.phase.store(Impl::Phase::stopped);
     return Error(Errc::io_error,

@@ -3,6 +3,9 @@
 
 #include <array>
 #include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -91,6 +94,30 @@ TEST(Transaction, BuilderMistakesAreReportedBySubmit) {
   ASSERT_FALSE(r5);
   EXPECT_EQ(r5.error().code(), Errc::invalid_argument);
   EXPECT_EQ(segment->frames_sent(), 0u);
+}
+
+// The bus thread carries BusOptions::thread_name (ps, top and perf show it), read back from
+// /proc/self/task/*/comm.
+TEST(Bus, ThreadIsNamed) {
+  const auto count_named = [](const std::string& name) {
+    std::size_t n = 0;
+    for (const auto& task : std::filesystem::directory_iterator("/proc/self/task")) {
+      std::ifstream comm(task.path() / "comm");
+      std::string line;
+      std::getline(comm, line);
+      if (line == name) ++n;
+    }
+    return n;
+  };
+  auto segment = make_segment();
+  BusOptions options;
+  options.thread_name = "bus-name-test-long";  // cut to the kernel's 15 characters
+  Bus bus(FakeSegment::make_link(segment), options);
+  EXPECT_EQ(count_named("bus-name-test-l"), 0u);
+  ASSERT_TRUE(bus.start());
+  EXPECT_EQ(count_named("bus-name-test-l"), 1u);
+  bus.stop();
+  EXPECT_EQ(count_named("bus-name-test-l"), 0u);
 }
 
 TEST(Bus, SingleTransactionRoundTrip) {

@@ -82,7 +82,7 @@ struct BusOptions {
   // The bus thread's name as ps, top and perf show it (at most 15 characters are kept). The
   // master names its bus thread "ecat-cycle" (the cycle thread), beside "ecat-control".
   std::string thread_name = "ecat-bus";
-  // Runs first thing on the bus thread, after it is named (set SCHED_FIFO, pin it to a CPU, ...).
+  // Runs first thing on the bus thread (set SCHED_FIFO, pin it to a CPU, ...).
   std::function<void()> on_thread_start{};
   // After the link fails (closed, or repeated send/receive errors) the bus completes everything
   // in flight with the failure, fails new work at once, and tries Link::reopen(): first after
