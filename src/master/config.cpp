@@ -41,6 +41,17 @@ std::string_view to_string(LockPolicy policy) noexcept {
 Result<void> validate(const MasterConfig& config) {
   auto bad = [](std::string message) { return Error(Errc::invalid_argument, std::move(message)); };
   if (config.base_station == 0) return bad("base_station: 0 is not a station address");
+  if (const auto& g = config.mailbox_gateway; g.enabled) {
+    if (g.request_timeout <= std::chrono::nanoseconds::zero()) {
+      return bad("mailbox_gateway: request_timeout must be > 0");
+    }
+    if (g.workers == 0 || g.workers > 64) {
+      return bad(fmt::format("mailbox_gateway: workers must be 1..64, not {}", g.workers));
+    }
+    if (g.max_queued == 0 || g.max_queued > 4096) {
+      return bad(fmt::format("mailbox_gateway: max_queued must be 1..4096, not {}", g.max_queued));
+    }
+  }
   std::set<std::string> domain_ids;
   for (std::size_t i = 0; i < config.domains.size(); ++i) {
     const auto& d = config.domains[i];

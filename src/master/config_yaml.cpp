@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 
 #include <ecat/master/config.hpp>
+#include <ecat/master/mailbox_gateway.hpp>
 
 #include "config/spec_tree.hpp"
 #include "core/read_file.hpp"
@@ -74,12 +75,12 @@ class Reader {
   Result<void> master(const SpecNode& node, MasterConfig& config) {
     const std::string path = "master";
     if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
-    if (auto r =
-            check_keys(ctx_, node, path,
-                       {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us",
-                        "cycle_lock_memory", "base_station", "frame_timeout_us", "scan_poll_ms",
-                        "scan_stable_ms", "scan_timeout_ms", "awaiting_preop_timeout_ms",
-                        "retry_interval_ms", "link_recovery_window_ms", "control"});
+    if (auto r = check_keys(
+            ctx_, node, path,
+            {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us", "cycle_lock_memory",
+             "base_station", "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
+             "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
+             "link_recovery_window_ms", "control", "mailbox_gateway"});
         !r) {
       return r.error();
     }
@@ -92,6 +93,8 @@ class Reader {
         config.backend = std::move(*text);
       } else if (e.key == "control") {
         if (auto r = control(v, p, config.control); !r) return r.error();
+      } else if (e.key == "mailbox_gateway") {
+        if (auto r = gateway(v, p, config.mailbox_gateway); !r) return r.error();
       } else if (e.key == "cycle_priority") {
         auto n = to_int(ctx_, v, p, 1, 99);
         if (!n) return n.error();
@@ -125,6 +128,60 @@ class Reader {
         if (e.key == "awaiting_preop_timeout_ms") config.awaiting_preop_timeout = *d;
         if (e.key == "retry_interval_ms") config.retry_interval = *d;
         if (e.key == "link_recovery_window_ms") config.link_recovery_window = *d;
+      }
+    }
+    return ok();
+  }
+
+  // mailbox_gateway: true | false | "ADDR:PORT" | {address: "ADDR:PORT", timeout_ms: 1000,
+  //                  queue: 64, workers: 4}
+  Result<void> gateway(const SpecNode& node, const std::string& path,
+                       MailboxGatewayConfig& config) {
+    const auto address = [&](const SpecNode& v, const std::string& p) -> Result<void> {
+      if (!v.is_scalar() || v.text.empty()) {
+        return spec_error(ctx_, v, p, "must be ADDR:PORT, ADDR or PORT");
+      }
+      if (auto r = parse_mailbox_gateway_address(v.text, config); !r) {
+        return spec_error(ctx_, v, p, r.error().message());
+      }
+      return ok();
+    };
+    if (node.is_scalar()) {
+      if (node.text == "true" || node.text == "false") {
+        auto b = to_bool(ctx_, node, path);
+        if (!b) return b.error();
+        config.enabled = *b;
+        return ok();
+      }
+      config.enabled = true;
+      return address(node, path);
+    }
+    if (!node.is_mapping()) {
+      return spec_error(ctx_, node, path,
+                        "must be true, ADDR:PORT or a mapping {address, timeout_ms, queue, "
+                        "workers}");
+    }
+    if (auto r = check_keys(ctx_, node, path, {"address", "timeout_ms", "queue", "workers"}); !r) {
+      return r.error();
+    }
+    config.enabled = true;
+    for (const auto& e : node.entries) {
+      const auto p = join_path(path, e.key);
+      const SpecNode& v = e.value;
+      if (e.key == "address") {
+        if (auto r = address(v, p); !r) return r.error();
+      } else if (e.key == "timeout_ms") {
+        auto d = duration(v, p, 1'000'000, 1, 600'000);
+        if (!d) return d.error();
+        config.request_timeout = *d;
+      } else if (e.key == "queue") {
+        auto n = to_int(ctx_, v, p, 1, 4096);
+        if (!n) return n.error();
+        config.max_queued = static_cast<std::size_t>(*n);
+      } else if (e.key == "workers") {
+        auto n = to_int(ctx_, v, p, 1, 64);
+        if (!n) return n.error();
+        config.workers = static_cast<std::size_t>(*n);
       }
     }
     return ok();

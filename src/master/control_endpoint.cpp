@@ -17,6 +17,7 @@
 #include <ecat/master/domain.hpp>
 #include <ecat/master/eoe.hpp>
 #include <ecat/master/foe.hpp>
+#include <ecat/master/mailbox_gateway.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/sii_writer.hpp>
 #include <ecat/master/slave.hpp>
@@ -33,13 +34,13 @@ namespace {
 
 using detail::Json;
 
-constexpr std::array<std::string_view, 33> kOps{
-    "ping",         "status",       "slaves",        "slave",      "domains",   "domain.data",
-    "dc",           "counters",     "events.follow", "sdo.upload", "sdo.list",  "sdo.describe",
-    "signal.read",  "reg.read",     "sii.read",      "pdos",       "foe.read",  "soe.read",
-    "sdo.download", "output.write", "state.request", "reg.write",  "sii.write", "alias.write",
-    "foe.write",    "soe.write",    "help",          "version",    "al_status", "capture.frames",
-    "eoe.stats",    "eoe.set_ip",   "rescan"};
+constexpr std::array<std::string_view, 34> kOps{
+    "ping",         "status",       "slaves",        "slave",        "domains",   "domain.data",
+    "dc",           "counters",     "events.follow", "sdo.upload",   "sdo.list",  "sdo.describe",
+    "signal.read",  "reg.read",     "sii.read",      "pdos",         "foe.read",  "soe.read",
+    "sdo.download", "output.write", "state.request", "reg.write",    "sii.write", "alias.write",
+    "foe.write",    "soe.write",    "help",          "version",      "al_status", "capture.frames",
+    "eoe.stats",    "eoe.set_ip",   "rescan",        "gateway.stats"};
 constexpr std::array<std::string_view, 9> kWriteOps{"sdo.download", "output.write", "state.request",
                                                     "reg.write",    "sii.write",    "alias.write",
                                                     "foe.write",    "soe.write",    "eoe.set_ip"};
@@ -203,6 +204,31 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
   }
   if (op == "status") return detail::status_json(master);
   if (op == "counters") return detail::counters_json(master.counters());
+  if (op == "gateway.stats") {
+    auto gateway = master.mailbox_gateway();
+    if (!gateway) {
+      return Error(Errc::not_found,
+                   "no mailbox gateway is open (master: mailbox_gateway:, ecat serve "
+                   "--mailbox-gateway)");
+    }
+    const MailboxGatewayStats& c = gateway->stats;
+    return Json{{"address", gateway->address},
+                {"port", gateway->port},
+                {"queued", gateway->queued},
+                {"in_flight", gateway->in_flight},
+                {"datagrams", c.datagrams},
+                {"malformed", c.malformed},
+                {"forwarded", c.forwarded},
+                {"replies", c.replies},
+                {"error_replies", c.error_replies},
+                {"unknown_station", c.unknown_station},
+                {"unsupported", c.unsupported},
+                {"too_large", c.too_large},
+                {"queue_full", c.queue_full},
+                {"timeouts", c.timeouts},
+                {"failed", c.failed},
+                {"send_errors", c.send_errors}};
+  }
   if (op == "dc") return detail::dc_json(master);
   if (op == "slaves") {
     const bool verbose = r.flag("verbose");

@@ -15,6 +15,7 @@
 #include <ecat/ipc/line_server.hpp>
 #include <ecat/master/al_control.hpp>
 #include <ecat/master/control_endpoint.hpp>
+#include <ecat/master/mailbox_gateway.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/startup.hpp>
 
@@ -155,6 +156,41 @@ struct Master::Impl : DomainObserver {
   void close_endpoint() {
     std::lock_guard lock(endpoint_mutex);
     close_endpoint_locked();
+  }
+
+  // The mailbox gateway (mailbox_gateway.hpp): like the endpoint, from the first start() whose
+  // configuration enables it until the master goes (or a start() configures another). Its
+  // workers call the Master's public API, so ~Master stops it before anything else goes.
+  std::unique_ptr<MailboxGateway> gateway;
+  mutable std::mutex gateway_mutex;
+
+  Result<void> open_gateway(Master& master) {
+    std::lock_guard lock(gateway_mutex);
+    const MailboxGatewayConfig& want = config.mailbox_gateway;
+    if (gateway) {
+      const MailboxGatewayConfig& have = gateway->config();
+      if (want.enabled && want.address == have.address && want.port == have.port &&
+          want.request_timeout == have.request_timeout && want.max_queued == have.max_queued &&
+          want.workers == have.workers) {
+        return ok();
+      }
+      gateway->stop();
+      gateway.reset();
+    }
+    if (!want.enabled) return ok();
+    auto started = MailboxGateway::start(master, want);
+    if (!started) {
+      return started.error().context(started.error().code(),
+                                     "opening the mailbox gateway (master: mailbox_gateway:)");
+    }
+    gateway = std::move(*started);
+    return ok();
+  }
+
+  void close_gateway() {
+    std::lock_guard lock(gateway_mutex);
+    if (gateway) gateway->stop();
+    gateway.reset();
   }
   exec::EventLoop loop;
   std::shared_ptr<Session> session;  // loop thread writes; guarded by `mutex` for readers
@@ -1295,6 +1331,7 @@ Master::Master(MasterConfig config) : impl_(std::make_unique<Impl>(std::move(con
 Master::~Master() {
   // The endpoint's requests call this Master: none may run once its parts start to go.
   impl_->close_endpoint();
+  impl_->close_gateway();
 }
 
 Result<void> Master::start(std::unique_ptr<link::Link> link, MasterConfig config) {
@@ -1311,6 +1348,7 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
   if (auto valid = validate(impl_->config); !valid) return valid.error();
   if (state() == MasterState::idle) {
     if (auto opened = impl_->open_endpoint(*this); !opened) return opened.error();
+    if (auto opened = impl_->open_gateway(*this); !opened) return opened.error();
   }
   auto started = exec::run_blocking(
       impl_->loop,
@@ -1672,6 +1710,12 @@ MasterStatus Master::status() const {
   out.slaves = slaves();
   out.domains = domains();
   return out;
+}
+
+std::optional<MailboxGatewayStatus> Master::mailbox_gateway() const {
+  std::lock_guard lock(impl_->gateway_mutex);
+  if (!impl_->gateway) return std::nullopt;
+  return impl_->gateway->status();
 }
 
 Result<Slave*> Master::slave(std::string_view name) {

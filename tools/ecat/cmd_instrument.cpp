@@ -11,6 +11,7 @@
 //   ecat slaves --attach line1 -v
 //   ecat upload --ring examples/default.yaml --name drive 0x6041 0 --type uint16
 //   ecat download --attach --name drive 0x6060 0 8 --type int8
+//   ecat upload --gateway 127.0.0.1:34980 --station 0x1003 0x6041 0 --type uint16
 //   ecat reg_read --backend raw:eth0 -p 1 0x0130 2
 //   ecat events --attach line1 --json
 //
@@ -37,6 +38,7 @@
 #include <unistd.h>
 
 #include <ecat/ipc/line_server.hpp>
+#include <ecat/link/mailbox_gateway_client.hpp>
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/version.hpp>
@@ -662,9 +664,93 @@ struct SdoOptions {
   std::string value;
   std::string type;
   bool complete_access = false;
+  // --gateway ADDR:PORT --station 0x1003: through a master's ETG.8200 mailbox gateway instead.
+  std::string gateway;
+  std::string station;
 };
 
+// A number as the command line writes it: decimal or 0x-hex, at most `max`.
+std::optional<unsigned long> parse_number(const std::string& text, unsigned long max) {
+  const bool hex = text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X');
+  const std::string digits = hex ? text.substr(2) : text;
+  if (digits.empty() || digits.size() > 8 ||
+      digits.find_first_not_of(hex ? "0123456789abcdefABCDEF" : "0123456789") !=
+          std::string::npos) {
+    return std::nullopt;
+  }
+  const unsigned long value = std::stoul(digits, nullptr, hex ? 16 : 10);
+  if (value > max) return std::nullopt;
+  return value;
+}
+
+// upload / download through a mailbox gateway (link/mailbox_gateway_client.hpp): the slave by its
+// station address, the SDO as a configuration tool would make it. `value`: empty for an upload.
+int gateway_sdo(const SdoOptions& o, const std::vector<std::uint8_t>* download) {
+  const bool json = o.common.target.json;
+  const auto station = parse_number(o.station, 0xFFFF);
+  const auto index = parse_number(o.index, 0xFFFF);
+  const auto subindex = parse_number(o.subindex, 0xFF);
+  if (!station || *station == 0 || !index || !subindex) {
+    Connection::print_error(
+        Error(Errc::invalid_argument,
+              fmt::format("--gateway needs --station (1..0xffff), and INDEX and SUBINDEX numbers "
+                          "(station '{}', index '{}', subindex '{}')",
+                          o.station, o.index, o.subindex)),
+        json);
+    return 2;
+  }
+  if (o.complete_access || o.common.slave.given() || o.common.target.attach ||
+      !o.common.target.ring.empty() || !o.common.target.backend.empty()) {
+    Connection::print_error(Error(Errc::invalid_argument,
+                                  "--gateway takes --station, not --complete-access, -p, -a, "
+                                  "--name, --attach, --ring or --backend"),
+                            json);
+    return 2;
+  }
+  auto client = ecat::link::MailboxGatewayClient::connect(o.gateway);
+  if (!client) {
+    Connection::print_error(client.error(), json);
+    return 2;
+  }
+  const auto timeout = std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::duration<double>(o.common.target.timeout_s));
+  const auto s = static_cast<std::uint16_t>(*station);
+  const auto i = static_cast<std::uint16_t>(*index);
+  const auto sub = static_cast<std::uint8_t>(*subindex);
+  if (download != nullptr) {
+    auto done = (*client)->download_sdo(s, i, sub, *download, timeout);
+    Result<Json> r = done ? Result<Json>(Json::object()) : Result<Json>(done.error());
+    return finish(r, json, [&](const Json&) {
+      fmt::print("station {:#06x} {}:{} <- {}\n", s, o.index, o.subindex, o.value);
+    });
+  }
+  auto bytes = (*client)->upload_sdo(s, i, sub, timeout);
+  Result<Json> r =
+      bytes ? Result<Json>(Json{{"data", to_hex(*bytes)}}) : Result<Json>(bytes.error());
+  if (r) {
+    auto value = decode_typed(o.type, *bytes);
+    if (!value) {
+      r = value.error();
+    } else {
+      (*r)["value"] = *value;
+    }
+  }
+  return finish(r, json, [](const Json& j) { fmt::print("{}\n", show(j["value"])); });
+}
+
+// Without --gateway one of -p, -a, --name is needed.
+bool need_slave(const SdoOptions& o) {
+  if (!o.gateway.empty() || o.common.slave.given()) return false;
+  Connection::print_error(Error(Errc::invalid_argument,
+                                "give -p POSITION, -a ALIAS or --name NAME (or --gateway with "
+                                "--station)"),
+                          o.common.target.json);
+  return true;
+}
+
 int cmd_upload(const SdoOptions& o) {
+  if (need_slave(o)) return 2;
+  if (!o.gateway.empty()) return gateway_sdo(o, nullptr);
   int code = 0;
   auto c = Connection::open(o.common.target, &code);
   if (!c) return code;
@@ -689,11 +775,13 @@ int cmd_upload(const SdoOptions& o) {
 
 int cmd_download(const SdoOptions& o) {
   const std::string type = o.type.empty() ? "octets" : o.type;
+  if (need_slave(o)) return 2;
   auto bytes = encode_typed(type, o.value);
   if (!bytes) {
     Connection::print_error(bytes.error(), o.common.target.json);
     return 2;
   }
+  if (!o.gateway.empty()) return gateway_sdo(o, &*bytes);
   int code = 0;
   auto c = Connection::open(o.common.target, &code);
   if (!c) return code;
@@ -1899,6 +1987,13 @@ ecat::tool::Command setup_data(CLI::App& parent) {
 }
 
 void add_sdo_address(CLI::App* app, SdoOptions& o) {
+  auto* gateway = app->add_option(
+      "--gateway", o.gateway,
+      "Through a master's ETG.8200 mailbox gateway at HOST:PORT (`ecat serve --mailbox-gateway`), "
+      "the slave named by --station");
+  app->add_option("--station", o.station,
+                  "With --gateway: the slave's configured station address (0x1001)")
+      ->needs(gateway);
   app->add_option("INDEX", o.index, "Object index (0x6041)")->required();
   app->add_option("SUBINDEX", o.subindex, "Subindex (0)")->required();
   app->add_option("--type", o.type, std::string("Value type: ") + kTypes);
@@ -1907,7 +2002,7 @@ void add_sdo_address(CLI::App* app, SdoOptions& o) {
 
 ecat::tool::Command setup_upload(CLI::App& parent) {
   auto o = std::make_shared<SdoOptions>();
-  auto* app = base(parent, "upload", "Read an SDO", o->common, true, true);
+  auto* app = base(parent, "upload", "Read an SDO", o->common, true, false);
   add_sdo_address(app, *o);
   return {app, [o] { return cmd_upload(*o); }};
 }
@@ -1915,7 +2010,7 @@ ecat::tool::Command setup_upload(CLI::App& parent) {
 ecat::tool::Command setup_download(CLI::App& parent) {
   auto o = std::make_shared<SdoOptions>();
   auto* app = base(parent, "download", "Write an SDO (attached: the endpoint must allow writes)",
-                   o->common, true, true);
+                   o->common, true, false);
   add_sdo_address(app, *o);
   app->add_option("VALUE", o->value, "The value, as --type says (default: hex octets)")->required();
   return {app, [o] { return cmd_download(*o); }};

@@ -4,6 +4,8 @@
 //   ecat serve examples/default.yaml                      endpoint "default" (the file's name)
 //   ecat serve line.yaml --control line1 --writes         endpoint allowing writes
 //   ecat slaves --attach line1
+//   ecat serve line.yaml --mailbox-gateway                the ETG.8200 gateway, 127.0.0.1:34980
+//   ecat upload --gateway 127.0.0.1:34980 --station 0x1003 0x6041 0 --type uint16
 //
 // Service behaviour (systemd Type=simple): logs go to stderr; SIGTERM or SIGINT stops the session
 // cleanly (every slave back to INIT) and exits 0; a session that does not get running within
@@ -24,6 +26,7 @@
 #include <ecat/app/open_master.hpp>
 #include <ecat/link/recording_link.hpp>
 #include <ecat/master/control_endpoint.hpp>
+#include <ecat/master/mailbox_gateway.hpp>
 #include <ecat/master/master.hpp>
 
 #include "command.hpp"
@@ -45,6 +48,10 @@ struct Options {
   std::string pcap;                 // --pcap FILE: every frame
   double flight_recorder_s = 10.0;  // --flight-recorder SECONDS: the recent past in memory, 0 off
   std::string fault_dumps;          // --fault-dumps DIR: the recorder written there on a fault
+  // --mailbox-gateway [ADDR:PORT]: the ETG.8200 gateway (the option given without a value:
+  // 127.0.0.1:34980).
+  std::string gateway;
+  CLI::Option* gateway_option = nullptr;
 };
 
 // A state worth a dump: the session left its running states by itself (recovering, blocked) or
@@ -92,6 +99,20 @@ int serve(const Options& o) {
     return 2;
   }
   mode = static_cast<std::uint32_t>(std::stoul(o.mode, nullptr, 8));
+  // The gateway: --mailbox-gateway (its address, or loopback:34980), else the file's
+  // `master: mailbox_gateway:`. Enabling it lets configuration tools write to the slaves (SDO
+  // downloads) as they ask: the user asked for that by enabling it.
+  std::optional<ecat::master::MailboxGatewayConfig> gateway;
+  if (o.gateway_option != nullptr && o.gateway_option->count() > 0) {
+    gateway.emplace();
+    gateway->enabled = true;
+    if (!o.gateway.empty()) {
+      if (auto parsed = ecat::master::parse_mailbox_gateway_address(o.gateway, *gateway); !parsed) {
+        fmt::print(stderr, "ecat: --mailbox-gateway: {}\n", parsed.error().message());
+        return 2;
+      }
+    }
+  }
   ecat::OpenMasterOptions options;
   options.backend = o.backend;
   const std::string stem = std::filesystem::path(o.ring).stem().string();
@@ -103,6 +124,12 @@ int serve(const Options& o) {
     }
     if (!o.control.empty() || config.control.mode == 0600) config.control.mode = mode;
     if (o.writes) config.control.allow_writes = true;
+    if (gateway) {
+      // The address from the command line; the file's timeout, queue and workers stay.
+      config.mailbox_gateway.enabled = true;
+      config.mailbox_gateway.address = gateway->address;
+      config.mailbox_gateway.port = gateway->port;
+    }
   };
   // Recording: --pcap streams every frame to a file; the flight recorder keeps the last seconds
   // for `ecat capture --attach` (the endpoint's capture.frames). One link may carry both.
@@ -145,6 +172,10 @@ int serve(const Options& o) {
   const auto path = ecat::master::find_control_endpoint(o.control.empty() ? stem : o.control);
   fmt::print(stderr, "ecat serve: {} is {}; control endpoint {}\n", o.ring,
              to_string(master.state()), path ? *path : std::string("(none)"));
+  if (const auto g = master.mailbox_gateway()) {
+    fmt::print(stderr, "ecat serve: mailbox gateway (ETG.8200) on udp {}:{}\n", g->address,
+               g->port);
+  }
   const auto end = o.duration_s > 0 ? std::chrono::steady_clock::now() +
                                           std::chrono::duration_cast<std::chrono::nanoseconds>(
                                               std::chrono::duration<double>(o.duration_s))
@@ -221,6 +252,12 @@ ecat::tool::Command setup(CLI::App& parent) {
                   "When the session goes recovering, blocked or idle by itself, write the flight "
                   "recorder to a pcapng file in this folder (at most one per 10 s)")
       ->check(CLI::ExistingDirectory);
+  o->gateway_option =
+      app->add_option("--mailbox-gateway", o->gateway,
+                      "Open the ETG.8200 mailbox gateway (UDP) on ADDR:PORT, ADDR or PORT "
+                      "(default 127.0.0.1:34980): configuration tools reach the slaves' mailboxes, "
+                      "SDO downloads included")
+          ->expected(0, 1);
   return {app, [o] { return serve(*o); }};
 }
 

@@ -469,11 +469,33 @@ struct ControlEndpointConfig {
   std::shared_ptr<const link::FrameRecorder> flight_recorder{};
 };
 
+// The mailbox gateway (ETG.8200, master/mailbox_gateway.hpp): a UDP port through which a
+// configuration tool outside the segment exchanges mailbox messages (CoE, FoE, SoE, ...) with the
+// slaves through the running master. Off unless `enabled`. Enabling it is the user's consent to
+// what the tools send: SDO downloads and FoE writes go to the slaves as the tool wrote them.
+struct MailboxGatewayConfig {
+  bool enabled = false;
+  // The local address to listen on: empty means loopback (127.0.0.1), "*" every IPv4 address.
+  std::string address{};
+  // 0x88A4 (34980), the port ETG.8200 names; 0 picks a free one (MailboxGatewayStatus::port). An
+  // `ecat sim --udp` on the same host listens on 34980 too: give one of them another port.
+  std::uint16_t port = 0x88A4;
+  // How long one request may take in the slave's mailbox (each of its waits: a full SM0, the
+  // reply, the repeat request); a request that runs out gets no reply (counted).
+  std::chrono::nanoseconds request_timeout = std::chrono::seconds(1);
+  // Requests waiting for their slave (one request is in flight per slave); beyond this a request
+  // is answered with mailbox error 0x0007 (no more memory).
+  std::size_t max_queued = 64;
+  // Threads that carry requests to their slaves: so many slaves are served at once.
+  std::size_t workers = 4;
+};
+
 struct MasterConfig {
   // What the master talks to when the caller does not say (ring files: `master: backend:`):
   // raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Master::start takes a link; tools open this one.
   std::string backend{};
   ControlEndpointConfig control{};
+  MailboxGatewayConfig mailbox_gateway{};
   CycleThreadOptions cycle_thread{};
   std::uint16_t base_station = 0x1000;
   // Empty: every slave found is managed, held in PREOP with no process data: the dynamic,

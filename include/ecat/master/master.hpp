@@ -36,6 +36,7 @@ class Bus;  // <ecat/bus/bus.hpp>: the session's bus, for diagnostics (Master::b
 namespace ecat::master {
 
 class Domain;
+struct MailboxGatewayStatus;  // <ecat/master/mailbox_gateway.hpp>
 
 // A terminal failure the session keeps after it ends (upstream-inventory §6.3).
 struct Failure {
@@ -191,6 +192,10 @@ class Master {
   std::vector<SlaveSummary> slaves() const;
   std::vector<DomainSummary> domains() const;
   std::optional<Failure> last_failure() const;
+
+  // The mailbox gateway's address, port and counters (master/mailbox_gateway.hpp), while one is
+  // open (MasterConfig::mailbox_gateway, from the first start()).
+  std::optional<MailboxGatewayStatus> mailbox_gateway() const;
 
   // A slave of the running session by name (Errc::not_found names it). The reference stays
   // valid until stop().

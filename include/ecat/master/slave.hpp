@@ -30,7 +30,8 @@
 
 namespace ecat::wire {
 struct VoeMessage;  // <ecat/wire/voe.hpp>: declared only, so the application's face stays small
-struct EoeIpParameters;  // <ecat/wire/eoe.hpp>
+struct EoeIpParameters;                 // <ecat/wire/eoe.hpp>
+enum class MailboxType : std::uint8_t;  // <ecat/wire/mailbox.hpp>
 }  // namespace ecat::wire
 
 namespace ecat::master {
@@ -42,6 +43,7 @@ struct SoeNotification;  // <ecat/master/soe.hpp>
 struct FoeOptions;       // <ecat/master/foe.hpp>
 struct SiiWriteOptions;  // <ecat/master/sii_writer.hpp>
 struct EoeStats;         // <ecat/master/eoe.hpp>
+struct MailboxMessage;   // <ecat/master/mailbox.hpp>
 namespace detail {
 class SlaveAccess;
 }
@@ -216,6 +218,19 @@ class Slave {
                           std::chrono::nanoseconds timeout = std::chrono::seconds(1));
   // The slave's EoE counters (frames, fragments, drops); zeros before the first EoE call.
   Result<EoeStats> eoe_stats(std::chrono::nanoseconds timeout = std::chrono::seconds(1));
+
+  // One mailbox message passed through as another tool wrote it (the mailbox gateway,
+  // master/mailbox_gateway.hpp): `type` and `data` go into the slave's mailbox behind the master's
+  // own mailbox header (its counter, so the slave takes it as new; serialized with the master's
+  // own mailbox traffic), and the slave's next message of the same type is the reply (CoE
+  // emergencies stay queued as always). The slave's mailbox error reply is Errc::mailbox_error
+  // with the detail code as value(). Errc::unsupported when the slave has no mailbox or its SII
+  // does not declare the protocol, Errc::wrong_state below PREOP, Errc::invalid_argument when
+  // the data do not fit its mailbox. Writes nothing on its own: what the message asks for (an SDO
+  // download) is the caller's request.
+  Result<MailboxMessage> mailbox_exchange(
+      wire::MailboxType type, std::vector<std::uint8_t> data,
+      std::chrono::nanoseconds timeout = std::chrono::seconds(1));
 
   // CoE emergencies the slave sent since the last call, oldest first (the mailbox is read first,
   // so an emergency waiting in it is included). Empty for a slave without a mailbox.
