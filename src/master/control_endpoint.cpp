@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <fmt/format.h>
@@ -34,16 +35,20 @@ namespace {
 
 using detail::Json;
 
-constexpr std::array<std::string_view, 34> kOps{
-    "ping",         "status",       "slaves",        "slave",        "domains",   "domain.data",
-    "dc",           "counters",     "events.follow", "sdo.upload",   "sdo.list",  "sdo.describe",
-    "signal.read",  "reg.read",     "sii.read",      "pdos",         "foe.read",  "soe.read",
-    "sdo.download", "output.write", "state.request", "reg.write",    "sii.write", "alias.write",
-    "foe.write",    "soe.write",    "help",          "version",      "al_status", "capture.frames",
-    "eoe.stats",    "eoe.set_ip",   "rescan",        "gateway.stats"};
-constexpr std::array<std::string_view, 9> kWriteOps{"sdo.download", "output.write", "state.request",
-                                                    "reg.write",    "sii.write",    "alias.write",
-                                                    "foe.write",    "soe.write",    "eoe.set_ip"};
+constexpr std::array<std::string_view, 35> kOps{
+    "ping",          "status",       "slaves",      "slave",           "domains",
+    "domain.data",   "dc",           "counters",    "events.follow",   "sdo.upload",
+    "sdo.list",      "sdo.describe", "signal.read", "reg.read",        "sii.read",
+    "pdos",          "foe.read",     "soe.read",    "sdo.download",    "output.write",
+    "state.request", "reg.write",    "sii.write",   "alias.write",     "foe.write",
+    "soe.write",     "help",         "version",     "al_status",       "capture.frames",
+    "eoe.stats",     "eoe.set_ip",   "rescan",      "firmware.update", "gateway.stats"};
+constexpr std::array<std::string_view, 10> kWriteOps{
+    "sdo.download", "output.write", "state.request", "reg.write",  "sii.write",
+    "alias.write",  "foe.write",    "soe.write",     "eoe.set_ip", "firmware.update"};
+
+// How long firmware.update waits for the session to bring the slave back where it was.
+constexpr auto kFirmwareReturnTimeout = std::chrono::seconds(30);
 
 // Largest register range one reg.read / reg.write moves (one datagram of a standard frame).
 constexpr std::size_t kMaxRegisterBytes = 1486;
@@ -503,6 +508,43 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
       return done.error();
     }
     return Json{{"size", size}};
+  }
+  if (op == "firmware.update") {
+    auto slave = find_slave(master, r);
+    if (!slave) return slave.error();
+    auto file = r.text("file");
+    if (!file) return file.error();
+    FoeOptions options;
+    if (r.json().contains("password")) {
+      auto password = r.number("password", 0xFFFFFFFF);
+      if (!password) return password.error();
+      options.password = static_cast<std::uint32_t>(*password);
+    }
+    auto data = r.bytes("data");
+    if (!data) return data.error();
+    const auto size = data->size();
+    // The session brings the slave back to its state of before (as after a reconnect) once the
+    // update returns, failed or not; the reply waits for that, so that the caller's next request
+    // finds the slave where it was and a caller can tell "updated" from "updated, not back".
+    // (A slave that was not running, in INIT, BOOTSTRAP or down, is not waited for.)
+    const SlaveState before = (*slave)->state();
+    const bool running =
+        before == SlaveState::preop || before == SlaveState::safeop || before == SlaveState::op;
+    auto done = (*slave)->update_firmware(*file, std::move(*data), options);
+    const auto deadline = std::chrono::steady_clock::now() + kFirmwareReturnTimeout;
+    while (running && (*slave)->state() != before && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    if (!done) return done.error();
+    const SlaveState now = (*slave)->state();
+    if (running && now != before) {
+      return Error(Errc::timeout,
+                   fmt::format("slave {}: firmware written ({} bytes), but the slave is not back "
+                               "in {} {} s later (it is in {})",
+                               (*slave)->name(), size, to_string(before),
+                               kFirmwareReturnTimeout.count(), to_string(now)));
+    }
+    return Json{{"size", size}, {"file", *file}, {"state", std::string(to_string(now))}};
   }
   if (op == "soe.read" || op == "soe.write") {
     auto slave = find_slave(master, r);

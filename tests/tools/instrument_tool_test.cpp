@@ -1,12 +1,17 @@
 // The instrument commands end to end: `ecat serve` with a control endpoint, the commands
 // attached to it (text and JSON, errors too) while the domain keeps cycling, SIGTERM ending the
 // service cleanly, and the same commands standalone on their own session.
+#include <cstdint>
+#include <filesystem>
 #include <fstream>
 #include <string>
+#include <vector>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+
+#include <ecat/sim/foe_server.hpp>
 
 #include "support/tool_runner.hpp"
 
@@ -17,6 +22,35 @@ using nlohmann::json;
 
 std::string default_ring() {
   return std::string(ECAT_SOURCE_DIR) + "/examples/default.yaml";
+}
+
+// Firmware updates: the default ring whose drive's firmware slot wants password 0x5eed, and the
+// images `foe_write --firmware` sends (the simulator's format: ECFW, length, CRC-32, version).
+constexpr const char* kFirmwarePassword = "0x5eed";
+
+std::string firmware_ring(const std::filesystem::path& dir) {
+  std::string ring = read_text_file(default_ring());
+  const std::string servo = "      profile: servo\n";
+  const auto at = ring.find(servo);
+  if (at == std::string::npos) return {};
+  ring.insert(at + servo.size(), "      options: {firmware_password: 0x5eed}\n");
+  const auto path = (dir / "firmware.yaml").string();
+  std::ofstream(path) << ring;
+  return path;
+}
+
+// A valid image of `version`; `corrupt`: one payload byte changed after the CRC was taken.
+void write_firmware(const std::filesystem::path& path, const std::string& version,
+                    bool corrupt = false) {
+  std::vector<std::uint8_t> payload(20000);
+  for (std::size_t i = 0; i < payload.size(); ++i)
+    payload[i] = static_cast<std::uint8_t>((i * 13 + (i >> 8)) & 0xFF);
+  auto image = sim::make_firmware_image(version, payload);
+  ASSERT_TRUE(image) << image.error().describe();
+  if (corrupt) (*image)[sim::kFirmwareHeaderSize + 1000] ^= 0x01;
+  std::ofstream(path, std::ios::binary)
+      .write(reinterpret_cast<const char*>(image->data()),
+             static_cast<std::streamsize>(image->size()));
 }
 
 TEST(InstrumentTool, AttachedToARunningServiceTextJsonAndErrors) {
@@ -38,6 +72,8 @@ cd '{dir}'
 "$ECAT" download --attach '{sock}' --name drive 0x6060 0 8 --type int8 --json > refused.json; echo $? > refused.code
 "$ECAT" upload --attach '{sock}' --name nobody 0x6041 0 --json > unknown.json; echo $? > unknown.code
 "$ECAT" upload --attach '{sock}' --name drive 0x6041 0 --type uint128 > badtype.txt 2>&1; echo $? > badtype.code
+printf 'not an image' > fw.efw
+"$ECAT" foe_write --attach '{sock}' --name drive --firmware firmware.efw fw.efw --json > firmware.json; echo $? > firmware.code
 "$ECAT" master --attach '{sock}' --json > after.json
 kill -TERM $pid; wait $pid; echo $? > serve.code)",
       fmt::arg("ring", default_ring()), fmt::arg("sock", socket),
@@ -68,6 +104,10 @@ kill -TERM $pid; wait $pid; echo $? > serve.code)",
   EXPECT_EQ(file("unknown.code"), "1\n");
   EXPECT_EQ(json::parse(file("unknown.json"))["code"], "not_found");
   EXPECT_NE(file("badtype.txt").find("is not a type"), std::string::npos) << file("badtype.txt");
+  // A firmware update is a write: refused too, and the drive was left alone (still in OP).
+  EXPECT_EQ(file("firmware.code"), "1\n");
+  EXPECT_EQ(json::parse(file("firmware.json"))["code"], "permission_denied")
+      << file("firmware.json");
 
   // Zero cycles missed because of the commands: none at all in this test's window would be too
   // strict on a loaded machine, but the commands must not have cost the domain its health.
@@ -322,6 +362,119 @@ kill -TERM $pid; wait $pid; echo $? > serve.code)",
   r = tool.run("sii_write --ring '" + default_ring() + "' --name inputs '" + image + "'");
   EXPECT_EQ(r.status, 0) << r.err;
   EXPECT_NE(r.out.find("written to the EEPROM and verified"), std::string::npos) << r.out;
+}
+
+// `foe_write --firmware` attached to a service allowing writes: the drive is taken through INIT
+// and BOOTSTRAP, the image written, and the drive restarted with it and brought back to OP by the
+// session. The device's refusals come back as its errors and leave it running its old image.
+TEST(InstrumentTool, FirmwareUpdateAttached) {
+  ToolRunner tool("firmware");
+  const std::string ring = firmware_ring(tool.dir());
+  ASSERT_FALSE(ring.empty());
+  write_firmware(tool.dir() / "fw2.efw", "2.0.0");
+  write_firmware(tool.dir() / "bad.efw", "6.6.6", true);
+  write_firmware(tool.dir() / "fw3.efw", "3.0.0");
+  const std::string socket = (tool.dir() / "f.sock").string();
+  const std::string script = fmt::format(
+      R"("$ECAT" serve '{ring}' --control '{sock}' --writes --timeout 20 2>serve.err &
+pid=$!
+for i in $(seq 1 400); do "$ECAT" master --attach '{sock}' --json 2>/dev/null | grep -q '"state": "operational"' && break; sleep 0.05; done
+cd '{dir}'
+"$ECAT" upload --attach '{sock}' --name drive 0x100A 0 --type string > version.before
+"$ECAT" foe_write --attach '{sock}' --name drive --firmware firmware.efw fw2.efw --password {pw} > update.txt 2>&1; echo $? > update.code
+"$ECAT" upload --attach '{sock}' --name drive 0x100A 0 --type string > version.after
+"$ECAT" slaves --attach '{sock}' --json > slaves.json
+"$ECAT" master --attach '{sock}' --json > master.json
+"$ECAT" foe_write --attach '{sock}' --name drive --firmware firmware.efw bad.efw --password {pw} --json > corrupt.json; echo $? > corrupt.code
+"$ECAT" foe_write --attach '{sock}' --name drive --firmware firmware.efw fw3.efw --password 0x1 --json > password.json; echo $? > password.code
+"$ECAT" foe_write --attach '{sock}' --name rtd --firmware firmware.efw fw3.efw --json > nofoe.json; echo $? > nofoe.code
+"$ECAT" upload --attach '{sock}' --name drive 0x100A 0 --type string > version.end
+"$ECAT" slaves --attach '{sock}' --json > slaves.end.json
+"$ECAT" master --attach '{sock}' --json > master.end.json
+kill -TERM $pid; wait $pid; echo $? > serve.code)",
+      fmt::arg("ring", ring), fmt::arg("sock", socket), fmt::arg("dir", tool.dir().string()),
+      fmt::arg("pw", kFirmwarePassword));
+  (void)tool.run_script("cd '" + tool.dir().string() + "' && " + script);
+  const auto file = [&](const char* name) { return read_text_file(tool.dir() / name); };
+  EXPECT_EQ(file("serve.code"), "0\n") << file("serve.err");
+  ASSERT_EQ(file("update.code"), "0\n") << file("update.txt") << file("serve.err");
+  EXPECT_EQ(file("update.txt"),
+            "firmware 'firmware.efw' (20044 bytes) written to drive in BOOTSTRAP; restarted, back "
+            "in op\n");
+  EXPECT_NE(file("version.before"), "2.0.0\n");
+  EXPECT_EQ(file("version.after"), "2.0.0\n");  // object 0x100A: the image the device runs
+  const auto state_of = [](const json& slaves, const std::string& name) {
+    for (const auto& s : slaves["slaves"])
+      if (s["name"] == name) return s["state"].get<std::string>();
+    return std::string("absent");
+  };
+  EXPECT_EQ(state_of(json::parse(file("slaves.json")), "drive"), "op");
+  EXPECT_EQ(json::parse(file("master.json"))["state"], "operational");
+
+  // A corrupt image: the device's own refusal (checksum error), exit 1.
+  EXPECT_EQ(file("corrupt.code"), "1\n");
+  const auto corrupt = json::parse(file("corrupt.json"));
+  EXPECT_NE(corrupt["error"].get<std::string>().find("error 0x800C checksum error"),
+            std::string::npos)
+      << corrupt.dump();
+  // A wrong password: the device's "no rights".
+  EXPECT_EQ(file("password.code"), "1\n");
+  const auto password = json::parse(file("password.json"));
+  EXPECT_EQ(password["code"], "permission_denied") << password.dump();
+  EXPECT_NE(password["error"].get<std::string>().find("0x800A"), std::string::npos)
+      << password.dump();
+  // A slave without FoE.
+  EXPECT_EQ(file("nofoe.code"), "1\n");
+  const auto nofoe = json::parse(file("nofoe.json"));
+  EXPECT_EQ(nofoe["code"], "unsupported") << nofoe.dump();
+  EXPECT_NE(nofoe["error"].get<std::string>().find("needs FoE"), std::string::npos) << nofoe.dump();
+  // After the refusals: still the image of the good update, the drive and the session back.
+  EXPECT_EQ(file("version.end"), "2.0.0\n");
+  EXPECT_EQ(state_of(json::parse(file("slaves.end.json")), "drive"), "op");
+  EXPECT_EQ(json::parse(file("master.end.json"))["state"], "operational");
+}
+
+// `foe_write --firmware` standalone, against `ecat sim` over UDP (so that the device outlives
+// each command's session): updated, running the new image (read by a later command), back in
+// PREOP where the standalone session holds its slaves; then the same refusals.
+TEST(InstrumentTool, FirmwareUpdateStandalone) {
+  ToolRunner tool("firmware_standalone");
+  const std::string ring = firmware_ring(tool.dir());
+  ASSERT_FALSE(ring.empty());
+  write_firmware(tool.dir() / "fw2.efw", "2.0.0");
+  write_firmware(tool.dir() / "bad.efw", "6.6.6", true);
+  const std::string script = fmt::format(
+      R"(cd '{dir}'
+"$ECAT" sim --ring '{ring}' --udp 127.0.0.1:0 > sim.out 2>&1 &
+pid=$!
+for i in $(seq 1 200); do grep -q 'udp-server:' sim.out 2>/dev/null && break; sleep 0.05; done
+port=$(sed -n 's/.*udp-server:127.0.0.1:\([0-9]*\).*/\1/p' sim.out | head -1)
+b="--backend udp:127.0.0.1:$port -p 4"
+"$ECAT" foe_write $b --firmware firmware.efw fw2.efw --password {pw} --json > update.json; echo $? > update.code
+"$ECAT" upload $b 0x100A 0 --type string > version.after
+"$ECAT" foe_write $b --firmware firmware.efw bad.efw --password {pw} > corrupt.txt 2>&1; echo $? > corrupt.code
+"$ECAT" foe_write $b --firmware firmware.efw fw2.efw --password 0x1 --json > password.json; echo $? > password.code
+"$ECAT" foe_write --backend udp:127.0.0.1:$port -p 3 --firmware firmware.efw fw2.efw --json > nofoe.json; echo $? > nofoe.code
+"$ECAT" upload $b 0x100A 0 --type string > version.end
+kill -TERM $pid; wait $pid)",
+      fmt::arg("ring", ring), fmt::arg("dir", tool.dir().string()),
+      fmt::arg("pw", kFirmwarePassword));
+  (void)tool.run_script(script);
+  const auto file = [&](const char* name) { return read_text_file(tool.dir() / name); };
+  ASSERT_EQ(file("update.code"), "0\n") << file("update.json") << file("sim.out");
+  const auto update = json::parse(file("update.json"));
+  EXPECT_EQ(update["size"], 20044);
+  EXPECT_EQ(update["state"], "preop");  // where a standalone session holds its slaves
+  EXPECT_EQ(file("version.after"), "2.0.0\n");
+  EXPECT_EQ(file("corrupt.code"), "1\n");
+  EXPECT_NE(file("corrupt.txt").find("error 0x800C checksum error"), std::string::npos)
+      << file("corrupt.txt");
+  EXPECT_EQ(file("password.code"), "1\n");
+  EXPECT_EQ(json::parse(file("password.json"))["code"], "permission_denied")
+      << file("password.json");
+  EXPECT_EQ(file("nofoe.code"), "1\n");
+  EXPECT_EQ(json::parse(file("nofoe.json"))["code"], "unsupported") << file("nofoe.json");
+  EXPECT_EQ(file("version.end"), "2.0.0\n");
 }
 
 TEST(InstrumentTool, ClearErrorsWithoutAMaster) {

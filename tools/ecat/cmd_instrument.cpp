@@ -1034,6 +1034,8 @@ struct FileOptions {
   std::string remote;  // the file's name on the slave
   std::string local;   // the file here
   std::optional<std::string> password;
+  bool firmware =
+      false;  // foe_write --firmware: through BOOTSTRAP (the endpoint's firmware.update)
 };
 
 std::optional<std::vector<std::uint8_t>> read_local(const std::string& path, bool json) {
@@ -1072,13 +1074,25 @@ int cmd_foe(const FileOptions& o, bool write) {
   if (!c) return code;
   auto name = slave_name(*c, o.common.slave);
   if (!name) return finish(name.error(), o.common.target.json, {});
-  Json request{{"op", write ? "foe.write" : "foe.read"}, {"slave", *name}, {"file", o.remote}};
+  const bool firmware = write && o.firmware;
+  Json request{{"op", firmware ? "firmware.update"
+                      : write  ? "foe.write"
+                               : "foe.read"},
+               {"slave", *name},
+               {"file", o.remote}};
   if (o.password) request["password"] = *o.password;
   if (write) request["data"] = to_hex(bytes);
   Result<Json> r = Error(Errc::internal, "not sent");
   {
-    Progress progress(fmt::format("{} '{}'", write ? "foe_write" : "foe_read", o.remote));
+    Progress progress(fmt::format("{}{} '{}'", write ? "foe_write" : "foe_read",
+                                  firmware ? " --firmware" : "", o.remote));
     r = c->call(request);
+  }
+  if (firmware) {
+    return finish(r, o.common.target.json, [&](const Json& j) {
+      fmt::print("firmware '{}' ({} bytes) written to {} in BOOTSTRAP; restarted, back in {}\n",
+                 o.remote, j.value("size", 0), *name, j.value("state", std::string("?")));
+    });
   }
   if (r && !write) {
     if (auto done = write_local(o.local, from_hex(r->value("data", ""))); !done) {
@@ -2094,6 +2108,9 @@ ecat::tool::Command setup_foe_write(CLI::App& parent) {
                    "Write a file to a slave (FoE; attached: the endpoint must allow writes)",
                    o->common, true, true);
   add_file_options(app, *o, true);
+  app->add_flag("--firmware", o->firmware,
+                "A firmware update: the slave is taken through INIT to BOOTSTRAP, the file "
+                "written there, and the slave restarted and brought back to where it was");
   return {app, [o] { return cmd_foe(*o, true); }};
 }
 

@@ -5,7 +5,8 @@
 //   0x2003:01 192 bytes 0..191, 0x2004:01 4096 bytes (byte i = i * 7 mod 256); all rw
 // Small process data: RxPDO 0x1600 led0, led1 (u8, SM2 0x1100, 2 bytes); TxPDO 0x1A00 button1
 // (u8, SM3 0x1180, 1 byte), which mirrors led0 unless forced. VoE: every message is echoed with
-// vendor type + 1.
+// vendor type + 1. FoE: a file store and a firmware slot written in BOOTSTRAP (option
+// firmware_password=N: the password its write request must carry).
 #include <fmt/format.h>
 
 #include "sim/devices/profiles.hpp"
@@ -44,7 +45,9 @@ class MailboxDevice : public StandardApplication {
 }  // namespace
 
 Result<std::unique_ptr<Esc>> make_mailbox_device(const DeviceConfig& config) {
-  if (auto ok = check_options(config, {}); !ok) return ok.error();
+  if (auto ok = check_options(config, {"firmware_password"}); !ok) return ok.error();
+  auto firmware_password = option_u32(config, "firmware_password", 0);
+  if (!firmware_password) return firmware_password.error();
   wire::SiiImage sii;
   sii.identity = {kSimVendorId, 0x00001602, 0x00000001, 0x00000002};
   sii.standard_mailbox = {0x1000, 64, 0x1040, 64};
@@ -108,6 +111,7 @@ Result<std::unique_ptr<Esc>> make_mailbox_device(const DeviceConfig& config) {
   }
   add_sii_process_data(od, sii);
   cfg.sii = sii;
+  cfg.foe.firmware_password = *firmware_password;
   if (auto ok = apply_common_options(config, cfg); !ok) return ok.error();
   const wire::SiiImage image = cfg.sii;
   EscHardware hw;

@@ -12,6 +12,8 @@
 //   position actual.
 // DC: SYNC0-capable (AssignActivate 0x0300); SYNC0 needed when the option dc_required=1 is set or
 // the master writes 0x1C32:01 = 2; cycle times from 0x1C32:05 (125 µs) up.
+// FoE: a file store and a firmware slot written in BOOTSTRAP (option firmware_password=N: the
+// password its write request must carry).
 #include <fmt/format.h>
 
 #include "sim/devices/applications.hpp"
@@ -32,7 +34,10 @@ wire::SiiPdoEntry sii_entry(wire::SiiImage& sii, std::uint16_t index, DataType t
 }  // namespace
 
 Result<std::unique_ptr<Esc>> make_servo(const DeviceConfig& config) {
-  if (auto ok = check_options(config, {"dc_required", "min_cycle_ns"}); !ok) return ok.error();
+  if (auto ok = check_options(config, {"dc_required", "min_cycle_ns", "firmware_password"}); !ok)
+    return ok.error();
+  auto firmware_password = option_u32(config, "firmware_password", 0);
+  if (!firmware_password) return firmware_password.error();
   auto dc_required = option_bool(config, "dc_required", false);
   if (!dc_required) return dc_required.error();
   auto min_cycle = option_u32(config, "min_cycle_ns", kMinCycleNs);
@@ -128,6 +133,7 @@ Result<std::unique_ptr<Esc>> make_servo(const DeviceConfig& config) {
   od.add(make_sm_parameter(0x1C32, 0x0000, 0x0007, *min_cycle));
   od.add(make_sm_parameter(0x1C33, 0x0000, 0x0007, *min_cycle));
   cfg.sii = sii;
+  cfg.foe.firmware_password = *firmware_password;
   cfg.dc.supported = true;
   cfg.dc.required = *dc_required;
   cfg.dc.min_cycle_ns = *min_cycle;
