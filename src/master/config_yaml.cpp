@@ -80,7 +80,7 @@ class Reader {
             {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us", "cycle_lock_memory",
              "base_station", "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
              "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
-             "link_recovery_window_ms", "control", "mailbox_gateway"});
+             "link_recovery_window_ms", "control", "mailbox_gateway", "mailbox_status"});
         !r) {
       return r.error();
     }
@@ -95,6 +95,10 @@ class Reader {
         if (auto r = control(v, p, config.control); !r) return r.error();
       } else if (e.key == "mailbox_gateway") {
         if (auto r = gateway(v, p, config.mailbox_gateway); !r) return r.error();
+      } else if (e.key == "mailbox_status") {
+        auto b = to_bool(ctx_, v, p);
+        if (!b) return b.error();
+        config.mailbox_status = *b;
       } else if (e.key == "cycle_priority") {
         auto n = to_int(ctx_, v, p, 1, 99);
         if (!n) return n.error();
@@ -364,7 +368,7 @@ class Reader {
       if (auto r = check_keys(ctx_, item, path,
                               {"name", "position", "alias", "vendor_id", "product_code", "driver",
                                "driver_options", "process_data", "target", "health_poll_ms",
-                               "startup_sdos", "pdo_source", "sync", "esi"});
+                               "startup_sdos", "pdo_source", "sync", "esi", "mailbox_status"});
           !r) {
         return r.error();
       }
@@ -426,6 +430,10 @@ class Reader {
             return spec_error(ctx_, v, p,
                               fmt::format("unknown target \"{}\" (op, safeop, preop)", *x));
           }
+        } else if (e.key == "mailbox_status") {
+          auto b = to_bool(ctx_, v, p);
+          if (!b) return b.error();
+          s.mailbox_status = *b;
         } else if (e.key == "health_poll_ms") {
           if (v.is_null()) {
             s.health_poll.reset();

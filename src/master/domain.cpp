@@ -156,7 +156,18 @@ std::string_view to_string(DomainState state) noexcept {
 }
 
 std::string to_string(const PdoKey& key) {
-  return fmt::format("station 0x{:04x} SM{}", key.slave, key.sync_manager);
+  return fmt::format("station 0x{:04x} SM{}{}", key.slave, key.sync_manager,
+                     key.kind == RegistrationKind::sm_status ? " status" : "");
+}
+
+std::string_view to_string(RegistrationKind kind) noexcept {
+  switch (kind) {
+    case RegistrationKind::process_data:
+      return "process_data";
+    case RegistrationKind::sm_status:
+      return "sm_status";
+  }
+  return "unknown";
 }
 
 std::string_view to_string(InvalidReason reason) noexcept {
@@ -214,7 +225,8 @@ struct Domain::Plan {
   std::uint32_t image_size = 0;
   std::uint32_t expected_total = 0;
   std::uint32_t entry_count = 0;
-  std::vector<std::uint32_t> input_entries;
+  std::vector<std::uint32_t> input_entries;   // process data: change records
+  std::vector<std::uint32_t> status_entries;  // SyncManager status bytes: published, no records
   std::vector<std::unique_ptr<Exchange>> exchanges;
 
   // Bus thread only from here on.
@@ -440,6 +452,12 @@ Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDir
                  fmt::format("cannot register {}: size {} bytes is outside 1..65535",
                              to_string(key), bytes));
   }
+  if (key.kind == RegistrationKind::sm_status && (bytes != 1 || direction != PdoDirection::input)) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot register {}: a SyncManager status is one input byte, not {} "
+                             "{} bytes",
+                             to_string(key), to_string(direction), bytes));
+  }
   const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
   for (std::uint32_t i = 0; i < count; ++i) {
     if (entry(i).key == key) {
@@ -473,6 +491,11 @@ Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDir
   // Publishing the count makes the entry visible to hot-path readers, fully written.
   entry_count_.store(count + 1, std::memory_order_release);
   return config_.logical_base + e.offset;
+}
+
+Result<std::uint32_t> Domain::register_sm_status(std::uint16_t slave, std::uint8_t sync_manager) {
+  return register_pdo(PdoKey{slave, sync_manager, RegistrationKind::sm_status}, 1,
+                      PdoDirection::input);
 }
 
 std::vector<DomainDatagram> Domain::plan_locked() const {
@@ -545,7 +568,12 @@ Result<void> Domain::build_exchanges_locked() {
   for (const auto& d : plan->datagrams)
     plan->expected_total += d.expected_wkc;
   for (std::uint32_t i = 0; i < plan->entry_count; ++i) {
-    if (entry(i).direction == PdoDirection::input) plan->input_entries.push_back(i);
+    if (entry(i).direction != PdoDirection::input) continue;
+    if (entry(i).key.kind == RegistrationKind::sm_status) {
+      plan->status_entries.push_back(i);
+    } else {
+      plan->input_entries.push_back(i);
+    }
   }
   plan->tx_image.assign(image_size_, 0);
   plan->rx_image.assign(image_size_, 0);
@@ -1255,6 +1283,17 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
     store_bytes(input_words_.load(std::memory_order_relaxed), e.offset,
                 p.rx_image.data() + e.offset, e.size);
     e.input_changed_ns.store(now_ns, std::memory_order_relaxed);
+  }
+  // SyncManager status bytes (a mailbox's "full" bit) are read by the master itself: published
+  // with the cycle, but not change records (they are nobody's signal).
+  for (const std::uint32_t index : p.status_entries) {
+    Entry& e = entry(index);
+    const std::uint8_t* fresh = p.rx_image.data() + e.offset;
+    std::uint8_t* old = p.last_inputs.data() + e.offset;
+    if (p.published && std::memcmp(fresh, old, e.size) == 0) continue;
+    store_bytes(input_words_.load(std::memory_order_relaxed), e.offset, fresh, e.size);
+    e.input_changed_ns.store(now_ns, std::memory_order_relaxed);
+    std::memcpy(old, fresh, e.size);
   }
   refreshed_ns_.store(now_ns, std::memory_order_relaxed);
   input_seq_.store(seq + 2, std::memory_order_release);

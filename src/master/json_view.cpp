@@ -74,6 +74,10 @@ Json slave_json(const SlaveInfo& info, bool verbose) {
                       {"enhanced_link_detection", info.dl_status->enhanced_link_detection}};
   }
   j["mailbox"] = {{"present", info.has_mailbox}, {"coe", info.coe}};
+  if (!info.mailbox_status_domain.empty()) {
+    j["mailbox"]["status_domain"] = info.mailbox_status_domain;
+    j["mailbox"]["status_fmmu"] = info.mailbox_status_fmmu;
+  }
   j["attachments"] = Json::array();
   for (const auto& a : info.attachments) {
     j["attachments"].push_back({{"sync_manager", a.sync_manager},

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <ecat/exec/transact.hpp>
+#include <ecat/master/domain.hpp>
 #include <ecat/master/mailbox.hpp>
 #include <ecat/wire/coe.hpp>
 #include <ecat/wire/registers.hpp>
@@ -15,6 +16,7 @@ namespace {
 
 constexpr std::uint8_t kRepeatRequestBit = 0x02;  // SM activate (offset 6) bit 1
 constexpr std::uint8_t kRepeatAckBit = 0x02;      // SM PDI control (offset 7) bit 1
+constexpr std::uint8_t kMailboxFullBit = 0x08;    // SM status (offset 5) bit 3
 
 std::string ms_text(std::chrono::nanoseconds d) {
   return fmt::format("{} ms", std::chrono::duration<double, std::milli>(d).count());
@@ -71,6 +73,38 @@ void Mailbox::queue_unsolicited(MailboxMessage message) {
     unsolicited_.pop_front();
     ++stats_.dropped;
   }
+}
+
+Mailbox::StatusView Mailbox::status_view() const noexcept {
+  StatusView view;
+  if (!status_source_ || status_source_->domain == nullptr) return view;
+  const Domain& domain = *status_source_->domain;
+  if (domain.state() != DomainState::cycling) return view;
+  const auto period = domain.cycle_period();
+  if (period > options_.status_max_period) return view;
+  std::uint8_t status = 0;
+  auto sample = domain.sample(status_source_->handle, wire::MutableBytes(&status, 1));
+  if (!sample || !sample->freshness || sample->freshness->state != Freshness::fresh ||
+      !sample->updated_at) {
+    return view;
+  }
+  // A cycle published before the last read may still show the message that read took.
+  if (*sample->updated_at > last_sm1_read_ && (status & kMailboxFullBit) != 0) {
+    view.kind = StatusView::Kind::full;
+    return view;
+  }
+  view.kind = StatusView::Kind::empty;
+  // The next cycle's inputs are due a period after this one's, give or take the round trip's
+  // jitter; a cycle later than that is looked for again a quarter period on.
+  const auto now = exec::Clock::now();
+  view.next_check = std::max(*sample->updated_at + period + period / 4, now + period / 4);
+  return view;
+}
+
+void Mailbox::note_sm1_read(bool found) noexcept {
+  ++stats_.sm1_reads;
+  if (!found) ++stats_.empty_reads;
+  last_sm1_read_ = exec::Clock::now();
 }
 
 Result<Mailbox::Arrival> Mailbox::take(wire::Bytes raw, const ReplyFilter& is_reply,
@@ -194,6 +228,7 @@ exec::Task<Result<void>> Mailbox::send(const Guard& guard, wire::MailboxType typ
                       "slave {:#06x} (SM0 at {:#06x})",
                       what, station_, config_.out_offset));
     }
+    if (options_.read_with_request) note_sm1_read(reply->wkc(1) == 1);
     if (options_.read_with_request && reply->wkc(1) == 1) {
       const auto read = reply->data(1);
       inbox_.emplace_back(read.begin(), read.end());
@@ -243,6 +278,16 @@ exec::Task<Result<MailboxMessage>> Mailbox::receive_until(const Guard& guard,
     if (*arrival == Arrival::reply) co_return message;
   }
   for (;;) {
+    const StatusView view = status_view();
+    if (view.kind == StatusView::Kind::empty) {
+      // Nothing in SM1 as of the last cycle: no frame, wait for the next one.
+      const auto now = exec::Clock::now();
+      if (now >= deadline) break;
+      ++stats_.status_waits;
+      co_await exec::sleep_for(loop_, std::min(view.next_check, deadline) - now);
+      continue;
+    }
+    if (view.kind == StatusView::Kind::unknown && status_source_) ++stats_.status_fallbacks;
     bus::Transaction tx;
     tx.fprd(station_, config_.in_offset, config_.in_size);
     auto reply = co_await transact(std::move(tx));
@@ -253,6 +298,7 @@ exec::Task<Result<MailboxMessage>> Mailbox::receive_until(const Guard& guard,
                       what, station_, config_.in_offset));
     }
     const std::uint16_t wkc = reply->wkc(0);
+    note_sm1_read(wkc == 1);
     if (wkc > 1) {
       co_return Error(Errc::wkc_mismatch,
                       fmt::format("{}: the mailbox read from slave {:#06x} came back with WKC {} "
@@ -263,11 +309,14 @@ exec::Task<Result<MailboxMessage>> Mailbox::receive_until(const Guard& guard,
       auto arrival = take(reply->data(0), is_reply, &message, what);
       if (!arrival) co_return arrival.error();
       if (*arrival == Arrival::reply) co_return message;
-      // SM1 may hold the next message already: read again at once (within the deadline).
+      // SM1 may hold the next message already: read again at once (within the deadline; with
+      // the mapped status, once a cycle shows it).
       if (exec::Clock::now() < deadline) continue;
       break;
     }
     if (exec::Clock::now() >= deadline) break;
+    // The status said full but a cycle older than the read: the loop waits for a newer one.
+    if (view.kind == StatusView::Kind::full) continue;
     co_await exec::sleep_for(loop_, options_.poll_interval);
   }
 
@@ -315,6 +364,7 @@ exec::Task<Result<Mailbox::RepeatOutcome>> Mailbox::repeat(const ReplyFilter& is
     tx.fprd(station_, config_.in_offset, config_.in_size);
     auto reply = co_await transact(std::move(tx));
     if (!reply) co_return context(reply.error());
+    note_sm1_read(reply->wkc(1) == 1);
     if (reply->wkc(0) == 1 && ((reply->data(0)[0] & kRepeatAckBit) != 0) == want_ack) {
       outcome.acknowledged = true;
     }
@@ -362,12 +412,21 @@ exec::Task<Result<std::size_t>> Mailbox::poll() {
     ++count;
     if (auto taken = take(raw, {}, nullptr, what); !taken) co_return taken.error();
   }
-  // SM1 holds one message at a time; a slave with more queued refills it after each read.
+  // SM1 holds one message at a time; a slave with more queued refills it after each read. With
+  // the mapped status, SM1 is read while a cycle after the last read shows it full (at most once
+  // per cycle), and not at all while it shows it empty.
   for (int reads = 0; reads < 16; ++reads) {
+    const StatusView view = status_view();
+    if (view.kind == StatusView::Kind::empty) {
+      ++stats_.status_waits;
+      break;
+    }
+    if (view.kind == StatusView::Kind::unknown && status_source_) ++stats_.status_fallbacks;
     bus::Transaction tx;
     tx.fprd(station_, config_.in_offset, config_.in_size);
     auto reply = co_await transact(std::move(tx));
     if (!reply) co_return reply.error().context(what);
+    note_sm1_read(reply->wkc(0) == 1);
     if (reply->wkc(0) != 1) break;
     ++count;
     if (auto taken = take(reply->data(0), {}, nullptr, what); !taken) co_return taken.error();

@@ -220,8 +220,9 @@ Result<ProcessDataPlan> plan_process_data(const PreopFacts& facts, const SlaveCo
     auto& a = plan.attachments[i];
     const auto* domain = find_domain(facts, a.domain);
     const auto existing =
-        std::find_if(domain->registered.begin(), domain->registered.end(),
-                     [&](const auto& r) { return r.sync_manager == a.sync_manager; });
+        std::find_if(domain->registered.begin(), domain->registered.end(), [&](const auto& r) {
+          return r.sync_manager == a.sync_manager && r.kind == RegistrationKind::process_data;
+        });
     if (existing != domain->registered.end()) {
       if (existing->size != a.size || existing->direction != a.direction) {
         return Error(Errc::wrong_state,
@@ -237,6 +238,39 @@ Result<ProcessDataPlan> plan_process_data(const PreopFacts& facts, const SlaveCo
     need.domain = a.domain;
     ++need.count;
     need.bytes += a.size;
+  }
+
+  // The mailbox status: where the slave has it registered already (a rebuild: the image of a
+  // cycling domain cannot change, so it stays mapped whatever the option says now), else, when
+  // asked for, in the fastest of its domains; only with an FMMU to spare.
+  if (facts.has_mailbox && !plan.attachments.empty() && plan.attachments.size() < fmmu_available) {
+    MailboxStatusMapping m;
+    m.sync_manager = facts.mailbox_in_sync_manager;
+    m.physical_address = static_cast<std::uint16_t>(reg::sync_manager(m.sync_manager) +
+                                                    reg::kSyncManagerStatusOffset);
+    m.fmmu = static_cast<std::uint8_t>(plan.attachments.size());
+    const DomainFacts* fastest = nullptr;
+    for (const auto& d : facts.domains) {
+      for (const auto& r : d.registered) {
+        if (r.kind == RegistrationKind::sm_status && r.sync_manager == m.sync_manager) {
+          m.domain = d.id;
+          m.logical_address = r.logical_address;
+          m.new_registration = false;
+        }
+      }
+    }
+    for (const auto& a : plan.attachments) {
+      const auto* d = find_domain(facts, a.domain);
+      if (fastest == nullptr || d->period < fastest->period) fastest = d;
+    }
+    if (m.new_registration && facts.mailbox_status) {
+      m.domain = fastest->id;
+      auto& need = room[m.domain];
+      need.domain = m.domain;
+      ++need.count;
+      need.bytes += 1;
+    }
+    if (!m.domain.empty()) plan.mailbox_status = std::move(m);
   }
   for (auto& [id, need] : room)
     plan.room.push_back(std::move(need));
@@ -294,6 +328,19 @@ std::vector<RegisterWrite> process_data_writes(const ProcessDataPlan& plan) {
   }
   for (const auto& sm : plan.sync_managers) {
     if (written.count(sm.sync_manager) == 0) write_sync_manager(sm);
+  }
+  if (const auto& m = plan.mailbox_status) {
+    wire::FmmuConfig f;
+    f.logical_start = m->logical_address;
+    f.length = 1;
+    f.logical_start_bit = 0;
+    f.logical_stop_bit = 7;
+    f.physical_start = m->physical_address;
+    f.type = wire::FmmuType::read;
+    f.active = true;
+    const auto encoded = f.encode();
+    out.push_back({static_cast<std::uint16_t>(reg::kFmmuBase + reg::kFmmuSize * m->fmmu),
+                   std::vector<std::uint8_t>(encoded.begin(), encoded.end())});
   }
   return out;
 }

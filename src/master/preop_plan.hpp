@@ -19,9 +19,11 @@
 // always used for them.
 #pragma once
 
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -45,8 +47,10 @@ struct DomainFacts {
     std::uint16_t size = 0;
     PdoDirection direction = PdoDirection::input;
     std::uint32_t logical_address = 0;
+    RegistrationKind kind = RegistrationKind::process_data;
   };
   std::string id;
+  std::chrono::nanoseconds period{0};
   std::vector<Registered> registered;
 };
 
@@ -56,6 +60,9 @@ struct PreopFacts {
   wire::SiiImage sii;
   std::uint8_t fmmu_count = 0;  // from the ESC information; 0 when the ESC does not say (16)
   bool has_mailbox = false;     // the SII describes a standard mailbox and it was set up
+  // Map the read mailbox's status into a domain (the configuration's mailbox_status, resolved).
+  bool mailbox_status = false;
+  std::uint8_t mailbox_in_sync_manager = 1;  // the read mailbox's SyncManager
   std::vector<DomainFacts> domains;
 };
 
@@ -102,6 +109,17 @@ struct PlannedSyncManager {
   wire::SyncManagerConfig config;
 };
 
+// The read mailbox's status byte mapped into a domain by an FMMU of its own (read, 1 byte at the
+// SyncManager's status register 0x0805 + 8 n).
+struct MailboxStatusMapping {
+  std::string domain;
+  std::uint8_t sync_manager = 1;
+  std::uint16_t physical_address = 0;
+  std::uint8_t fmmu = 0;
+  std::uint32_t logical_address = 0;  // set when registered before (a rebuild), else by the caller
+  bool new_registration = true;
+};
+
 struct ProcessDataPlan {
   // The driver's sync-update SDOs, downloaded before anything below is applied.
   std::vector<SdoWrite> sdos;
@@ -117,6 +135,10 @@ struct ProcessDataPlan {
   // first attachment), then those routed nowhere, which the slave still checks on its way to
   // SAFEOP (AL status 0x001D / 0x001E otherwise) and which no FMMU maps.
   std::vector<PlannedSyncManager> sync_managers;
+  // facts.mailbox_status, a mailbox, process data in a domain and an FMMU to spare: the mailbox
+  // status in the domain with the shortest period (the one it already is in, after a rebuild).
+  // Its registration comes after the attachments' (room included in `room`).
+  std::optional<MailboxStatusMapping> mailbox_status;
 };
 
 // `coe` is what was read from the objects coe_assignments_to_read() named, when
@@ -136,7 +158,8 @@ struct RegisterWrite {
 
 // The SyncManager and FMMU writes of `plan` once every attachment has its logical address: for
 // each attachment its SyncManager (deactivated, then written with its configuration) the first
-// time it appears, then its FMMU; then the SyncManagers routed to no domain.
+// time it appears, then its FMMU; then the SyncManagers routed to no domain; then the mailbox
+// status FMMU.
 std::vector<RegisterWrite> process_data_writes(const ProcessDataPlan& plan);
 
 }  // namespace ecat::master::detail

@@ -112,6 +112,8 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
     } else {
       mailbox = std::make_unique<Mailbox>(loop, bus, station, mc);
     }
+    // Polled until the PREOP configuration has mapped SM1's status again (an FMMU written now).
+    mailbox->set_status_source(std::nullopt);
   } else {
     std::lock_guard lock(mutex);
     mailbox.reset();
@@ -194,13 +196,16 @@ detail::PreopFacts Slave::Impl::preop_facts() const {
   facts.sii = sii->decoded.image;
   facts.fmmu_count = esc.fmmu_count;
   facts.has_mailbox = mailbox != nullptr;
+  facts.mailbox_status = config.mailbox_status.value_or(session.config.mailbox_status);
+  if (mailbox) facts.mailbox_in_sync_manager = mailbox->config().in_sync_manager;
   const auto station = self.station();
   for (const auto& domain : session.domains) {
     detail::DomainFacts d;
     d.id = domain->id();
+    d.period = domain->cycle_period();
     for (const auto& r : domain->registrations()) {
       if (r.key.slave != station) continue;
-      d.registered.push_back({r.key.sync_manager, r.size, r.direction, r.logical});
+      d.registered.push_back({r.key.sync_manager, r.size, r.direction, r.logical, r.key.kind});
     }
     facts.domains.push_back(std::move(d));
   }
@@ -256,6 +261,15 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
     }
     a.logical_address = *logical;
   }
+  if (auto& m = plan->mailbox_status; m && m->new_registration) {
+    auto logical = session.find_domain(m->domain)->register_sm_status(station, m->sync_manager);
+    if (!logical) {
+      co_return logical.error().context(
+          fmt::format("{}: registering the status of SyncManager {} (mailbox) in domain \"{}\"",
+                      who(), m->sync_manager, m->domain));
+    }
+    m->logical_address = *logical;
+  }
 
   bus::Transaction tx;
   for (const auto& w : detail::process_data_writes(*plan))
@@ -282,6 +296,17 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
   layout = std::move(plan->layout);
   signals = std::move(plan->signals);
   attachments = std::move(plan->attachments);
+  mailbox_status = plan->mailbox_status;
+  if (mailbox) {
+    std::optional<MailboxStatusSource> source;
+    if (mailbox_status) {
+      const auto* domain = session.find_domain(mailbox_status->domain);
+      auto handle =
+          domain->find(PdoKey{station, mailbox_status->sync_manager, RegistrationKind::sm_status});
+      if (handle) source = MailboxStatusSource{domain, *handle};
+    }
+    mailbox->set_status_source(source);
+  }
   configuration_error.reset();
   configuration_failure.reset();
   co_return ok();
@@ -971,6 +996,10 @@ SlaveInfo Slave::info() const {
   out.layout = impl_->layout;
   out.signals = impl_->signals;
   out.attachments = impl_->attachments;
+  if (impl_->mailbox_status) {
+    out.mailbox_status_domain = impl_->mailbox_status->domain;
+    out.mailbox_status_fmmu = impl_->mailbox_status->fmmu;
+  }
   out.configuration_error = impl_->configuration_error;
   out.fault = impl_->fault;
   out.startup_error = impl_->startup_error;

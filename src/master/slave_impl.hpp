@@ -64,6 +64,8 @@ struct Slave::Impl {
   PdoLayout layout;
   std::vector<Signal> signals;
   std::vector<SmAttachment> attachments;
+  // SM1's status mapped into a domain (mailbox status in the cyclic frame), when it is.
+  std::optional<detail::MailboxStatusMapping> mailbox_status;
   // The retained output image of each output SyncManager: what write_output staged; written to
   // every domain the SyncManager is in, and again after a reconnect.
   std::map<std::uint8_t, std::vector<std::uint8_t>> output_images;

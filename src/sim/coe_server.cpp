@@ -122,6 +122,10 @@ void CoeServer::on_sync_manager_changed(Esc& esc, std::size_t sm) {
   if (sm == config_.request_sm || sm == config_.reply_sm) reset();
 }
 
+void CoeServer::advance(Esc& esc) {
+  if (!queue_.empty()) pump(esc);
+}
+
 void CoeServer::reset() {
   transfer_ = Transfer{};
   queue_.clear();
@@ -758,6 +762,7 @@ void CoeServer::enqueue(Esc& esc, Pending pending) {
     ++stats_.replies_dropped;
     return;
   }
+  pending.ready_ns = esc.now_ns() + config_.reply_delay.count();
   queue_.push_back(std::move(pending));
   pump(esc);
 }
@@ -767,6 +772,7 @@ void CoeServer::pump(Esc& esc) {
   while (!queue_.empty()) {
     const auto& sm = esc.sync_manager(config_.reply_sm);
     if (sm.mailbox_full) return;
+    if (queue_.front().ready_ns > esc.now_ns()) return;  // the firmware is still at it
     Pending next = std::move(queue_.front());
     queue_.pop_front();
     if (!esc.pdi_mailbox_send(config_.reply_sm, next.bytes)) {

@@ -479,6 +479,7 @@ void StandardApplication::advance(Esc& esc, std::int64_t now_ns) {
     }
   }
   if (emulation && watchdog_handled_ && !watchdog_expired(esc)) watchdog_handled_ = false;
+  if (coe_) coe_->advance(esc);
   update(now_ns);
 }
 

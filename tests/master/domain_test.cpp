@@ -230,6 +230,48 @@ TEST(DomainLayoutTest, ExpectedWkcPerSlaveAndDatagram) {
   }
 }
 
+// A SyncManager status registration (the mailbox status in the cyclic frame) is one input byte of
+// its own kind: it counts as a read FMMU does, once per slave and datagram, so it adds 1 for a
+// slave with only outputs there and nothing for one that reads already; it has its own key beside
+// the SyncManager's image, and any other shape is refused.
+TEST(DomainLayoutTest, SyncManagerStatusRegistration) {
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  auto c = config();
+  c.max_datagram_size = 6;
+  auto domain = make_domain(*rig->bus, c);
+  ASSERT_TRUE(domain);
+  ASSERT_TRUE(domain->register_pdo({0x2001, 2}, 2, PdoDirection::output).ok());  // 0..2
+  ASSERT_TRUE(domain->register_pdo({0x2001, 3}, 2, PdoDirection::input).ok());   // 2..4
+  auto status1 = domain->register_sm_status(0x2001, 1);                          // 4
+  ASSERT_TRUE(status1) << status1.error().describe();
+  EXPECT_EQ(*status1, 0x00010004u);
+  ASSERT_TRUE(domain->register_pdo({0x2002, 2}, 1, PdoDirection::output).ok());  // 5
+  ASSERT_TRUE(domain->register_sm_status(0x2002, 1).ok());                       // 6: next datagram
+  ASSERT_TRUE(domain->register_pdo({0x2003, 2}, 1, PdoDirection::output).ok());  // 7
+  auto layout = domain->layout();
+  ASSERT_EQ(layout.size(), 2u);
+  EXPECT_EQ(layout[0].length, 6u);
+  EXPECT_EQ(layout[0].expected_wkc, 3u + 2u);  // 0x2001 reads and writes, 0x2002 writes
+  EXPECT_EQ(layout[1].length, 2u);
+  EXPECT_EQ(layout[1].expected_wkc, 1u + 2u);  // 0x2002's status alone, 0x2003 writes
+
+  const PdoKey key{0x2001, 1, RegistrationKind::sm_status};
+  auto reg = domain->registration(key);
+  ASSERT_TRUE(reg) << reg.error().describe();
+  EXPECT_EQ(reg->size, 1u);
+  EXPECT_EQ(reg->direction, PdoDirection::input);
+  EXPECT_EQ(to_string(key), "station 0x2001 SM1 status");
+  EXPECT_FALSE(domain->registration(PdoKey{0x2001, 1}));  // not the SyncManager's image
+  EXPECT_EQ(domain->register_sm_status(0x2001, 1).error().code(), Errc::invalid_argument);
+  auto wrong =
+      domain->register_pdo(PdoKey{0x2004, 1, RegistrationKind::sm_status}, 2, PdoDirection::input);
+  ASSERT_FALSE(wrong);
+  EXPECT_NE(wrong.error().message().find("one input byte"), std::string::npos);
+  EXPECT_FALSE(domain->register_pdo(PdoKey{0x2004, 1, RegistrationKind::sm_status}, 1,
+                                    PdoDirection::output));
+}
+
 TEST(DomainHotPathTest, ErrorsBeforeCycling) {
   auto rig = make_rig();
   ASSERT_TRUE(rig);

@@ -5,6 +5,7 @@
 // configurations that cannot work, each refused before anything would be written.
 #include "master/preop_plan.hpp"
 
+#include <chrono>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -352,6 +353,74 @@ void expect_error(const Result<Planned>& planned, Errc code, const std::string& 
   EXPECT_NE(planned.error().describe().find(text), std::string::npos) << planned.error().describe();
   EXPECT_NE(planned.error().describe().find("slave dut (station 0x1001)"), std::string::npos)
       << planned.error().describe();
+}
+
+// Mailbox status in the cyclic frame: a mailbox slave with process data and an FMMU to spare
+// gets one more read FMMU, 1 byte at SM1's status register, registered in the fastest of its
+// domains after its SyncManagers; none when the option is off, when the FMMUs are all taken, or
+// without process data; a rebuilt slave keeps the registration it has.
+TEST(PreopPlan, MailboxStatusMappedWithASpareFmmu) {
+  auto facts = facts_for("mailbox", {"slow", "fast"});
+  facts.domains[0].period = std::chrono::milliseconds(4);
+  facts.domains[1].period = std::chrono::milliseconds(1);
+  facts.mailbox_status = true;
+  facts.fmmu_count = 3;
+  SlaveConfig config;
+  config.process_data.kind = ProcessDataRequest::Kind::signals;
+  config.process_data.routes = {{"outputs.led0", "slow"}, {"inputs.button1", "fast"}};
+  auto planned = plan(facts, config);
+  ASSERT_TRUE(planned) << planned.error().describe();
+  auto& p = planned->process_data;
+  ASSERT_EQ(p.attachments.size(), 2u);
+  ASSERT_TRUE(p.mailbox_status);
+  EXPECT_EQ(p.mailbox_status->domain, "fast");
+  EXPECT_EQ(p.mailbox_status->fmmu, 2);
+  EXPECT_EQ(p.mailbox_status->sync_manager, 1);
+  EXPECT_EQ(p.mailbox_status->physical_address, 0x080D);
+  EXPECT_TRUE(p.mailbox_status->new_registration);
+  std::size_t fast_count = 0;
+  for (const auto& r : p.room) {
+    if (r.domain == "fast") fast_count = r.count;
+  }
+  EXPECT_EQ(fast_count, 2u);  // the inputs and the status byte
+  register_all(p);
+  p.mailbox_status->logical_address = 0x20000;
+  const auto writes = process_data_writes(p);
+  ASSERT_FALSE(writes.empty());
+  const auto& last = writes.back();
+  EXPECT_EQ(last.address, wire::reg::kFmmuBase + 2 * wire::reg::kFmmuSize);
+  auto fmmu = wire::FmmuConfig::decode(last.data);
+  ASSERT_TRUE(fmmu);
+  EXPECT_EQ(fmmu->logical_start, 0x20000u);
+  EXPECT_EQ(fmmu->length, 1);
+  EXPECT_EQ(fmmu->physical_start, 0x080D);
+  EXPECT_EQ(fmmu->type, wire::FmmuType::read);
+  EXPECT_TRUE(fmmu->active);
+
+  facts.fmmu_count = 2;  // both taken by the process data
+  auto full = plan(facts, config);
+  ASSERT_TRUE(full);
+  EXPECT_FALSE(full->process_data.mailbox_status);
+  facts.fmmu_count = 3;
+  facts.mailbox_status = false;
+  auto off = plan(facts, config);
+  ASSERT_TRUE(off);
+  EXPECT_FALSE(off->process_data.mailbox_status);
+  // Off now, but registered before (a rebuild): kept, as the domain's image cannot change.
+  facts.domains[0].registered.push_back(
+      {1, 1, PdoDirection::input, 0x30000, RegistrationKind::sm_status});
+  auto kept = plan(facts, config);
+  ASSERT_TRUE(kept);
+  ASSERT_TRUE(kept->process_data.mailbox_status);
+  EXPECT_EQ(kept->process_data.mailbox_status->domain, "slow");
+  EXPECT_EQ(kept->process_data.mailbox_status->logical_address, 0x30000u);
+  EXPECT_FALSE(kept->process_data.mailbox_status->new_registration);
+
+  auto none = facts_for("mailbox");
+  none.mailbox_status = true;
+  auto no_pd = plan(none, SlaveConfig{});
+  ASSERT_TRUE(no_pd);
+  EXPECT_FALSE(no_pd->process_data.mailbox_status);
 }
 
 TEST(PreopPlanErrors, MoreSyncManagersThanTheEscHasFmmus) {

@@ -91,12 +91,19 @@ struct DomainTransition {
 };
 std::span<const DomainTransition> domain_transitions() noexcept;
 
+// What a registration maps: a SyncManager's image (process data), or the SyncManager's one-byte
+// status register (0x0805 + 8 n) read through an FMMU of its own — the read mailbox's status
+// ("mailbox full", bit 3), so a mailbox reply is seen in the cyclic frame.
+enum class RegistrationKind : std::uint8_t { process_data, sm_status };
+std::string_view to_string(RegistrationKind kind) noexcept;
+
 struct PdoKey {
   std::uint16_t slave = 0;        // configured station address
   std::uint8_t sync_manager = 0;  // SyncManager index
+  RegistrationKind kind = RegistrationKind::process_data;
   auto operator<=>(const PdoKey&) const = default;
 };
-// "station 0x1002 SM2"
+// "station 0x1002 SM2", "station 0x1002 SM1 status"
 std::string to_string(const PdoKey& key);
 
 // Position of a registration in its domain: O(1) hot-path access without a key lookup.
@@ -401,6 +408,10 @@ struct SlaveConfig {
   // mode's AssignActivate from its DC OpModes (before the SII's DC category); the device is the
   // file's entry with the slave's product code. Read when SYNC is first configured.
   std::string esi_file{};
+  // Map the read mailbox's status (SM1's status byte, "mailbox full") into the cycling domain
+  // the slave's process data is in, so waiting for a mailbox reply costs no frames of its own
+  // (MasterConfig::mailbox_status). Empty: the master's setting.
+  std::optional<bool> mailbox_status{};
   // AL status poll period while the slave is in PREOP or above; empty disables it.
   std::optional<std::chrono::nanoseconds> health_poll = std::chrono::milliseconds(250);
   // SDO downloads run in PREOP before process data is set up (after the driver's own).
@@ -517,6 +528,13 @@ struct MasterConfig {
   // within this window (or cannot be reopened at all, or the bus stops), the master ends the
   // session: idle, with last_failure "link_lost" (or "bus_stopped").
   std::chrono::nanoseconds link_recovery_window = std::chrono::seconds(30);
+  // Mailbox status in the cyclic frame (as SOEM and KickCAT do): a slave with a mailbox, process
+  // data in a domain and a spare FMMU gets one more FMMU mapping its SM1 status byte (0x080D)
+  // into that domain's image; its mailbox then waits for "mailbox full" there instead of polling
+  // SM1 with frames of its own, and polls only while the status cannot be trusted (the domain not
+  // cycling or stale, its period above MailboxOptions::status_max_period). SlaveConfig can say
+  // otherwise per slave. Ring file: `master: mailbox_status:` and `slaves[]: mailbox_status:`.
+  bool mailbox_status = true;
   AlOptions al{};
   InitOptions init{};
   // The device drivers slaves are matched with (by identity, or by SlaveConfig::driver's name):

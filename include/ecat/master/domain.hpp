@@ -17,8 +17,9 @@
 //  Cycle health (healthy / invalid{reason}) is runtime data in stats(), not a state.
 //
 // Keys and layout
-//  * A registration is named by PdoKey {slave, sync_manager}: the slave's configured station
-//    address and the SyncManager index whose image it is. One key, one registration.
+//  * A registration is named by PdoKey {slave, sync_manager, kind}: the slave's configured station
+//    address, the SyncManager index and what of it is mapped (its image, or its status byte:
+//    register_sm_status). One key, one registration.
 //  * The image is the registrations in registration order, each at the next free byte. The
 //    domain's logical window starts at DomainConfig::logical_base.
 //  * Images larger than one datagram are split into several LRW datagrams (each at most
@@ -145,6 +146,11 @@ class Domain final : public CyclicParticipant {
   // kAutoImageLimit and kMaxRegistrations ceilings).
   Result<std::uint32_t> register_pdo(PdoKey key, std::size_t bytes, PdoDirection direction,
                                      bool contributes_wkc = true);
+  // Appends SyncManager `sync_manager`'s status byte (0x0805 + 8 n, read through an FMMU of the
+  // slave's own): a registration of kind sm_status, one input byte that counts in the working
+  // counter as any read FMMU does (once per slave and datagram). Its value is published with each
+  // valid cycle (read / read_fresh / sample by its key or handle) but makes no change records.
+  Result<std::uint32_t> register_sm_status(std::uint16_t slave, std::uint8_t sync_manager);
   // Whether `count` more registrations of `bytes` bytes in all fit (max_registrations,
   // max_image_size), refused in the words register_pdo would use: a slave checks all its
   // SyncManagers first, so it registers all of them or none (a half-registered slave would leave

@@ -18,6 +18,13 @@
 // callback. Any other message is offered to the exchange's ReplyFilter; one it does not claim
 // (a late reply to an earlier request, another protocol's traffic) is queued (unsolicited()).
 //
+// Mailbox status in the cyclic frame: with a status source (set_status_source: SM1's status byte
+// mapped by an FMMU into a cycling domain, Domain::register_sm_status), receive() and poll() read
+// SM1 only when a cycle published after the last SM1 read shows "mailbox full" (bit 3); while it
+// shows SM1 empty they sleep until the domain's next cycle is due, sending nothing. They poll as
+// above whenever the status cannot be trusted: the domain not cycling, its inputs not fresh (an
+// invalid or stale cycle), or its period above MailboxOptions::status_max_period.
+//
 // Lost replies: when no reply comes within the timeout and MailboxOptions::repeat_request is set,
 // the master toggles SM1's repeat request (0x080E bit 1); the slave copies its last reply into SM1
 // again and acknowledges (0x080F bit 1). Only then does the exchange give up.
@@ -40,6 +47,7 @@
 #include <ecat/exec/async_mutex.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
+#include <ecat/master/config.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/bytes.hpp>
 #include <ecat/wire/emergency.hpp>
@@ -70,6 +78,15 @@ struct MailboxMessage {
   std::optional<std::uint8_t> expected_counter;
 };
 
+class Domain;
+
+// Where a cycling domain shows SM1's status byte (Domain::register_sm_status). The domain must
+// outlive the mailbox's use of it (the session's domains outlive its slaves' mailboxes).
+struct MailboxStatusSource {
+  const Domain* domain = nullptr;
+  PdoHandle handle{};
+};
+
 struct MailboxOptions {
   // Pause between two reads of an empty SM1 (and between writes into a full SM0). Zero polls back
   // to back.
@@ -78,6 +95,9 @@ struct MailboxOptions {
   bool read_with_request = true;
   // Recover a lost reply with SM1's repeat request before a timeout is reported.
   bool repeat_request = true;
+  // The mapped status (set_status_source) is used while its domain cycles at least this often;
+  // with a slower domain waiting a cycle per message costs more time than polling costs frames.
+  std::chrono::nanoseconds status_max_period = std::chrono::milliseconds(10);
   // How long to wait for the repeated reply (on top of the exchange's timeout).
   std::chrono::nanoseconds repeat_timeout = std::chrono::milliseconds(100);
   // Bounds of the queues of messages nobody waited for; the oldest are dropped beyond them.
@@ -91,16 +111,20 @@ struct MailboxOptions {
 };
 
 struct MailboxStats {
-  std::uint64_t requests = 0;         // messages written into SM0
-  std::uint64_t write_retries = 0;    // writes refused because SM0 was still full
-  std::uint64_t messages = 0;         // messages read from SM1 (duplicates included)
-  std::uint64_t replies = 0;          // ... that were the reply to an exchange
-  std::uint64_t duplicates = 0;       // repeated messages dropped
-  std::uint64_t emergencies = 0;      // CoE emergencies received
-  std::uint64_t unsolicited = 0;      // other messages nobody waited for
-  std::uint64_t dropped = 0;          // queued messages dropped at a queue's bound
-  std::uint64_t repeat_requests = 0;  // SM1 repeat requests issued
-  std::uint64_t timeouts = 0;         // exchanges that got no reply
+  std::uint64_t requests = 0;          // messages written into SM0
+  std::uint64_t write_retries = 0;     // writes refused because SM0 was still full
+  std::uint64_t messages = 0;          // messages read from SM1 (duplicates included)
+  std::uint64_t replies = 0;           // ... that were the reply to an exchange
+  std::uint64_t duplicates = 0;        // repeated messages dropped
+  std::uint64_t emergencies = 0;       // CoE emergencies received
+  std::uint64_t unsolicited = 0;       // other messages nobody waited for
+  std::uint64_t dropped = 0;           // queued messages dropped at a queue's bound
+  std::uint64_t repeat_requests = 0;   // SM1 repeat requests issued
+  std::uint64_t timeouts = 0;          // exchanges that got no reply
+  std::uint64_t sm1_reads = 0;         // reads of SM1 (in a request's frame, waiting, polling)
+  std::uint64_t empty_reads = 0;       // ... that found it empty (WKC 0)
+  std::uint64_t status_waits = 0;      // sleeps until a cycle while the mapped status said empty
+  std::uint64_t status_fallbacks = 0;  // SM1 polls made because the mapped status was not usable
 };
 
 class Mailbox {
@@ -164,7 +188,26 @@ class Mailbox {
 
   const MailboxStats& stats() const noexcept { return stats_; }
 
+  // Waits on the mapped SM1 status from now on (nullopt: polls again). Loop thread.
+  void set_status_source(std::optional<MailboxStatusSource> source) noexcept {
+    status_source_ = source;
+  }
+  const std::optional<MailboxStatusSource>& status_source() const noexcept {
+    return status_source_;
+  }
+
  private:
+  // What the mapped status says about SM1 now: `unknown` (no source, or it cannot be trusted:
+  // poll), `empty` (no message as of a cycle after the last read: sleep until `next_check`) or
+  // `full` (read it).
+  struct StatusView {
+    enum class Kind : std::uint8_t { unknown, empty, full };
+    Kind kind = Kind::unknown;
+    exec::Clock::time_point next_check{};
+  };
+  StatusView status_view() const noexcept;
+  void note_sm1_read(bool found) noexcept;
+
   enum class Arrival : std::uint8_t { none, queued, reply };
 
   Result<void> check_guard(const Guard& guard, const std::string& what) const;
@@ -202,6 +245,10 @@ class Mailbox {
   std::deque<wire::Emergency> emergencies_;
   std::deque<MailboxMessage> unsolicited_;
   MailboxStats stats_;
+  std::optional<MailboxStatusSource> status_source_;
+  // When the last SM1 read completed: a status published before it may show a message already
+  // read.
+  exec::Clock::time_point last_sm1_read_{};
 };
 
 }  // namespace ecat::master

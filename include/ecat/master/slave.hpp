@@ -72,6 +72,10 @@ struct SlaveInfo {
   std::optional<wire::DlStatus> dl_status;  // ports as read at discovery
   bool has_mailbox = false;
   bool coe = false;
+  // The domain SM1's status is mapped into (MasterConfig::mailbox_status), and the FMMU mapping
+  // it; empty: the mailbox is polled.
+  std::string mailbox_status_domain;
+  std::uint8_t mailbox_status_fmmu = 0;
   std::string driver;
   PdoLayout layout;
   std::vector<Signal> signals;

@@ -16,6 +16,7 @@
 #pragma once
 
 #include <array>
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
@@ -102,6 +103,11 @@ struct CoeServerConfig {
   bool sdo_info = true;         // serve the SDO information service
   bool complete_access = true;  // serve complete access (else abort 0x06010004)
   std::size_t max_queued_replies = 1024;
+  // How long the firmware takes to answer: a reply (or any mailbox it sends) enters the reply SM
+  // this long after it was produced, at the ESC's next advance() (before each frame, and when the
+  // segment idles). 0: in the same datagram that delivered the request, as before. Real devices
+  // take from a few hundred microseconds to milliseconds.
+  std::chrono::nanoseconds reply_delay{0};
 };
 
 struct CoeServerStats {
@@ -160,6 +166,8 @@ class CoeServer {
   void on_mailbox_repeat(Esc& esc, std::size_t sm);
   // A mailbox SM disabled or reconfigured: transfers, queued replies and counters start over.
   void on_sync_manager_changed(Esc& esc, std::size_t sm);
+  // Moves a delayed reply whose time has come into the reply SM (StandardApplication::advance).
+  void advance(Esc& esc);
   // The same reset, for power cycles and the INIT state (faults and stats are kept).
   void reset();
 
@@ -210,6 +218,7 @@ class CoeServer {
     std::uint16_t index = 0;
     std::uint8_t subindex = 0;
     std::uint64_t request_id = 0;  // which request produced it (0: none)
+    std::int64_t ready_ns = 0;     // ESC time from which it may enter the reply SM
   };
   struct Response {
     std::vector<std::uint8_t> data;  // mailbox data (CoE header + service)

@@ -79,6 +79,15 @@ Result<void> apply_common_options(const DeviceConfig& config, StandardConfig& cf
   if (!valid_outputs) return valid_outputs.error();
   auto fmmus = option_bool(config, "check_fmmus", cfg.check_fmmus);
   if (!fmmus) return fmmus.error();
+  auto reply_us = option_u32(config, "mailbox_reply_us",
+                             static_cast<std::uint32_t>(cfg.coe.reply_delay.count() / 1000));
+  if (!reply_us) return reply_us.error();
+  if (*reply_us > 10'000'000) {
+    return Error(
+        Errc::invalid_argument,
+        fmt::format("device option mailbox_reply_us: {} is above 10000000 (10 s)", *reply_us));
+  }
+  cfg.coe.reply_delay = std::chrono::microseconds(*reply_us);
   cfg.sii.identity.serial = *serial;
   cfg.require_valid_outputs = *valid_outputs;
   cfg.check_fmmus = *fmmus;

@@ -32,11 +32,11 @@ Result<bool> option_bool(const DeviceConfig& config, const std::string& key, boo
 Result<void> check_options(const DeviceConfig& config,
                            std::initializer_list<std::string_view> known);
 // The options every StandardApplication device understands, applied to `cfg`: serial,
-// require_valid_outputs, check_fmmus.
+// require_valid_outputs, check_fmmus, mailbox_reply_us (CoeServerConfig::reply_delay).
 Result<void> apply_common_options(const DeviceConfig& config, StandardConfig& cfg);
 // Option names apply_common_options reads (to pass into check_options).
 inline constexpr std::string_view kCommonOptions[] = {"serial", "require_valid_outputs",
-                                                      "check_fmmus"};
+                                                      "check_fmmus", "mailbox_reply_us"};
 
 // ---- SII building ------------------------------------------------------------------------------
 // Collects STRINGS entries and hands out their 1-based indices (equal strings share one).
