@@ -39,7 +39,7 @@ PreopFacts facts_for(const std::string& profile, std::vector<std::string> domain
   facts.fmmu_count = 8;
   facts.has_mailbox = facts.sii.standard_mailbox.present();
   for (auto& id : domains)
-    facts.domains.push_back({std::move(id), {}});
+    facts.domains.push_back({std::move(id), {}, {}});
   return facts;
 }
 
@@ -217,7 +217,8 @@ TEST(PreopPlan, SyncManagerRoutedNowhereIsStillConfiguredWithoutFmmu) {
 TEST(PreopPlan, KeptRegistrationIsReusedNotRegisteredAgain) {
   // A rebuilt slave: its SyncManager is still in the domain, at the address it had.
   auto facts = facts_for("EL1809");
-  facts.domains[0].registered.push_back({0, 2, PdoDirection::input, 0x4242});
+  facts.domains[0].registered.push_back(
+      {0, 2, PdoDirection::input, 0x4242, RegistrationKind::process_data});
   SlaveConfig config;
   config.name = "dut";
   config.process_data = ProcessDataRequest::all("main");
@@ -434,7 +435,8 @@ TEST(PreopPlanErrors, MoreSyncManagersThanTheEscHasFmmus) {
 
 TEST(PreopPlanErrors, KeptRegistrationOfAnotherSize) {
   auto facts = facts_for("EL1809");
-  facts.domains[0].registered.push_back({0, 1, PdoDirection::input, 0x100});
+  facts.domains[0].registered.push_back(
+      {0, 1, PdoDirection::input, 0x100, RegistrationKind::process_data});
   SlaveConfig config;
   config.name = "dut";
   config.process_data = ProcessDataRequest::all("main");
