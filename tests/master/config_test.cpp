@@ -132,6 +132,18 @@ TEST(MasterConfigFile, DcFalseDisablesAndDefaultsHold) {
   EXPECT_TRUE(config->slaves.empty());
 }
 
+TEST(MasterConfigFile, MailboxStatusOnByDefaultOffByKey) {
+  auto defaults = parse_master_config("slaves: [{name: a}]\n");
+  ASSERT_TRUE(defaults) << defaults.error().describe();
+  EXPECT_TRUE(defaults->mailbox_status);
+  EXPECT_FALSE(defaults->slaves.at(0).mailbox_status.has_value());
+  auto off = parse_master_config(
+      "master: {mailbox_status: false}\nslaves: [{name: a, mailbox_status: true}]\n");
+  ASSERT_TRUE(off) << off.error().describe();
+  EXPECT_FALSE(off->mailbox_status);
+  EXPECT_EQ(off->slaves.at(0).mailbox_status, true);
+}
+
 struct BadCase {
   const char* yaml;
   const char* expect;  // in the message
@@ -157,6 +169,8 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"master: {cycle_cpu: -1}\n", "master.cycle_cpu"},
         BadCase{"master: {cycle_dma_latency_us: -1}\n", "master.cycle_dma_latency_us"},
         BadCase{"master: {cycle_lock_memory: maybe}\n", "master.cycle_lock_memory"},
+        BadCase{"master: {mailbox_status: often}\n", "master.mailbox_status"},
+        BadCase{"slaves: [{name: x, mailbox_status: 2}]\n", "slaves[0].mailbox_status"},
         BadCase{"domains: [{period_us: 1000}]\n", "needs an id"},
         BadCase{"domains: [{id: a, period_us: 10}]\n", "ring.yaml:1"},
         BadCase{"domains: [{id: a}, {id: a}]\n", "used twice"},
