@@ -64,7 +64,7 @@ TEST(MailboxStatusFmmu, StatusRegisterReadThroughAnFmmuWithoutSideEffects) {
 }
 
 TEST(MailboxStatusFmmu, ReplyDelayFillsSm1OnlyWhenItsTimeHasCome) {
-  Rig rig({{"mailbox_reply_us", "2000"}});
+  Rig rig(std::map<std::string, std::string>{{"mailbox_reply_us", "2000"}});
   ASSERT_TRUE(rig.master.write_mailbox(0, wire::MailboxType::coe, upload_request()));
   EXPECT_EQ(rig.status().first & kMailboxFull, 0);
   EXPECT_FALSE(rig.master.read_mailbox(0));
