@@ -1,5 +1,9 @@
 // Fuzzes the frame codec: whatever decodes must re-encode (FrameBuilder) to a chain that decodes to
-// the same datagrams, and whatever does not decode must yield a describable error.
+// the same datagrams, and whatever does not decode must yield a describable error. Also the
+// redundancy helpers (wire/redundancy.hpp) on the input and on thirds of it: a frame answers
+// itself, merging it with itself decodes and doubles its working counters, and frames that do not
+// answer the request are refused, never read past.
+#include <algorithm>
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -8,6 +12,7 @@
 #include <cstring>
 
 #include <ecat/wire/frame.hpp>
+#include <ecat/wire/redundancy.hpp>
 
 namespace ecat::wire {
 namespace {
@@ -60,8 +65,42 @@ void check_frame(Bytes input) {
   if (it != reencoded.frame->end()) fail("re-encoded iteration does not end");
 }
 
+void check_redundancy(Bytes input) {
+  std::array<std::uint8_t, 4096> out{};
+  const bool decodes = static_cast<bool>(decode_frame(input));
+  if (same_shape(input, input) != decodes) fail("a frame does not answer itself");
+  if (decodes && input.size() <= out.size()) {
+    auto merged = merge_bounces(input, input, input, out);
+    if (!merged) fail("merging a frame with itself failed");
+    auto again = decode_frame(*merged);
+    if (!again || again.frame->datagram_count() != decode_frame(input).frame->datagram_count())
+      fail("a merged frame does not decode to the request's datagrams");
+    auto it = decode_frame(input).frame->begin();
+    for (auto d : *again.frame) {
+      const unsigned want = std::min(0xFFFFu, 2u * (*it).wkc);
+      if (d.wkc != want) fail("merged working counter is not the sum");
+      ++it;
+    }
+    const bool unprocessed = !any_processed(input);
+    if (is_passthrough_copy(input, input) != unprocessed) fail("passthrough copy misjudged");
+  }
+  const std::size_t third = input.size() / 3;
+  const Bytes a = input.subspan(0, third);
+  const Bytes b = input.subspan(third, third);
+  const Bytes c = input.subspan(2 * third);
+  auto merged = merge_bounces(a, b, c, out);
+  if (merged) {
+    if (!same_shape(a, b) || !same_shape(a, c))
+      fail("merged frames that do not answer the request");
+    if (merged->size() != a.size()) fail("merged frame of another size");
+  }
+  (void)is_passthrough_copy(a, b);
+  (void)classify_arrival(RedundantPort::primary, MacAddress{}, MacAddress{}, kBroadcastMac);
+}
+
 void run(Bytes input) {
   check_frame(input);
+  check_redundancy(input);
 
   auto ethernet = decode_ethernet(input);
   if (!ethernet) {

@@ -8,6 +8,7 @@
 
 #include <ecat/link/open.hpp>
 #include <ecat/link/raw_link.hpp>
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/link/xdp_link.hpp>
 #include <ecat/log.hpp>
@@ -17,8 +18,9 @@ namespace ecat::link {
 namespace {
 
 constexpr std::string_view kAcceptedForms =
-    "accepted forms: raw:IFACE[,busy_poll=US][,spin], xdp:IFACE[,queue=N][,busy_poll=US][,spin]"
-    "[,native|,generic][,copy|,zero_copy], udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
+    "accepted forms: raw:IFACE[,busy_poll=US][,spin], raw:PRIMARY,SECONDARY, "
+    "xdp:IFACE[,queue=N][,busy_poll=US][,spin][,native|,generic][,copy|,zero_copy], "
+    "udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
 
 Error bad_spec(std::string_view spec, std::string_view why) {
   return Error(Errc::invalid_argument,
@@ -121,16 +123,40 @@ Result<std::unique_ptr<Link>> open_raw(std::string_view spec, std::string_view r
   if (parts.interface.empty()) return bad_spec(spec, "no interface after 'raw:'");
   RawLinkOptions options;
   options.interface = parts.interface;
+  // raw:PRIMARY,SECONDARY: an item that is neither a known option nor KEY=VALUE names the
+  // redundant ring's secondary port.
+  std::string secondary;
+  bool latency_options = false;
   for (const auto& [key, value] : parts.options) {
     if (key == "busy_poll") {
       auto us = parse_number(spec, key, value, 1'000'000);
       if (!us) return std::move(us).error();
       options.busy_poll_us = *us;
+      latency_options = true;
     } else if (key == "spin" && value.empty()) {
       options.spin = true;
+      latency_options = true;
+    } else if (value.empty() && !key.empty() && secondary.empty()) {
+      secondary = std::string(key);
+    } else if (value.empty()) {
+      return bad_spec(spec, "a redundant ring is raw:PRIMARY,SECONDARY, two interfaces");
     } else {
       return bad_spec(spec, fmt::format("unknown raw link option '{}'", key));
     }
+  }
+  if (!secondary.empty()) {
+    if (latency_options) {
+      return bad_spec(spec, "busy_poll and spin apply to a single raw port, not a redundant ring");
+    }
+    ECAT_LOG(LogLevel::debug, "link",
+             fmt::format("opening redundant raw Ethernet link on {} and {}", options.interface,
+                         secondary));
+    auto link = RedundantLink::open_raw(options.interface, secondary);
+    if (!link) return std::move(link).error();
+    ECAT_LOG(LogLevel::info, "link",
+             fmt::format("opened redundant raw Ethernet link on {} and {}", options.interface,
+                         secondary));
+    return std::unique_ptr<Link>(std::move(*link));
   }
   ECAT_LOG(LogLevel::debug, "link", fmt::format("opening raw Ethernet link on {}", rest));
   auto link = RawLink::open(std::move(options));
@@ -186,7 +212,15 @@ Result<std::unique_ptr<Link>> open_spec(std::string_view spec) {
   const std::string_view rest = spec.substr(colon + 1);
   if (kind == "raw") return open_raw(spec, rest);
   if (kind == "xdp") return open_xdp(spec, rest);
-  if (kind == "udp") return open_udp(spec, rest);
+  if (kind == "udp") {
+    if (rest.find(',') != std::string_view::npos) {
+      return Error(Errc::unsupported,
+                   fmt::format("link '{}': cable redundancy needs two raw Ethernet ports "
+                               "(raw:PRIMARY,SECONDARY); EtherCAT over UDP cannot close a ring",
+                               spec));
+    }
+    return open_udp(spec, rest);
+  }
   if (kind == "sim") {
     return Error(Errc::unsupported,
                  fmt::format("link '{}': the built-in simulator is not available yet at the "

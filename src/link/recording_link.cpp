@@ -356,5 +356,8 @@ LinkStats RecordingLink::stats() const {
 std::size_t RecordingLink::max_frame_size() const {
   return inner_->max_frame_size();
 }
+std::optional<RedundancyStatus> RecordingLink::redundancy() const {
+  return inner_->redundancy();
+}
 
 }  // namespace ecat::link

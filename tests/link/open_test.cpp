@@ -13,8 +13,9 @@ namespace {
 using namespace std::chrono_literals;
 
 constexpr const char* kForms =
-    "accepted forms: raw:IFACE[,busy_poll=US][,spin], xdp:IFACE[,queue=N][,busy_poll=US][,spin]"
-    "[,native|,generic][,copy|,zero_copy], udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
+    "accepted forms: raw:IFACE[,busy_poll=US][,spin], raw:PRIMARY,SECONDARY, "
+    "xdp:IFACE[,queue=N][,busy_poll=US][,spin][,native|,generic][,copy|,zero_copy], "
+    "udp:HOST:PORT, udp:[IPV6]:PORT, udp:HOST";
 
 void expect_invalid(const std::string& spec, const std::string& why) {
   auto r = open_link(spec);
@@ -29,7 +30,7 @@ TEST(OpenLinkTest, MalformedSpecsNameTheSpecAndTheForms) {
   expect_invalid("tcp:1.2.3.4", "unknown kind 'tcp'");
   expect_invalid("raw:", "no interface after 'raw:'");
   expect_invalid("raw:,spin", "no interface after 'raw:'");
-  expect_invalid("raw:eth0,fast", "unknown raw link option 'fast'");
+  expect_invalid("raw:eth0,fast=1", "unknown raw link option 'fast'");
   expect_invalid("raw:eth0,spin=1", "unknown raw link option 'spin'");
   expect_invalid("raw:eth0,busy_poll=", "busy_poll='' is not a number from 0 to 1000000");
   expect_invalid("raw:eth0,busy_poll=-5", "busy_poll='-5' is not a number from 0 to 1000000");
@@ -50,6 +51,26 @@ TEST(OpenLinkTest, MalformedSpecsNameTheSpecAndTheForms) {
   expect_invalid("udp:[::1]:", "port '' is not a number from 1 to 65535");
   expect_invalid("udp:[example.com]:1", "'example.com' inside brackets is not an IPv6 address");
   expect_invalid("udp:fe80::1::2:3:4", "an IPv6 address with a port must be written in brackets");
+}
+
+TEST(OpenLinkTest, RedundantSpecs) {
+  const std::string why = "a redundant ring is raw:PRIMARY,SECONDARY, two interfaces";
+  expect_invalid("raw:eth0,", why);
+  expect_invalid("raw:,eth1", "no interface after 'raw:'");
+  expect_invalid("raw:eth0,eth1,spin", "busy_poll and spin apply to a single raw port");
+  expect_invalid("raw:eth0,eth1,eth2", why);
+  auto same = open_link("raw:ecat-none9,ecat-none9");
+  ASSERT_FALSE(same.ok());
+  EXPECT_EQ(same.error().code(), Errc::invalid_argument);
+  EXPECT_NE(same.error().message().find("two interfaces"), std::string::npos);
+  auto missing = open_link("raw:ecat-none8,ecat-none9");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_EQ(missing.error().code(), Errc::not_found);
+  EXPECT_NE(missing.error().describe().find("primary port"), std::string::npos);
+  auto udp = open_link("udp:127.0.0.1:34980,127.0.0.2:34980");
+  ASSERT_FALSE(udp.ok());
+  EXPECT_EQ(udp.error().code(), Errc::unsupported);
+  EXPECT_NE(udp.error().message().find("raw:PRIMARY,SECONDARY"), std::string::npos);
 }
 
 TEST(OpenLinkTest, SimIsNotAvailableYet) {

@@ -48,6 +48,52 @@ struct LinkStats {
   std::uint64_t frames_dropped = 0;
 };
 
+// Cable redundancy (RedundantLink, redundant_link.hpp): what a link over two ports knows of them
+// and of the ring between them. Plain data, here so that the bus and the master can report it
+// for any link.
+enum class RedundancyTopology : std::uint8_t {
+  redundant,               // both ports healthy
+  degraded_primary_leg,    // the primary port fails: the ring is served through the secondary
+  degraded_secondary_leg,  // the secondary port fails
+  offline,                 // neither port works
+};
+std::string_view to_string(RedundancyTopology topology) noexcept;
+
+// What the frames that came back say about the ring.
+enum class RingState : std::uint8_t {
+  unknown,  // nothing has come back yet
+  whole,    // the primary's frames cross to the secondary: the ring is closed
+  broken,   // frames come back to the port that sent them (bounces)
+};
+std::string_view to_string(RingState state) noexcept;
+
+struct RedundantPortStatus {
+  std::string name;  // the leg link's name ("eth0")
+  bool healthy = true;
+  std::uint64_t frames_sent = 0;
+  std::uint64_t frames_received = 0;
+  std::uint64_t send_errors = 0;
+  std::uint64_t receive_errors = 0;
+  std::uint64_t reopens = 0;
+};
+
+struct RedundancyStatus {
+  RedundancyTopology topology = RedundancyTopology::redundant;
+  RingState ring = RingState::unknown;
+  RedundantPortStatus primary;
+  RedundantPortStatus secondary;
+  std::uint64_t forward_crosses = 0;     // replies through a whole ring
+  std::uint64_t reverse_crosses = 0;     // processed frames the secondary sent round to the primary
+  std::uint64_t passthrough_copies = 0;  // unprocessed copies dropped
+  std::uint64_t merged = 0;              // replies merged from two bounces
+  std::uint64_t lone_bounces = 0;        // replies from one bounce (the other side silent)
+  std::uint64_t merge_timeouts = 0;      // lone bounces handed on after the whole merge window
+  std::uint64_t unknown_sources = 0;     // frames from neither port's address, handed on as is
+  std::uint64_t stale = 0;               // arrivals for no frame in flight, dropped
+  std::uint64_t ring_breaks = 0;         // whole -> broken changes seen
+  std::uint64_t ring_heals = 0;          // broken -> whole changes seen
+};
+
 class Link {
  public:
   virtual ~Link() = default;
@@ -85,6 +131,10 @@ class Link {
   virtual std::string name() const = 0;
 
   virtual LinkStats stats() const = 0;
+
+  // The state of the two ports and the ring for a redundant link; none for every other link
+  // (wrappers forward their inner link's). Any thread.
+  virtual std::optional<RedundancyStatus> redundancy() const { return std::nullopt; }
 
   // Largest EtherCAT frame send() accepts.
   virtual std::size_t max_frame_size() const;  // wire::kMaxFrameSize unless the link says less

@@ -16,6 +16,9 @@ namespace ecat::link {
 //   xdp:IFACE          the same through an AF_XDP socket (XdpLink; needs CAP_NET_ADMIN, CAP_NET_RAW
 //                      and CAP_BPF, and ecat built with libxdp); options: queue=N, busy_poll=US,
 //                      spin, native or generic (XDP attach mode), copy or zero_copy
+//   raw:PRI,SEC        a redundant ring on two interfaces (RedundantLink): the second item after
+//                      'raw:' that is not an option names the secondary port; UDP cannot be
+//                      redundant. The latency options apply to single-port raw links only.
 //   udp:HOST:PORT      EtherCAT over UDP to HOST (IPv4 address or name) at PORT
 //   udp:[IPV6]:PORT    the same with an IPv6 address
 //   udp:HOST           port 34980 (0x88A4); HOST may also be a bare IPv6 address

@@ -125,6 +125,7 @@ class RecordingLink final : public Link {
   std::string name() const override;
   LinkStats stats() const override;
   std::size_t max_frame_size() const override;
+  std::optional<RedundancyStatus> redundancy() const override;
 
   FrameRecorder& recorder() const noexcept { return *recorder_; }
 

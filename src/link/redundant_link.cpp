@@ -1,0 +1,550 @@
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cstring>
+#include <mutex>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include <ecat/link/raw_link.hpp>
+#include <ecat/link/redundant_link.hpp>
+#include <ecat/link/udp_link.hpp>
+#include <ecat/wire/redundancy.hpp>
+
+namespace ecat::link {
+
+using std::chrono::nanoseconds;
+using Clock = std::chrono::steady_clock;
+using wire::ArrivalKind;
+using wire::RedundantPort;
+
+namespace {
+
+// Frames in flight (and recently answered, so that their late copies are recognised): more than
+// the bus ever has in flight at once.
+constexpr std::size_t kSlots = 64;
+// How long one blocking wait on a leg lasts before the other leg is looked at.
+constexpr nanoseconds kSlice = std::chrono::microseconds(100);
+
+enum class SlotState : std::uint8_t { free, waiting, done };
+
+struct Exchange {
+  SlotState state = SlotState::free;
+  std::uint64_t sequence = 0;
+  std::uint8_t first_index = 0;
+  std::size_t count = 0;
+  std::array<std::uint8_t, wire::kMaxFrameSize> sent{};
+  std::size_t sent_size = 0;
+  std::array<bool, 2> leg_sent{};
+  std::array<bool, 2> arrived{};  // anything came back on this port (a copy, a bounce)
+  std::array<bool, 2> has_bounce{};
+  std::array<std::array<std::uint8_t, wire::kMaxFrameSize>, 2> bounce{};
+  std::array<std::size_t, 2> bounce_size{};
+  std::int64_t last_arrival_ns = 0;
+  Clock::time_point window_end{};
+};
+
+struct Leg {
+  std::unique_ptr<Link> link;
+  std::string name;
+  std::atomic<bool> healthy{true};
+  std::atomic<std::uint64_t> frames_sent{0}, frames_received{0}, send_errors{0}, receive_errors{0},
+      reopens{0};
+  Clock::time_point next_reopen{};
+  bool reopenable = true;
+};
+
+std::size_t side(RedundantPort port) {
+  return port == RedundantPort::primary ? 0 : 1;
+}
+std::size_t other(std::size_t s) {
+  return 1 - s;
+}
+
+}  // namespace
+
+std::string_view to_string(RedundancyTopology topology) noexcept {
+  switch (topology) {
+    case RedundancyTopology::redundant:
+      return "redundant";
+    case RedundancyTopology::degraded_primary_leg:
+      return "degraded_primary_leg";
+    case RedundancyTopology::degraded_secondary_leg:
+      return "degraded_secondary_leg";
+    case RedundancyTopology::offline:
+      break;
+  }
+  return "offline";
+}
+
+std::string_view to_string(RingState state) noexcept {
+  switch (state) {
+    case RingState::whole:
+      return "whole";
+    case RingState::broken:
+      return "broken";
+    case RingState::unknown:
+      break;
+  }
+  return "unknown";
+}
+
+struct RedundantLink::Impl {
+  RedundantLinkOptions options;
+  std::array<Leg, 2> legs;
+  std::string name;
+  std::size_t max_frame = wire::kMaxFrameSize;
+
+  std::mutex mutex;  // the exchanges and what follows; never held while waiting
+  std::vector<Exchange> slots = std::vector<Exchange>(kSlots);
+  std::uint64_t next_sequence = 1;
+  // Completed exchanges in a row in which a leg's side of the ring returned nothing: a lone
+  // bounce from the other side then completes at once instead of waiting for the window.
+  std::array<unsigned, 2> silent{};
+  std::array<std::uint8_t, wire::kMaxFrameSize> out{};
+  std::size_t next_leg_to_wait = 1;  // the secondary, where a whole ring's replies arrive
+
+  std::atomic<bool> closed{false};
+  std::atomic<bool> interrupted{false};
+  std::atomic<RingState> ring{RingState::unknown};
+  std::atomic<std::uint64_t> frames_sent{0}, frames_received{0}, bytes_sent{0}, bytes_received{0},
+      send_errors{0}, receive_errors{0}, ignored{0};
+  std::atomic<std::uint64_t> forward_crosses{0}, reverse_crosses{0}, passthrough{0}, merged{0},
+      lone{0}, merge_timeouts{0}, unknown_sources{0}, stale{0}, breaks{0}, heals{0};
+
+  void set_ring(RingState state) {
+    const RingState was = ring.exchange(state, std::memory_order_relaxed);
+    if (was == RingState::whole && state == RingState::broken) breaks.fetch_add(1);
+    if (was == RingState::broken && state == RingState::whole) heals.fetch_add(1);
+  }
+
+  Exchange* find(std::uint8_t index, std::size_t count) {
+    Exchange* best = nullptr;
+    for (auto& e : slots) {
+      if (e.state == SlotState::free || e.first_index != index || e.count != count) continue;
+      if (best == nullptr || (e.state == SlotState::waiting && best->state != SlotState::waiting) ||
+          (e.state == best->state && e.sequence > best->sequence)) {
+        best = &e;
+      }
+    }
+    return best;
+  }
+
+  Exchange& allocate() {
+    Exchange* pick = nullptr;
+    for (auto& e : slots) {
+      if (e.state == SlotState::free) return e;
+      // The oldest answered one, else the oldest of all (long given up by the bus).
+      if (pick == nullptr || (e.state == SlotState::done && pick->state != SlotState::done) ||
+          (e.state == pick->state && e.sequence < pick->sequence)) {
+        pick = &e;
+      }
+    }
+    return *pick;
+  }
+
+  // Hands `frame` to the bus as this receive()'s result.
+  ReceivedFrame deliver(wire::Bytes frame, std::int64_t timestamp_ns,
+                        const wire::MacAddress& source) {
+    const std::size_t n = std::min(frame.size(), out.size());
+    std::memcpy(out.data(), frame.data(), n);
+    frames_received.fetch_add(1, std::memory_order_relaxed);
+    bytes_received.fetch_add(n, std::memory_order_relaxed);
+    return ReceivedFrame{wire::Bytes(out.data(), n), timestamp_ns, source};
+  }
+
+  std::optional<ReceivedFrame> complete_lone(Exchange& e, std::size_t s, bool after_window) {
+    e.state = SlotState::done;
+    lone.fetch_add(1, std::memory_order_relaxed);
+    if (after_window) merge_timeouts.fetch_add(1, std::memory_order_relaxed);
+    if (!e.has_bounce[other(s)]) ++silent[other(s)];
+    return deliver(wire::Bytes(e.bounce[s].data(), e.bounce_size[s]), e.last_arrival_ns,
+                   s == 0 ? options.primary_mac : options.secondary_mac);
+  }
+
+  std::optional<ReceivedFrame> on_arrival(RedundantPort port, const ReceivedFrame& frame) {
+    const std::size_t at = side(port);
+    legs[at].frames_received.fetch_add(1, std::memory_order_relaxed);
+    const auto decoded = wire::decode_frame(frame.frame);
+    if (!decoded) {
+      // Not ours to judge: the bus counts what does not decode.
+      return deliver(frame.frame, frame.timestamp_ns, frame.source);
+    }
+    const wire::DatagramView first = *decoded.frame->begin();
+    std::lock_guard lock(mutex);
+    Exchange* e = find(first.header.index, decoded.frame->datagram_count());
+    const wire::Bytes sent = e ? wire::Bytes(e->sent.data(), e->sent_size) : wire::Bytes{};
+    if (e == nullptr || !wire::same_shape(sent, frame.frame)) {
+      stale.fetch_add(1, std::memory_order_relaxed);
+      ignored.fetch_add(1, std::memory_order_relaxed);
+      return std::nullopt;
+    }
+    e->arrived[at] = true;
+    if (wire::is_passthrough_copy(sent, frame.frame)) {
+      passthrough.fetch_add(1, std::memory_order_relaxed);
+      ignored.fetch_add(1, std::memory_order_relaxed);
+      // The other side's lone bounce need not wait for this side any more.
+      if (e->state == SlotState::waiting && e->has_bounce[other(at)] && !e->has_bounce[at]) {
+        return complete_lone(*e, other(at), false);
+      }
+      return std::nullopt;
+    }
+    const ArrivalKind kind =
+        wire::classify_arrival(port, frame.source, options.primary_mac, options.secondary_mac);
+    if (kind == ArrivalKind::primary_bounce || kind == ArrivalKind::secondary_bounce) {
+      const std::size_t s = kind == ArrivalKind::primary_bounce ? 0 : 1;
+      silent[s] = 0;
+      if (wire::any_processed(frame.frame)) set_ring(RingState::broken);
+      if (e->state != SlotState::waiting) return std::nullopt;  // the late half of a lone reply
+      const std::size_t n = std::min(frame.frame.size(), e->bounce[s].size());
+      std::memcpy(e->bounce[s].data(), frame.frame.data(), n);
+      e->bounce_size[s] = n;
+      e->has_bounce[s] = true;
+      e->last_arrival_ns = std::max(e->last_arrival_ns, frame.timestamp_ns);
+      if (e->has_bounce[other(s)]) {
+        auto result = wire::merge_bounces(sent, wire::Bytes(e->bounce[0].data(), e->bounce_size[0]),
+                                          wire::Bytes(e->bounce[1].data(), e->bounce_size[1]),
+                                          wire::MutableBytes(out));
+        e->state = SlotState::done;
+        if (!result) return std::nullopt;  // shapes were checked: cannot happen
+        merged.fetch_add(1, std::memory_order_relaxed);
+        frames_received.fetch_add(1, std::memory_order_relaxed);
+        bytes_received.fetch_add(result->size(), std::memory_order_relaxed);
+        return ReceivedFrame{*result, e->last_arrival_ns, options.primary_mac};
+      }
+      // The other side sent nothing, already came back empty, or has been silent lately.
+      if (!e->leg_sent[other(s)] || e->arrived[other(s)] || silent[other(s)] > 0) {
+        return complete_lone(*e, s, false);
+      }
+      e->window_end = Clock::now() + options.merge_window;
+      return std::nullopt;
+    }
+    if (e->state != SlotState::waiting) return std::nullopt;  // answered already
+    e->state = SlotState::done;
+    switch (kind) {
+      case ArrivalKind::forward_cross:
+        forward_crosses.fetch_add(1, std::memory_order_relaxed);
+        silent = {};
+        set_ring(RingState::whole);
+        break;
+      case ArrivalKind::reverse_cross:
+        reverse_crosses.fetch_add(1, std::memory_order_relaxed);
+        set_ring(RingState::whole);
+        break;
+      default:
+        unknown_sources.fetch_add(1, std::memory_order_relaxed);
+        break;
+    }
+    return deliver(frame.frame, frame.timestamp_ns, frame.source);
+  }
+
+  // A lone bounce whose window has run out, if any; also the earliest window still open.
+  std::optional<ReceivedFrame> expire_windows(Clock::time_point now, Clock::time_point& next) {
+    std::lock_guard lock(mutex);
+    for (auto& e : slots) {
+      if (e.state != SlotState::waiting || e.has_bounce[0] == e.has_bounce[1]) continue;
+      if (e.window_end <= now) return complete_lone(e, e.has_bounce[0] ? 0 : 1, true);
+      next = std::min(next, e.window_end);
+    }
+    return std::nullopt;
+  }
+
+  void leg_failed(std::size_t s) { legs[s].healthy.store(false, std::memory_order_relaxed); }
+
+  // One receive on leg `s`; an arrival that completes an exchange is returned.
+  Result<std::optional<ReceivedFrame>> take(std::size_t s, nanoseconds wait,
+                                            bool* got_frame = nullptr) {
+    Leg& leg = legs[s];
+    if (!leg.healthy.load(std::memory_order_relaxed)) return std::optional<ReceivedFrame>{};
+    auto received = leg.link->receive(wait);
+    if (!received) {
+      leg.receive_errors.fetch_add(1, std::memory_order_relaxed);
+      leg_failed(s);
+      return std::move(received).error();
+    }
+    if (!*received) return std::optional<ReceivedFrame>{};
+    if (got_frame != nullptr) *got_frame = true;
+    return on_arrival(s == 0 ? RedundantPort::primary : RedundantPort::secondary, **received);
+  }
+
+  bool any_healthy() const {
+    return legs[0].healthy.load(std::memory_order_relaxed) ||
+           legs[1].healthy.load(std::memory_order_relaxed);
+  }
+
+  void maybe_reopen(std::size_t s, Clock::time_point now) {
+    Leg& leg = legs[s];
+    if (leg.healthy.load(std::memory_order_relaxed) || !leg.reopenable || now < leg.next_reopen) {
+      return;
+    }
+    leg.next_reopen = now + options.reopen_interval;
+    auto reopened = leg.link->reopen();
+    if (reopened) {
+      leg.reopens.fetch_add(1, std::memory_order_relaxed);
+    } else if (reopened.error().code() == Errc::unsupported) {
+      leg.reopenable = false;
+    }
+  }
+};
+
+Result<std::unique_ptr<RedundantLink>> RedundantLink::open(std::unique_ptr<Link> primary,
+                                                           std::unique_ptr<Link> secondary,
+                                                           RedundantLinkOptions options) {
+  if (!primary || !secondary) {
+    return Error(Errc::invalid_argument, "a redundant link needs two links, primary and secondary");
+  }
+  for (const Link* leg : {primary.get(), secondary.get()}) {
+    if (dynamic_cast<const UdpLink*>(leg) != nullptr) {
+      return Error(Errc::unsupported,
+                   fmt::format("cable redundancy needs two raw Ethernet ports at the two ends of "
+                               "the ring (raw:eth0,eth1); {} is EtherCAT over UDP, which cannot "
+                               "close a ring",
+                               leg->name()));
+    }
+  }
+  if (wire::same_station_mac(options.primary_mac, options.secondary_mac)) {
+    return Error(
+        Errc::invalid_argument,
+        fmt::format("redundant link over {} and {}: both send from {}, so replies "
+                    "cannot be told apart; give the ports different addresses",
+                    primary->name(), secondary->name(), wire::to_string(options.primary_mac)));
+  }
+  auto impl = std::make_unique<Impl>();
+  impl->options = options;
+  impl->name = fmt::format("redundant:{},{}", primary->name(), secondary->name());
+  impl->max_frame = std::min(primary->max_frame_size(), secondary->max_frame_size());
+  impl->legs[0].name = primary->name();
+  impl->legs[1].name = secondary->name();
+  impl->legs[0].link = std::move(primary);
+  impl->legs[1].link = std::move(secondary);
+  return std::unique_ptr<RedundantLink>(new RedundantLink(std::move(impl)));
+}
+
+Result<std::unique_ptr<RedundantLink>> RedundantLink::open_raw(std::string primary_interface,
+                                                               std::string secondary_interface,
+                                                               RedundantLinkOptions options) {
+  if (primary_interface == secondary_interface) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("redundant link: primary and secondary are both {}; a ring needs "
+                             "two interfaces",
+                             primary_interface));
+  }
+  RawLinkOptions a;
+  a.interface = std::move(primary_interface);
+  auto primary = RawLink::open(std::move(a));
+  if (!primary) return primary.error().context("opening the redundant link's primary port");
+  RawLinkOptions b;
+  b.interface = std::move(secondary_interface);
+  auto secondary = RawLink::open(std::move(b));
+  if (!secondary) return secondary.error().context("opening the redundant link's secondary port");
+  options.primary_mac = (*primary)->source_mac();
+  options.secondary_mac = (*secondary)->source_mac();
+  return open(std::move(*primary), std::move(*secondary), options);
+}
+
+RedundantLink::RedundantLink(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+RedundantLink::~RedundantLink() = default;
+
+Result<void> RedundantLink::send(wire::Bytes ethercat_frame) {
+  Impl& s = *impl_;
+  if (s.closed.load(std::memory_order_acquire)) {
+    return Error(Errc::closed, fmt::format("link {} is closed", s.name));
+  }
+  if (ethercat_frame.size() > s.max_frame) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("a {}-byte frame does not fit link {} (at most {} bytes)",
+                             ethercat_frame.size(), s.name, s.max_frame));
+  }
+  const Clock::time_point now = Clock::now();
+  Exchange* e = nullptr;
+  if (const auto decoded = wire::decode_frame(ethercat_frame)) {
+    std::lock_guard lock(s.mutex);
+    e = &s.allocate();
+    e->state = SlotState::waiting;
+    e->sequence = s.next_sequence++;
+    e->first_index = (*decoded.frame->begin()).header.index;
+    e->count = decoded.frame->datagram_count();
+    std::memcpy(e->sent.data(), ethercat_frame.data(), ethercat_frame.size());
+    e->sent_size = ethercat_frame.size();
+    e->leg_sent = {true, true};
+    e->arrived = {};
+    e->has_bounce = {};
+    e->last_arrival_ns = 0;
+  }
+  std::optional<Error> first_error;
+  std::array<bool, 2> sent{};
+  for (std::size_t k = 0; k < 2; ++k) {
+    Leg& leg = s.legs[k];
+    s.maybe_reopen(k, now);
+    auto result = leg.link->send(ethercat_frame);
+    sent[k] = static_cast<bool>(result);
+    if (result) {
+      leg.frames_sent.fetch_add(1, std::memory_order_relaxed);
+      leg.healthy.store(true, std::memory_order_relaxed);
+    } else {
+      leg.send_errors.fetch_add(1, std::memory_order_relaxed);
+      s.leg_failed(k);
+      if (!first_error) first_error = std::move(result).error();
+    }
+  }
+  if (e != nullptr) {
+    std::lock_guard lock(s.mutex);
+    e->leg_sent = sent;
+    if (!sent[0] && !sent[1]) e->state = SlotState::free;
+  }
+  if (!sent[0] && !sent[1]) {
+    s.send_errors.fetch_add(1, std::memory_order_relaxed);
+    return first_error->context(first_error->code(),
+                                fmt::format("sending on both ports of {} failed", s.name));
+  }
+  s.frames_sent.fetch_add(1, std::memory_order_relaxed);
+  s.bytes_sent.fetch_add(ethercat_frame.size(), std::memory_order_relaxed);
+  return {};
+}
+
+Result<std::optional<ReceivedFrame>> RedundantLink::receive(nanoseconds timeout) {
+  Impl& s = *impl_;
+  if (s.closed.load(std::memory_order_acquire)) {
+    return Error(Errc::closed, fmt::format("link {} is closed", s.name));
+  }
+  const Clock::time_point deadline =
+      timeout > nanoseconds(0) ? Clock::now() + timeout : Clock::now();
+  std::optional<Error> error;
+  for (;;) {
+    // Everything already waiting on either leg first.
+    for (std::size_t k : {std::size_t{1}, std::size_t{0}}) {
+      for (std::size_t n = 0; n < kSlots; ++n) {
+        bool got_frame = false;
+        auto taken = s.take(k, nanoseconds(0), &got_frame);
+        if (!taken) {
+          error = std::move(taken).error();
+          break;
+        }
+        if (*taken) return std::move(*taken);
+        if (!got_frame) break;  // a frame that completed nothing: look again
+      }
+    }
+    const Clock::time_point now = Clock::now();
+    Clock::time_point next = deadline;
+    if (auto lone = s.expire_windows(now, next)) return std::move(*lone);
+    if (!s.any_healthy()) {
+      s.receive_errors.fetch_add(1, std::memory_order_relaxed);
+      if (error) {
+        return error->context(error->code(),
+                              fmt::format("receiving on both ports of {} failed", s.name));
+      }
+      return Error(Errc::io_error, fmt::format("both ports of {} fail", s.name));
+    }
+    if (s.interrupted.exchange(false, std::memory_order_acq_rel) || now >= deadline) {
+      return std::optional<ReceivedFrame>{};
+    }
+    // Wait on one healthy leg for a slice, the legs in turn.
+    std::size_t k = s.next_leg_to_wait;
+    if (!s.legs[k].healthy.load(std::memory_order_relaxed)) k = other(k);
+    s.next_leg_to_wait = other(s.next_leg_to_wait);
+    const nanoseconds wait = std::min<nanoseconds>(kSlice, next - now);
+    auto taken = s.take(k, std::max(nanoseconds(0), wait));
+    if (!taken) {
+      error = std::move(taken).error();
+      continue;
+    }
+    if (*taken) return std::move(*taken);
+  }
+}
+
+void RedundantLink::interrupt() {
+  impl_->interrupted.store(true, std::memory_order_release);
+  for (auto& leg : impl_->legs)
+    leg.link->interrupt();
+}
+
+void RedundantLink::close() {
+  impl_->closed.store(true, std::memory_order_release);
+  for (auto& leg : impl_->legs)
+    leg.link->close();
+}
+
+Result<void> RedundantLink::reopen() {
+  Impl& s = *impl_;
+  if (s.closed.load(std::memory_order_acquire)) {
+    return Error(Errc::closed, fmt::format("link {} is closed", s.name));
+  }
+  std::optional<Error> error;
+  for (auto& leg : s.legs) {
+    if (leg.healthy.load(std::memory_order_relaxed)) continue;
+    auto reopened = leg.link->reopen();
+    if (reopened) {
+      leg.reopens.fetch_add(1, std::memory_order_relaxed);
+      leg.healthy.store(true, std::memory_order_relaxed);
+    } else if (!error) {
+      error = std::move(reopened).error();
+    }
+  }
+  if (s.any_healthy()) return {};
+  return error ? error->context(error->code(), fmt::format("reopening {}", s.name))
+               : Error(Errc::io_error, fmt::format("reopening {}: no port works", s.name));
+}
+
+std::string RedundantLink::name() const {
+  return impl_->name;
+}
+
+LinkStats RedundantLink::stats() const {
+  const Impl& s = *impl_;
+  LinkStats out;
+  out.frames_sent = s.frames_sent.load(std::memory_order_relaxed);
+  out.frames_received = s.frames_received.load(std::memory_order_relaxed);
+  out.bytes_sent = s.bytes_sent.load(std::memory_order_relaxed);
+  out.bytes_received = s.bytes_received.load(std::memory_order_relaxed);
+  out.frames_ignored = s.ignored.load(std::memory_order_relaxed);
+  out.send_errors = s.send_errors.load(std::memory_order_relaxed);
+  out.receive_errors = s.receive_errors.load(std::memory_order_relaxed);
+  for (const auto& leg : s.legs) {
+    const LinkStats l = leg.link->stats();
+    out.frames_ignored += l.frames_ignored;
+    out.frames_dropped += l.frames_dropped;
+  }
+  return out;
+}
+
+std::size_t RedundantLink::max_frame_size() const {
+  return impl_->max_frame;
+}
+
+RedundancyStatus RedundantLink::status() const {
+  const Impl& s = *impl_;
+  RedundancyStatus out;
+  const auto port = [](const Leg& leg) {
+    RedundantPortStatus p;
+    p.name = leg.name;
+    p.healthy = leg.healthy.load(std::memory_order_relaxed);
+    p.frames_sent = leg.frames_sent.load(std::memory_order_relaxed);
+    p.frames_received = leg.frames_received.load(std::memory_order_relaxed);
+    p.send_errors = leg.send_errors.load(std::memory_order_relaxed);
+    p.receive_errors = leg.receive_errors.load(std::memory_order_relaxed);
+    p.reopens = leg.reopens.load(std::memory_order_relaxed);
+    return p;
+  };
+  out.primary = port(s.legs[0]);
+  out.secondary = port(s.legs[1]);
+  out.topology = out.primary.healthy
+                     ? (out.secondary.healthy ? RedundancyTopology::redundant
+                                              : RedundancyTopology::degraded_secondary_leg)
+                     : (out.secondary.healthy ? RedundancyTopology::degraded_primary_leg
+                                              : RedundancyTopology::offline);
+  out.ring = s.ring.load(std::memory_order_relaxed);
+  out.forward_crosses = s.forward_crosses.load(std::memory_order_relaxed);
+  out.reverse_crosses = s.reverse_crosses.load(std::memory_order_relaxed);
+  out.passthrough_copies = s.passthrough.load(std::memory_order_relaxed);
+  out.merged = s.merged.load(std::memory_order_relaxed);
+  out.lone_bounces = s.lone.load(std::memory_order_relaxed);
+  out.merge_timeouts = s.merge_timeouts.load(std::memory_order_relaxed);
+  out.unknown_sources = s.unknown_sources.load(std::memory_order_relaxed);
+  out.stale = s.stale.load(std::memory_order_relaxed);
+  out.ring_breaks = s.breaks.load(std::memory_order_relaxed);
+  out.ring_heals = s.heals.load(std::memory_order_relaxed);
+  return out;
+}
+
+}  // namespace ecat::link

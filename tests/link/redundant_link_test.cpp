@@ -1,0 +1,320 @@
+#include <chrono>
+#include <deque>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include <ecat/link/memory_link.hpp>
+#include <ecat/link/redundant_link.hpp>
+#include <ecat/link/udp_link.hpp>
+#include <ecat/wire/frame.hpp>
+
+namespace ecat::link {
+namespace {
+
+using namespace std::chrono_literals;
+using ByteVector = std::vector<std::uint8_t>;
+
+constexpr wire::MacAddress kPrimaryMac{0x02, 0x10, 0x00, 0x00, 0x00, 0x01};
+constexpr wire::MacAddress kSecondaryMac{0x02, 0x10, 0x00, 0x00, 0x00, 0x02};
+
+// A ring of `slaves` toy slaves between two master ports. Slave i answers LRW/LRD by writing
+// 0x80 + i into byte 2 + i and counting 1, BRD by counting 1. Frames are processed in send(), as
+// a real ring would: the primary's enters slave 0, the secondary's enters the last slave and,
+// travelling backwards, is processed only after it turned round at a break.
+struct ToyRing {
+  enum class Shape { whole, break_after, primary_cut, secondary_cut };
+  std::size_t slaves = 4;
+  Shape shape = Shape::whole;
+  std::size_t break_after = 0;
+  std::array<std::deque<std::pair<ByteVector, wire::MacAddress>>, 2> queues;  // arriving per port
+  std::array<bool, 2> send_fails{};
+
+  void process(ByteVector& frame, std::size_t first, std::size_t last) {
+    if (first >= last) return;
+    auto decoded = wire::decode_frame(frame);
+    ASSERT_TRUE(decoded);
+    for (const auto d : *decoded.frame) {
+      auto* data = const_cast<std::uint8_t*>(d.data.data());
+      std::uint16_t wkc = d.wkc;
+      for (std::size_t i = first; i < last; ++i) {
+        if (d.header.command == wire::Command::lrw || d.header.command == wire::Command::lrd) {
+          if (2 + i < d.data.size()) data[2 + i] = static_cast<std::uint8_t>(0x80 + i);
+          ++wkc;
+        } else if (d.header.command == wire::Command::brd) {
+          ++wkc;
+        }
+      }
+      wire::store_le16(data + d.data.size(), wkc);
+    }
+  }
+
+  void on_send(std::size_t port, wire::Bytes sent) {
+    ByteVector frame(sent.begin(), sent.end());
+    wire::MacAddress source = port == 0 ? kPrimaryMac : kSecondaryMac;
+    source[0] |= 0x02;
+    switch (shape) {
+      case Shape::whole:
+        if (port == 0) process(frame, 0, slaves);
+        queues[1 - port].emplace_back(frame, source);  // cross
+        break;
+      case Shape::break_after:
+        if (port == 0) {
+          process(frame, 0, break_after);
+        } else {
+          process(frame, break_after, slaves);
+        }
+        queues[port].emplace_back(frame, source);  // bounce
+        break;
+      case Shape::primary_cut:
+      case Shape::secondary_cut: {
+        const std::size_t cut = shape == Shape::primary_cut ? 0 : 1;
+        if (port == cut) return;  // lost on the cut cable
+        process(frame, 0, slaves);
+        queues[port].emplace_back(frame, source);
+        break;
+      }
+    }
+  }
+};
+
+class ToyPort final : public Link {
+ public:
+  ToyPort(ToyRing& ring, std::size_t port) : ring_(ring), port_(port) {}
+  Result<void> send(wire::Bytes frame) override {
+    if (ring_.send_fails[port_]) {
+      ++stats_.send_errors;
+      return Error(Errc::io_error, "cable pulled");
+    }
+    ++stats_.frames_sent;
+    ring_.on_send(port_, frame);
+    return {};
+  }
+  Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds) override {
+    auto& q = ring_.queues[port_];
+    if (q.empty()) return std::optional<ReceivedFrame>{};
+    held_ = std::move(q.front().first);
+    const auto source = q.front().second;
+    q.pop_front();
+    ++stats_.frames_received;
+    return std::optional<ReceivedFrame>(ReceivedFrame{held_, 0, source});
+  }
+  void interrupt() override {}
+  void close() override {}
+  std::string name() const override { return port_ == 0 ? "toy0" : "toy1"; }
+  LinkStats stats() const override { return stats_; }
+
+ private:
+  ToyRing& ring_;
+  std::size_t port_;
+  ByteVector held_;
+  LinkStats stats_;
+};
+
+ByteVector lrw_frame(std::uint8_t index, std::size_t length = 8) {
+  ByteVector buffer(wire::kMaxFrameSize);
+  wire::FrameBuilder builder(buffer);
+  ByteVector data(length, 0);
+  data[0] = 0x5A;
+  EXPECT_TRUE(builder.add(
+      {wire::Command::lrw, index, 0x00010000, static_cast<std::uint16_t>(length), false, false, 0},
+      data));
+  EXPECT_TRUE(builder.add(
+      {wire::Command::brd, static_cast<std::uint8_t>(index + 1), 0, 2, false, false, 0}));
+  const auto f = builder.finish();
+  return ByteVector(f.begin(), f.end());
+}
+
+struct Reply {
+  ByteVector data;
+  std::uint16_t lrw_wkc = 0;
+  std::uint16_t brd_wkc = 0;
+};
+
+std::optional<Reply> exchange(RedundantLink& link, std::uint8_t index) {
+  const auto frame = lrw_frame(index);
+  EXPECT_TRUE(link.send(frame));
+  auto received = link.receive(5ms);
+  EXPECT_TRUE(received) << received.error().describe();
+  if (!received || !*received) return std::nullopt;
+  auto decoded = wire::decode_frame((*received)->frame);
+  EXPECT_TRUE(decoded);
+  Reply r;
+  auto it = decoded.frame->begin();
+  const auto lrw = *it++;
+  const auto brd = *it;
+  r.data.assign(lrw.data.begin(), lrw.data.end());
+  r.lrw_wkc = lrw.wkc;
+  r.brd_wkc = brd.wkc;
+  return r;
+}
+
+const ByteVector kWhole{0x5A, 0x00, 0x80, 0x81, 0x82, 0x83, 0x00, 0x00};
+
+struct Fixture {
+  ToyRing ring;
+  std::unique_ptr<RedundantLink> link;
+  explicit Fixture(std::chrono::nanoseconds window = 500us) {
+    RedundantLinkOptions options;
+    options.primary_mac = kPrimaryMac;
+    options.secondary_mac = kSecondaryMac;
+    options.merge_window = window;
+    auto opened = RedundantLink::open(std::make_unique<ToyPort>(ring, 0),
+                                      std::make_unique<ToyPort>(ring, 1), options);
+    EXPECT_TRUE(opened) << opened.error().describe();
+    link = std::move(*opened);
+  }
+};
+
+TEST(RedundantLink, WholeRingForwardCrossAndPassthroughDropped) {
+  Fixture f;
+  const auto r = exchange(*f.link, 0x10);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->data, kWhole);
+  EXPECT_EQ(r->lrw_wkc, 4);
+  EXPECT_EQ(r->brd_wkc, 4);
+  // The secondary's untouched copy came round too, and nothing else is handed on.
+  auto more = f.link->receive(0ns);
+  ASSERT_TRUE(more);
+  EXPECT_FALSE(*more);
+  const auto status = f.link->status();
+  EXPECT_EQ(status.topology, RedundancyTopology::redundant);
+  EXPECT_EQ(status.ring, RingState::whole);
+  EXPECT_EQ(status.forward_crosses, 1u);
+  EXPECT_EQ(status.passthrough_copies, 1u);
+  EXPECT_EQ(status.primary.frames_sent, 1u);
+  EXPECT_EQ(status.secondary.frames_sent, 1u);
+  EXPECT_EQ(f.link->name(), "redundant:toy0,toy1");
+  EXPECT_EQ(f.link->stats().frames_received, 1u);
+}
+
+TEST(RedundantLink, BreakAnywhereGivesTheWholeRingsReply) {
+  for (std::size_t at = 1; at < 4; ++at) {
+    Fixture f;
+    ASSERT_TRUE(exchange(*f.link, 0x20));
+    f.ring.shape = ToyRing::Shape::break_after;
+    f.ring.break_after = at;
+    const auto r = exchange(*f.link, 0x22);
+    ASSERT_TRUE(r) << at;
+    EXPECT_EQ(r->data, kWhole) << at;
+    EXPECT_EQ(r->lrw_wkc, 4) << at;
+    EXPECT_EQ(r->brd_wkc, 4) << at;
+    const auto status = f.link->status();
+    EXPECT_EQ(status.ring, RingState::broken);
+    EXPECT_EQ(status.merged, 1u);
+    EXPECT_EQ(status.ring_breaks, 1u);
+    // Healing: a forward cross again.
+    f.ring.shape = ToyRing::Shape::whole;
+    const auto healed = exchange(*f.link, 0x24);
+    ASSERT_TRUE(healed);
+    EXPECT_EQ(healed->lrw_wkc, 4);
+    EXPECT_EQ(f.link->status().ring, RingState::whole);
+    EXPECT_EQ(f.link->status().ring_heals, 1u);
+  }
+}
+
+TEST(RedundantLink, CableCutAtTheMasterWaitsOnceThenNotAgain) {
+  for (auto shape : {ToyRing::Shape::primary_cut, ToyRing::Shape::secondary_cut}) {
+    Fixture f(2ms);
+    f.ring.shape = shape;
+    // The first lone bounce waits out the window (the other side might still answer)...
+    const auto start = std::chrono::steady_clock::now();
+    const auto first = exchange(*f.link, 0x30);
+    ASSERT_TRUE(first);
+    EXPECT_EQ(first->data, kWhole);
+    EXPECT_EQ(first->lrw_wkc, 4);
+    EXPECT_GE(std::chrono::steady_clock::now() - start, 2ms);
+    EXPECT_EQ(f.link->status().merge_timeouts, 1u);
+    // ...later ones do not: that side has been silent.
+    for (std::uint8_t i = 0; i < 5; ++i) {
+      const auto r = exchange(*f.link, static_cast<std::uint8_t>(0x40 + 2 * i));
+      ASSERT_TRUE(r);
+      EXPECT_EQ(r->lrw_wkc, 4);
+    }
+    EXPECT_EQ(f.link->status().merge_timeouts, 1u);
+    EXPECT_EQ(f.link->status().lone_bounces, 6u);
+  }
+}
+
+TEST(RedundantLink, OneLegFailingToSendDegradesWithoutLosingFrames) {
+  Fixture f;
+  f.ring.shape = ToyRing::Shape::secondary_cut;
+  f.ring.send_fails[1] = true;
+  const auto r = exchange(*f.link, 0x50);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->lrw_wkc, 4);
+  auto status = f.link->status();
+  EXPECT_EQ(status.topology, RedundancyTopology::degraded_secondary_leg);
+  EXPECT_FALSE(status.secondary.healthy);
+  EXPECT_EQ(status.secondary.send_errors, 1u);
+  EXPECT_EQ(status.merge_timeouts, 0u);  // the other leg sent nothing: no waiting
+  // The leg comes back at its next successful send.
+  f.ring.send_fails[1] = false;
+  f.ring.shape = ToyRing::Shape::whole;
+  ASSERT_TRUE(exchange(*f.link, 0x52));
+  EXPECT_EQ(f.link->status().topology, RedundancyTopology::redundant);
+  // Both failing: the send fails, the topology is offline.
+  f.ring.send_fails = {true, true};
+  auto sent = f.link->send(lrw_frame(0x54));
+  ASSERT_FALSE(sent);
+  EXPECT_NE(sent.error().describe().find("both ports"), std::string::npos);
+  EXPECT_EQ(f.link->status().topology, RedundancyTopology::offline);
+  auto received = f.link->receive(0ns);
+  EXPECT_FALSE(received);
+}
+
+TEST(RedundantLink, StaleAndForeignFramesAreNotHandedOn) {
+  Fixture f;
+  // A reply to nothing that was sent.
+  f.ring.queues[1].emplace_back(lrw_frame(0x77), kPrimaryMac);
+  auto r = f.link->receive(0ns);
+  ASSERT_TRUE(r);
+  EXPECT_FALSE(*r);
+  EXPECT_EQ(f.link->status().stale, 1u);
+  // A processed frame from an unknown source is handed on as is.
+  const auto frame = lrw_frame(0x60);
+  ASSERT_TRUE(f.link->send(frame));
+  f.ring.queues = {};
+  ByteVector processed = frame;
+  f.ring.process(processed, 0, 4);
+  f.ring.queues[0].emplace_back(processed, wire::MacAddress{0x00, 0x11, 0x22, 0x33, 0x44, 0x55});
+  r = f.link->receive(1ms);
+  ASSERT_TRUE(r);
+  ASSERT_TRUE(*r);
+  EXPECT_EQ(f.link->status().unknown_sources, 1u);
+}
+
+TEST(RedundantLink, RefusesUdpAndIndistinguishablePorts) {
+  auto [a, b] = make_memory_link_pair();
+  auto [c, d] = make_memory_link_pair();
+  RedundantLinkOptions same;
+  same.primary_mac = kPrimaryMac;
+  same.secondary_mac = kPrimaryMac;
+  same.secondary_mac[0] ^= 0x02;
+  auto r = RedundantLink::open(std::move(a), std::move(c), same);
+  ASSERT_FALSE(r);
+  EXPECT_EQ(r.error().code(), Errc::invalid_argument);
+  RedundantLinkOptions ok;
+  ok.primary_mac = kPrimaryMac;
+  ok.secondary_mac = kSecondaryMac;
+  EXPECT_FALSE(RedundantLink::open(nullptr, std::move(d), ok));
+  auto udp = UdpLink::connect("127.0.0.1", 34980);
+  if (!udp) GTEST_SKIP() << udp.error().describe();
+  auto refused = RedundantLink::open(std::move(*udp), std::move(b), ok);
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code(), Errc::unsupported);
+  EXPECT_NE(refused.error().message().find("UDP"), std::string::npos);
+}
+
+TEST(RedundantLink, ClosedLinkRefuses) {
+  Fixture f;
+  f.link->close();
+  EXPECT_EQ(f.link->send(lrw_frame(1)).error().code(), Errc::closed);
+  EXPECT_EQ(f.link->receive(0ns).error().code(), Errc::closed);
+  EXPECT_EQ(f.link->reopen().error().code(), Errc::closed);
+}
+
+}  // namespace
+}  // namespace ecat::link
