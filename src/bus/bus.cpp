@@ -1772,6 +1772,7 @@ BusInfo Bus::info() const {
   out.realtime_frames_in_flight = s.pub_rt_frames.load();
   out.datagrams_in_flight = s.pub_datagrams.load();
   out.link_stats = s.link->stats();
+  out.redundancy = s.link->redundancy();
   return out;
 }
 

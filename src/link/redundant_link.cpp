@@ -158,7 +158,9 @@ struct RedundantLink::Impl {
     e.state = SlotState::done;
     lone.fetch_add(1, std::memory_order_relaxed);
     if (after_window) merge_timeouts.fetch_add(1, std::memory_order_relaxed);
-    if (!e.has_bounce[other(s)]) ++silent[other(s)];
+    // Nothing at all came back by the other port: that side may be cut off (an empty copy that
+    // came back is no silence).
+    if (!e.arrived[other(s)]) ++silent[other(s)];
     return deliver(wire::Bytes(e.bounce[s].data(), e.bounce_size[s]), e.last_arrival_ns,
                    s == 0 ? options.primary_mac : options.secondary_mac);
   }
@@ -182,6 +184,7 @@ struct RedundantLink::Impl {
     }
     e->arrived[at] = true;
     if (wire::is_passthrough_copy(sent, frame.frame)) {
+      silent[at] = 0;
       passthrough.fetch_add(1, std::memory_order_relaxed);
       ignored.fetch_add(1, std::memory_order_relaxed);
       // The other side's lone bounce need not wait for this side any more.
@@ -412,8 +415,9 @@ Result<std::optional<ReceivedFrame>> RedundantLink::receive(nanoseconds timeout)
       timeout > nanoseconds(0) ? Clock::now() + timeout : Clock::now();
   std::optional<Error> error;
   for (;;) {
-    // Everything already waiting on either leg first.
-    for (std::size_t k : {std::size_t{1}, std::size_t{0}}) {
+    // Everything already waiting on either leg first, the primary first: on a whole ring its
+    // queue holds the secondary's passthrough copies, which must not pile up behind the replies.
+    for (std::size_t k : {std::size_t{0}, std::size_t{1}}) {
       for (std::size_t n = 0; n < kSlots; ++n) {
         bool got_frame = false;
         auto taken = s.take(k, nanoseconds(0), &got_frame);

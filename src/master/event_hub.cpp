@@ -43,6 +43,8 @@ LogLevel log_level_of(const Event& e) noexcept {
     case EventKind::link_up:
     case EventKind::link_reopened:
       return LogLevel::info;
+    case EventKind::link_redundancy:
+      return LogLevel::warn;
     case EventKind::link_down:
       return LogLevel::error;
     case EventKind::frames_lost:
@@ -68,6 +70,7 @@ std::string_view log_subsystem_of(EventKind kind) noexcept {
     case EventKind::link_down:
     case EventKind::link_up:
     case EventKind::link_reopened:
+    case EventKind::link_redundancy:
       return "link";
     case EventKind::frames_lost:
     case EventKind::timeouts:

@@ -17,7 +17,7 @@ constexpr std::array<std::string_view, kEventKindCount> kNames{
     "master.state",  "slave.state",   "domain.state",      "domain.health",  "fault.raised",
     "fault.cleared", "recovery.step", "activation.failed", "dc.locked",      "dc.lost",
     "link.down",     "link.up",       "sdo.failed",        "mailbox.failed", "bus.frames_lost",
-    "bus.timeouts",  "link.reopened",
+    "bus.timeouts",  "link.reopened", "link.redundancy",
 };
 
 template <std::size_t N>

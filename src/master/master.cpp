@@ -819,6 +819,8 @@ struct Master::Impl : DomainObserver {
     std::uint64_t failures = 0;  // bus counts seen so far
     std::uint64_t reopens = 0;
     std::optional<exec::Clock::time_point> down_since;
+    // A redundant link's topology and ring as last reported (link.redundancy events).
+    std::optional<std::pair<link::RedundancyTopology, link::RingState>> redundancy;
   };
   LinkWatch link_watch;  // loop thread; the current session's
 
@@ -863,6 +865,15 @@ struct Master::Impl : DomainObserver {
                                                 : fmt::format("link {} failed", info.link_name);
       events.publish(make_event(EventKind::link_down, {}, why));
       raise_runtime_fault(kLinkFaultKey, why);
+    }
+    if (info.redundancy) {
+      const auto seen = std::make_pair(info.redundancy->topology, info.redundancy->ring);
+      if (seen != w.redundancy && seen.second != link::RingState::unknown) {
+        w.redundancy = seen;
+        events.publish(make_event(
+            EventKind::link_redundancy, {},
+            fmt::format("{}, ring {}", link::to_string(seen.first), link::to_string(seen.second))));
+      }
     }
     if (info.link_reopens != w.reopens) {
       w.reopens = info.link_reopens;
@@ -1700,6 +1711,7 @@ MasterStatus Master::status() const {
       out.runtime_faults.push_back(why);
     if (impl_->session) {
       out.link = impl_->session->bus ? impl_->session->bus->link_name() : "";
+      if (impl_->session->bus) out.redundancy = impl_->session->bus->info().redundancy;
       out.slave_count = impl_->session->slave_count;
       for (const auto& slave : impl_->session->slaves)
         out.illegal_slave_transitions += SlaveAccess::refused_transitions(*slave);

@@ -47,11 +47,13 @@
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/link/raw_link.hpp>
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/sim/faults.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 #include <ecat/wire/al.hpp>
@@ -94,7 +96,9 @@ enum class RingKind : std::uint8_t {
   servo,      // coupler + drive (servo profile, cia402 driver)
 };
 
-enum class Transport : std::uint8_t { memory, udp, raw };
+// redundant: the simulator's ring with its second master port (sim::RedundantPorts, in process)
+// and the master on a link::RedundantLink over both ports.
+enum class Transport : std::uint8_t { memory, udp, raw, redundant };
 
 // The blob the segmented ring downloads to 0x2003:01 at startup (several segments).
 inline std::vector<std::uint8_t> segmented_blob() {
@@ -258,7 +262,8 @@ class RawNamespace {
 
 // Samples the master's public state every millisecond on its own thread and remembers what it saw
 // ("master:recovering", "state:outputs:down", "fault:outputs", "invalid:main:timeout",
-// "wkc:main:3/2"), so that a test can assert on states that only last a few cycles.
+// "wkc:main:3/2", "redundancy:redundant, ring broken"), so that a test can assert on states that
+// only last a few cycles.
 class Monitor {
  public:
   // Invalid cycles from before the monitor started are not reported.
@@ -274,6 +279,8 @@ class Monitor {
         what = fmt::format("state:{}:{}", e.name(), e.to_name());
       } else if (e.kind == master::EventKind::master_state) {
         what = fmt::format("master:{}", e.to_name());
+      } else if (e.kind == master::EventKind::link_redundancy) {
+        what = fmt::format("redundancy:{}", e.detail());
       } else {
         return;
       }
@@ -448,6 +455,7 @@ class ScenarioRing {
     }
     if (master) (void)master->stop();
     master.reset();
+    redundant_ports.reset();
     if (server) server->stop();
     server.reset();
     ns_.reset();  // last: the sockets are closed
@@ -566,12 +574,31 @@ class ScenarioRing {
 
   std::unique_ptr<sim::SimServer> server;
   std::unique_ptr<master::Master> master;
+  // Transport::redundant only: the simulator's two ports and the master's link (owned by the
+  // master's bus; valid while the master runs).
+  std::unique_ptr<sim::RedundantPorts> redundant_ports;
+  link::RedundantLink* redundant_link = nullptr;
 
  private:
   Result<std::unique_ptr<link::Link>> serve() {
     switch (spec_.transport) {
       case Transport::memory:
         return server->serve_memory();
+      case Transport::redundant: {
+        sim::RedundantPortsOptions options;
+        auto ports = sim::RedundantPorts::create(*server, options);
+        if (!ports) return ports.error();
+        redundant_ports = std::move(*ports);
+        link::RedundantLinkOptions link_options;
+        link_options.primary_mac = options.primary_mac;
+        link_options.secondary_mac = options.secondary_mac;
+        auto link = link::RedundantLink::open(
+            redundant_ports->take_link(wire::RedundantPort::primary),
+            redundant_ports->take_link(wire::RedundantPort::secondary), link_options);
+        if (!link) return link.error();
+        redundant_link = link->get();
+        return std::unique_ptr<link::Link>(std::move(*link));
+      }
       case Transport::udp: {
         auto listening = link::UdpLink::serve("127.0.0.1", 0);
         if (!listening) return listening.error();

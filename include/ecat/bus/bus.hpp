@@ -147,6 +147,8 @@ struct BusInfo {
   std::size_t realtime_frames_in_flight = 0;
   std::size_t datagrams_in_flight = 0;
   link::LinkStats link_stats;
+  // A redundant link's ports and ring (Link::redundancy); none for a single port.
+  std::optional<link::RedundancyStatus> redundancy;
 };
 
 struct CycleTick {

@@ -43,8 +43,9 @@ enum class EventKind : std::uint8_t {
   frames_lost,        // value: total frames lost, at each threshold crossed (1, 10, 100, ...)
   timeouts,           // value: total transaction timeouts, at each threshold crossed
   link_reopened,      // the failed link is back; value: reopen attempts so far; detail: the link
+  link_redundancy,  // a redundant link's topology or ring changed; detail: "redundant, ring broken"
 };
-inline constexpr std::size_t kEventKindCount = 17;
+inline constexpr std::size_t kEventKindCount = 18;
 
 // "master.state", "slave.state", "domain.health", "dc.locked", ...: the event's stable name.
 std::string_view to_string(EventKind kind) noexcept;

@@ -124,6 +124,9 @@ struct MasterStatus {
   MasterState state = MasterState::idle;
   TargetState desired_target = TargetState::op;
   std::string link;
+  // A redundant link's ports and ring (topology redundant / degraded on one leg / offline; ring
+  // whole or broken); none on a single port.
+  std::optional<link::RedundancyStatus> redundancy;
   std::uint16_t slave_count = 0;
   std::vector<SlaveSummary> slaves;
   std::vector<DomainSummary> domains;

@@ -1,0 +1,116 @@
+// A redundant simulated segment: the ring of a SimServer with a second master port at its far
+// end (the last slave's port 1), so that a master with a redundant link (link/redundant_link.hpp)
+// can be tested against a cable break anywhere.
+//
+// Routing follows the ESC's forwarding rules: a frame is processed only on its way from port 0
+// through the processing unit. So on a whole ring the primary's frame is processed by every slave
+// and leaves into the secondary port, and the secondary's frame passes every slave unprocessed
+// and leaves into the primary port. A break between slave n-1 and slave n turns both round: the
+// primary's frame comes back to the primary processed by slaves 0..n-1, the secondary's comes
+// back to the secondary processed by n..N-1, which count positions (auto-increment addressing)
+// from n, as real slaves behind a break do. A cut at a master port loses that port's frames, and
+// the other port's frame goes through every slave and back.
+//
+// The two ports are in-process links (like SimServer::function_link: the master's send()
+// processes the frame in its thread, under the server's lock; no thread, deterministic). Replies
+// carry the requester's source address with bit 1 of the first byte set, as an ESC sets it.
+//
+// A port's replies can be held back (set_delay: all of them, or only those of frames that entered
+// by a given port), as a slow master NIC or a late passthrough copy would arrive.
+//
+// Not yet modelled: the DL status of the ports at the break (every ESC still reports the links of
+// the whole ring) and a link on the last slave's port 1.
+#pragma once
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include <ecat/link/link.hpp>
+#include <ecat/result.hpp>
+#include <ecat/wire/frame.hpp>
+#include <ecat/wire/redundancy.hpp>
+
+namespace ecat::sim {
+
+class SimServer;
+
+struct RedundantTopology {
+  enum class Kind : std::uint8_t { whole, break_after, master_break };
+  Kind kind = Kind::whole;
+  // break_after: slaves 0..n-1 stay on the primary's side (1 <= n < slave count).
+  std::size_t break_after = 0;
+  // master_break: the port whose cable is cut.
+  wire::RedundantPort master_break = wire::RedundantPort::primary;
+
+  static RedundantTopology whole_ring() { return {}; }
+  static RedundantTopology broken_after(std::size_t n) { return {Kind::break_after, n, {}}; }
+  static RedundantTopology cut_at(wire::RedundantPort port) {
+    return {Kind::master_break, 0, port};
+  }
+};
+// "whole", "break after 2", "master break primary"
+std::string describe(const RedundantTopology& topology);
+
+// Where a frame entering a master port goes: the slaves [first, last) process it, and it leaves
+// into `egress` (none: lost on a cut cable).
+struct RedundantRoute {
+  std::size_t first = 0;
+  std::size_t last = 0;
+  std::optional<wire::RedundantPort> egress;
+};
+// Pure. Errc::invalid_argument for a break_after outside 1..slave_count-1 (naming it).
+Result<RedundantRoute> route_redundant(const RedundantTopology& topology, std::size_t slave_count,
+                                       wire::RedundantPort ingress);
+
+struct RedundantPortsOptions {
+  // The Ethernet addresses of the master's two ports (the requesters): replies carry them.
+  wire::MacAddress primary_mac{0x02, 0xEC, 0x00, 0x00, 0x00, 0x01};
+  wire::MacAddress secondary_mac{0x02, 0xEC, 0x00, 0x00, 0x00, 0x02};
+  RedundantTopology topology{};
+  // Replies that may wait on one port at once.
+  std::size_t queue_depth = 16;
+};
+
+struct RedundantPortsStats {
+  std::uint64_t frames = 0;      // frames sent by the master on either port
+  std::uint64_t crosses = 0;     // replies that left by the other port
+  std::uint64_t bounces = 0;     // replies that came back to the port they entered
+  std::uint64_t lost = 0;        // frames lost on a cut cable or by a fault
+  std::uint64_t overflowed = 0;  // replies dropped on a full queue
+};
+
+class RedundantPorts {
+ public:
+  // Over `server` (which must outlive the ports and the links), serving nothing else. The slaves
+  // are the ring in position order; Errc::invalid_argument for a ring that is not a line.
+  static Result<std::unique_ptr<RedundantPorts>> create(SimServer& server,
+                                                        RedundantPortsOptions options = {});
+  ~RedundantPorts();
+  RedundantPorts(const RedundantPorts&) = delete;
+  RedundantPorts& operator=(const RedundantPorts&) = delete;
+
+  // The master's end of one cable ("sim-primary", "sim-secondary"); take each once. The links
+  // stay valid after the RedundantPorts is gone (then they lose every frame).
+  std::unique_ptr<link::Link> take_link(wire::RedundantPort port);
+
+  // Thread-safe; takes effect from the next frame.
+  Result<void> set_topology(const RedundantTopology& topology);
+  RedundantTopology topology() const;
+  // Replies leaving by `egress` are held back `delay` (0: none); with `from_ingress`, only replies
+  // to frames that entered by that port. Thread-safe.
+  void set_delay(wire::RedundantPort egress, std::chrono::nanoseconds delay,
+                 std::optional<wire::RedundantPort> from_ingress = std::nullopt);
+  RedundantPortsStats stats() const;
+
+  struct Shared;
+
+ private:
+  RedundantPorts() = default;
+  std::shared_ptr<Shared> shared_;
+};
+
+}  // namespace ecat::sim

@@ -1,0 +1,336 @@
+// Cable redundancy (docs/scenarios/00, 39, 45): the default ring served with a second master port
+// (sim::RedundantPorts, in process) and the master on a link::RedundantLink over both ports.
+// The cable is broken between slaves or cut at a master port while the domain cycles.
+#include <chrono>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include <ecat/link/redundant_link.hpp>
+#include <ecat/sim/redundant_ring.hpp>
+
+#include "scenarios/scenario_support.hpp"
+
+namespace ecat::scenarios {
+namespace {
+
+using link::RedundancyTopology;
+using link::RingState;
+using sim::RedundantTopology;
+using wire::RedundantPort;
+
+RingSpec redundant_spec(std::chrono::nanoseconds period = 5ms) {
+  RingSpec spec;
+  spec.transport = Transport::redundant;
+  spec.domain_period = period;
+  return spec;
+}
+
+// Cycles that did not come back valid since `before`.
+std::uint64_t invalid_since(const master::DomainStats& before, const master::DomainStats& now) {
+  const auto invalid = [](const master::DomainStats& s) {
+    return s.wkc_mismatch_count + s.timeout_count + s.expired_count + s.overrun_count +
+           s.link_error_count;
+  };
+  return invalid(now) - invalid(before);
+}
+
+std::string debug_status(ScenarioRing& ring) {
+  const auto s = ring.redundant_link->status();
+  const auto d = ring.domain_stats();
+  return fmt::format(
+      "; link: ring {} fwd {} rev {} copies {} merged {} lone {} window {} unknown {} stale {}; "
+      "domain last_wkc {} expected {} actual {}",
+      link::to_string(s.ring), s.forward_crosses, s.reverse_crosses, s.passthrough_copies, s.merged,
+      s.lone_bounces, s.merge_timeouts, s.unknown_sources, s.stale, d.last_wkc,
+      d.last_invalid ? d.last_invalid->expected_wkc : 0,
+      d.last_invalid ? d.last_invalid->actual_wkc : 0);
+}
+
+// Waits for `n` more valid cycles.
+bool cycles_pass(ScenarioRing& ring, std::uint64_t n) {
+  const auto start = ring.domain_stats().valid_count;
+  return eventually([&] { return ring.domain_stats().valid_count >= start + n; });
+}
+
+// Process data keeps flowing through `topology` with the whole ring's working counter, losing
+// no cycle but possibly the one in flight at the moment of the change.
+void expect_flows_through(ScenarioRing& ring, const RedundantTopology& topology) {
+  SCOPED_TRACE(sim::describe(topology));
+  ASSERT_TRUE(cycles_pass(ring, 5));
+  const auto before = ring.domain_stats();
+  ASSERT_TRUE(ring.redundant_ports->set_topology(topology));
+  ASSERT_TRUE(cycles_pass(ring, 20)) << ring.describe();
+  const auto after = ring.domain_stats();
+  EXPECT_LE(invalid_since(before, after), 1u) << ring.describe() << debug_status(ring);
+  EXPECT_EQ(after.last_wkc, before.last_wkc);
+  EXPECT_LE(after.wkc_mismatch_count - before.wkc_mismatch_count, 1u);
+  EXPECT_TRUE(ring.loopback(true)) << ring.describe();
+  EXPECT_TRUE(ring.loopback(false)) << ring.describe();
+  EXPECT_EQ(ring.state(), MasterState::operational);
+  EXPECT_TRUE(ring.master->status().runtime_faults.empty()) << ring.describe();
+}
+
+void expect_never_recovered(ScenarioRing& ring) {
+  EXPECT_FALSE(ring.saw(MasterState::recovering)) << ring.describe();
+  EXPECT_FALSE(ring.saw(MasterState::activation_blocked)) << ring.describe();
+  EXPECT_TRUE(ring.all_slaves_in(SlaveState::op)) << ring.describe();
+  EXPECT_FALSE(ring.any_slave_fault()) << ring.describe();
+}
+
+// ---- 00 (redundant part): a whole redundant ring, one cable break, heal ----------------------
+
+TEST(Scenario00, RedundantRingThroughABreakAndBack) {
+  auto ring = ScenarioRing::operational(redundant_spec());
+  ASSERT_TRUE(ring);
+  ASSERT_NE(ring->redundant_link, nullptr);
+  Monitor monitor(*ring->master);
+  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
+  auto status = ring->redundant_link->status();
+  EXPECT_EQ(status.topology, RedundancyTopology::redundant);
+  EXPECT_EQ(status.ring, RingState::whole);
+  EXPECT_GT(status.forward_crosses, 0u);
+  EXPECT_GT(status.passthrough_copies, 0u);
+  EXPECT_EQ(status.merged, 0u);
+
+  expect_flows_through(*ring, RedundantTopology::broken_after(1));
+  status = ring->redundant_link->status();
+  EXPECT_EQ(status.ring, RingState::broken);
+  EXPECT_EQ(status.topology, RedundancyTopology::redundant);  // both ports work
+  // The coupler alone before the break maps no process data: the primary's half of the LRW comes
+  // back untouched and the secondary's bounce is the reply.
+  EXPECT_GT(status.lone_bounces, 0u);
+  EXPECT_EQ(status.ring_breaks, 1u);
+  // The master reports it, in its status and in the event stream.
+  const auto master_status = ring->master->status();
+  ASSERT_TRUE(master_status.redundancy);
+  EXPECT_EQ(master_status.redundancy->ring, RingState::broken);
+  EXPECT_TRUE(eventually([&] { return monitor.saw("redundancy:redundant, ring broken"); }))
+      << monitor.seen();
+
+  // The break moves: between the inputs and the outputs terminal. Both halves carry process
+  // data now and are merged.
+  const auto merged_before = ring->redundant_link->status().merged;
+  expect_flows_through(*ring, RedundantTopology::broken_after(2));
+  EXPECT_GT(ring->redundant_link->status().merged, merged_before + 20);
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  status = ring->redundant_link->status();
+  EXPECT_EQ(status.ring, RingState::whole);
+  EXPECT_EQ(status.ring_heals, 1u);
+  EXPECT_EQ(status.merge_timeouts, 0u);  // both halves always came back
+  EXPECT_TRUE(eventually([&] { return monitor.saw("redundancy:redundant, ring whole"); }))
+      << monitor.seen();
+  expect_never_recovered(*ring);
+  const auto sim = ring->redundant_ports->stats();
+  EXPECT_GT(sim.crosses, 0u);
+  EXPECT_GT(sim.bounces, 0u);
+}
+
+// ---- 39: the primary's cable cut at the master, then restored --------------------------------
+
+TEST(Scenario39, RedundantPrimaryCutKeepsOperational) {
+  auto ring = ScenarioRing::operational(redundant_spec());
+  ASSERT_TRUE(ring);
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary));
+  auto status = ring->redundant_link->status();
+  EXPECT_EQ(status.ring, RingState::broken);
+  EXPECT_GT(status.lone_bounces, 0u);
+  // Only the first lone bounce waited out the merge window: the silent side is remembered.
+  EXPECT_LE(status.merge_timeouts, 2u);
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::whole);
+  expect_never_recovered(*ring);
+}
+
+// ---- 45: the secondary's cable cut, at a 10 ms and at a 1 ms cycle ---------------------------
+
+void secondary_cut(std::chrono::nanoseconds period) {
+  auto ring = ScenarioRing::operational(redundant_spec(period));
+  ASSERT_TRUE(ring);
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::secondary));
+  EXPECT_GT(ring->redundant_link->status().lone_bounces, 0u);
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  expect_never_recovered(*ring);
+}
+
+TEST(Scenario45, RedundantSecondaryCutAt10ms) {
+  secondary_cut(10ms);
+}
+TEST(Scenario45, RedundantSecondaryCutAt1ms) {
+  secondary_cut(1ms);
+}
+
+// A ring that starts with one port cut comes up through the other alone: every slave is on one
+// side, so position addressing (station assignment) counts as on a whole ring.
+TEST(Scenario39, RedundantRingStartsWithThePrimaryCut) {
+  auto spec = redundant_spec();
+  RingSpec copy = spec;
+  auto ring = ScenarioRing::create(copy);
+  ASSERT_TRUE(ring);
+  // The master is already starting; cut before it gets far (a race that only decides whether the
+  // first frames cross or bounce: either way it must come up).
+  ASSERT_TRUE(
+      ring->redundant_ports->set_topology(RedundantTopology::cut_at(RedundantPort::primary)));
+  ASSERT_TRUE(ring->master->await_operational(10s)) << ring->describe();
+  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
+  EXPECT_TRUE(ring->loopback(false)) << ring->describe();
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::broken);
+}
+
+// ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
+
+// The default ring served with two master ports and a bus on a RedundantLink, no master.
+struct RedundantBus {
+  std::unique_ptr<sim::SimServer> server;
+  std::unique_ptr<sim::RedundantPorts> ports;
+  link::RedundantLink* link = nullptr;
+  std::unique_ptr<bus::Bus> bus;
+
+  explicit RedundantBus(std::chrono::nanoseconds frame_timeout) {
+    auto parsed = sim::parse_ring(ring_yaml(RingKind::basic));
+    EXPECT_TRUE(parsed) << parsed.error().describe();
+    if (!parsed) return;
+    auto made = sim::make_server(*parsed);
+    EXPECT_TRUE(made);
+    if (!made) return;
+    server = std::move(*made);
+    sim::RedundantPortsOptions options;
+    auto created = sim::RedundantPorts::create(*server, options);
+    EXPECT_TRUE(created);
+    if (!created) return;
+    ports = std::move(*created);
+    link::RedundantLinkOptions link_options;
+    link_options.primary_mac = options.primary_mac;
+    link_options.secondary_mac = options.secondary_mac;
+    auto opened =
+        link::RedundantLink::open(ports->take_link(RedundantPort::primary),
+                                  ports->take_link(RedundantPort::secondary), link_options);
+    EXPECT_TRUE(opened);
+    if (!opened) return;
+    link = opened->get();
+    bus::BusOptions bus_options;
+    bus_options.frame_timeout = frame_timeout;
+    bus = std::make_unique<bus::Bus>(std::move(*opened), bus_options);
+    EXPECT_TRUE(bus->start());
+    // Stations 0x1000 + position, as a master assigns them (the ring is whole).
+    bus::Transaction assign;
+    for (std::uint16_t i = 0; i < 3; ++i) {
+      const std::array<std::uint8_t, 2> station{static_cast<std::uint8_t>(i), 0x10};
+      assign.apwr(i, wire::reg::kStationAddress, station, 1);
+    }
+    EXPECT_TRUE(bus->transact(std::move(assign)));
+  }
+  ~RedundantBus() {
+    if (bus) bus->stop();
+    bus.reset();
+  }
+};
+
+bus::TransactOptions once(std::chrono::nanoseconds timeout = 1s) {
+  bus::TransactOptions options;
+  options.retries = 0;
+  options.timeout = timeout;
+  return options;
+}
+
+TEST(Scenario38, RedundantPassthroughCopyIsNoReply) {
+  RedundantBus ring(40ms);
+  ASSERT_TRUE(ring.bus);
+  // Whatever leaves by the secondary (the primary's processed frame) comes 200 ms late; the
+  // secondary's copy, unprocessed, reaches the primary at once.
+  ring.ports->set_delay(RedundantPort::secondary, 200ms);
+  bus::Transaction tx;
+  tx.fprd(0x1002, 0x0010, 2);
+  auto reply = ring.bus->transact(std::move(tx), once());
+  ASSERT_FALSE(reply);
+  EXPECT_EQ(reply.error().code(), Errc::timeout) << reply.error().describe();
+  EXPECT_GT(ring.link->status().passthrough_copies, 0u);
+}
+
+TEST(Scenario40, RedundantDelayedCopyDoesNotHoldTheReply) {
+  RedundantBus ring(40ms);
+  ASSERT_TRUE(ring.bus);
+  // The primary holds back replies to frames that entered by the secondary (the passthrough
+  // copy); the processed reply is taken as it comes.
+  ring.ports->set_delay(RedundantPort::primary, 200ms, RedundantPort::secondary);
+  for (int i = 0; i < 3; ++i) {
+    bus::Transaction tx;
+    tx.brd(0x0000, 1);
+    auto reply = ring.bus->transact(std::move(tx), once(100ms));
+    ASSERT_TRUE(reply) << reply.error().describe();
+    EXPECT_EQ(reply->wkc(0), 3);
+  }
+  const auto status = ring.link->status();
+  EXPECT_EQ(status.topology, RedundancyTopology::redundant);
+  EXPECT_EQ(status.ring, RingState::whole);
+}
+
+TEST(Scenario41, RedundantResetBlockCountsEverySlave) {
+  RedundantBus ring(40ms);
+  ASSERT_TRUE(ring.bus);
+  // The startup's broadcast reset block: 13 BWRs in one frame, once and then ten times.
+  const auto reset = [] {
+    bus::Transaction tx;
+    tx.bwr(wire::reg::kDlPortControl, std::array<std::uint8_t, 1>{0x00});
+    tx.bwr(wire::reg::kEcatEventMask, std::array<std::uint8_t, 2>{0x04, 0x00});
+    tx.bwr(wire::reg::kRxErrorCounter, std::array<std::uint8_t, 8>{});
+    tx.bwr(wire::reg::kFmmuBase, std::array<std::uint8_t, 3 * wire::reg::kFmmuSize>{});
+    tx.bwr(wire::reg::kSyncManagerBase,
+           std::array<std::uint8_t, 4 * wire::reg::kSyncManagerSize>{});
+    tx.bwr(wire::reg::kDcActivation, std::array<std::uint8_t, 1>{});
+    tx.bwr(wire::reg::kDcSystemTime, std::array<std::uint8_t, 4>{});
+    tx.bwr(wire::reg::kDcSpeedCounterStart, std::array<std::uint8_t, 2>{0x00, 0x10});
+    tx.bwr(wire::reg::kDcSystemTimeFilterDepth, std::array<std::uint8_t, 2>{0x00, 0x0C});
+    tx.bwr(wire::reg::kDlAliasControl, std::array<std::uint8_t, 1>{});
+    tx.bwr(wire::reg::kAlControl, std::array<std::uint8_t, 2>{0x11, 0x00});
+    tx.bwr(wire::reg::kSiiAccess, std::array<std::uint8_t, 1>{0x02});
+    tx.bwr(wire::reg::kSiiAccess, std::array<std::uint8_t, 1>{0x00});
+    return tx;
+  };
+  for (int round = 0; round < 11; ++round) {
+    auto reply = ring.bus->transact(reset(), once());
+    ASSERT_TRUE(reply) << reply.error().describe();
+    for (std::size_t i = 0; i < 13; ++i)
+      EXPECT_GT(reply->wkc(i), 0) << round << " " << i;
+  }
+  bus::Transaction count;
+  count.brd(0x0000, 1);
+  auto counted = ring.bus->transact(std::move(count), once());
+  ASSERT_TRUE(counted);
+  EXPECT_EQ(counted->wkc(0), 3);
+  const auto status = ring.link->status();
+  EXPECT_GE(status.passthrough_copies, 12u);  // every copy came round and was dropped
+  EXPECT_EQ(status.stale, 0u);
+}
+
+TEST(RedundantSegment, RoutesFollowTheEscForwardingRules) {
+  using K = RedundantTopology;
+  auto r = sim::route_redundant(K::whole_ring(), 3, RedundantPort::primary);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->first, 0u);
+  EXPECT_EQ(r->last, 3u);
+  EXPECT_EQ(r->egress, RedundantPort::secondary);
+  r = sim::route_redundant(K::whole_ring(), 3, RedundantPort::secondary);
+  EXPECT_EQ(r->first, r->last);  // passes every slave unprocessed
+  EXPECT_EQ(r->egress, RedundantPort::primary);
+  r = sim::route_redundant(K::broken_after(1), 3, RedundantPort::secondary);
+  EXPECT_EQ(r->first, 1u);
+  EXPECT_EQ(r->last, 3u);
+  EXPECT_EQ(r->egress, RedundantPort::secondary);
+  r = sim::route_redundant(K::cut_at(RedundantPort::primary), 3, RedundantPort::primary);
+  EXPECT_FALSE(r->egress);
+  r = sim::route_redundant(K::cut_at(RedundantPort::primary), 3, RedundantPort::secondary);
+  EXPECT_EQ(r->last, 3u);
+  EXPECT_EQ(r->egress, RedundantPort::secondary);
+  for (std::size_t bad : {0u, 3u, 7u}) {
+    auto refused = sim::route_redundant(K::broken_after(bad), 3, RedundantPort::primary);
+    ASSERT_FALSE(refused);
+    EXPECT_EQ(refused.error().code(), Errc::invalid_argument);
+    EXPECT_NE(refused.error().message().find("cannot break after slave"), std::string::npos);
+  }
+  EXPECT_EQ(sim::describe(K::broken_after(2)), "break after 2");
+  EXPECT_EQ(sim::describe(K::cut_at(RedundantPort::secondary)), "master break secondary");
+}
+
+}  // namespace
+}  // namespace ecat::scenarios
