@@ -199,6 +199,82 @@ void BM_InProcessHealthPollFrame(benchmark::State& state) {
 }
 BENCHMARK(BM_InProcessHealthPollFrame)->Arg(8)->Arg(64)->Arg(256)->Arg(512)->Arg(1024);
 
+// The master's reset block at start-up (src/master/startup.cpp, reset_slaves): 13 BWRs, each
+// reaching every slave (DL port control, event mask, error counters, FMMUs 0-2, SyncManagers 0-3,
+// DC registers, alias control, AL control, EEPROM access). A broadcast costs every slave: the
+// frame's time bounds how short the master's frame timeout may be against this simulator.
+std::vector<std::uint8_t> reset_block_frame() {
+  struct Step {
+    std::uint16_t offset;
+    std::size_t length;
+    std::uint8_t first;
+    std::uint8_t second = 0;
+  };
+  static constexpr std::array<Step, 13> kSteps{
+      {{reg::kDlPortControl, 1, 0},
+       {reg::kEcatEventMask, 2, 4},
+       {reg::kRxErrorCounter, 8, 0},
+       {reg::kFmmuBase, 3 * reg::kFmmuSize, 0},
+       {reg::kSyncManagerBase, 4 * reg::kSyncManagerSize, 0},
+       {reg::kDcActivation, 1, 0},
+       {reg::kDcSystemTime, 4, 0},
+       {reg::kDcSpeedCounterStart, 2, 0, 0x10},
+       {reg::kDcSystemTimeFilterDepth, 2, 0, 0x0C},
+       {reg::kDlAliasControl, 1, 0},
+       {reg::kAlControl, 2, 0x11},
+       {reg::kSiiAccess, 1, 2},
+       {reg::kSiiAccess, 1, 0}}};
+  std::array<std::uint8_t, ecat::wire::kMaxFrameSize> buffer{};
+  ecat::wire::FrameBuilder builder(buffer);
+  std::uint8_t index = 0;
+  for (const Step& step : kSteps) {
+    ecat::wire::DatagramHeader h;
+    h.command = Command::bwr;
+    h.index = index++;
+    h.address = ecat::wire::physical_address(0, step.offset);
+    h.length = static_cast<std::uint16_t>(step.length);
+    std::vector<std::uint8_t> data(step.length, 0);
+    data[0] = step.first;
+    if (step.length > 1) data[1] = step.second;
+    (void)builder.add(h, ecat::wire::Bytes(data));
+  }
+  const auto frame = builder.finish();
+  return {frame.begin(), frame.end()};
+}
+
+void BM_InProcessResetBlockFrame(benchmark::State& state) {
+  const auto slaves = static_cast<std::size_t>(state.range(0));
+  auto server = configured_server(slaves);
+  if (!server) {
+    state.SkipWithError("cannot build the segment");
+    return;
+  }
+  auto link = server->function_link();
+  const auto frame = reset_block_frame();
+  std::uint64_t wrong = 0;
+  for (auto _ : state) {
+    (void)link->send(frame);
+    auto r = link->receive(0ns);
+    if (!r.ok() || !r->has_value()) {
+      state.SkipWithError("no reply");
+      break;
+    }
+    const auto decoded = ecat::wire::decode_frame((*r)->frame);
+    if (!decoded) {
+      ++wrong;
+      continue;
+    }
+    for (const ecat::wire::DatagramView d : *decoded.frame) {
+      if (d.wkc != slaves) ++wrong;
+    }
+  }
+  state.counters["slaves"] = static_cast<double>(slaves);
+  state.counters["wrong_wkc"] = static_cast<double>(wrong);
+  state.counters["frames/s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_InProcessResetBlockFrame)->Arg(64)->Arg(256)->Arg(512)->Arg(1024);
+
 // ---- veth ---------------------------------------------------------------------------------------
 
 void veth_round_trips(benchmark::State& state, ecat::link::Link& master,
@@ -220,46 +296,48 @@ void veth_round_trips(benchmark::State& state, ecat::link::Link& master,
   state.SetItemsProcessed(state.iterations());
 }
 
-void BM_VethBareEcho(benchmark::State& state) {
+// Both ends of a veth pair in a private namespace, raw links open on each; false (the benchmark
+// skipped with the reason) when there are none.
+struct VethEnds {
   VethPair pair;
-  if (!pair.problem().empty()) {
-    state.SkipWithError(pair.problem().c_str());
-    return;
+  std::unique_ptr<ecat::link::RawLink> master, segment;
+
+  bool open(benchmark::State& state) {
+    if (pair.problem().empty()) {
+      master = pair.open("m", false);
+      segment = pair.open("s", true);
+    }
+    if (!master || !segment) {
+      state.SkipWithError(pair.problem().c_str());
+      return false;
+    }
+    return true;
   }
-  auto master = pair.open("m", false);
-  auto segment = pair.open("s", true);
-  if (!master || !segment) {
-    state.SkipWithError(pair.problem().c_str());
-    return;
-  }
+};
+
+void BM_VethBareEcho(benchmark::State& state) {
+  VethEnds ends;
+  if (!ends.open(state)) return;
   const auto frame = cyclic_frame(static_cast<std::size_t>(state.range(0)));
-  {
-    Echo echo(*segment);
-    veth_round_trips(state, *master, frame);
-  }
+  Echo echo(*ends.segment);
+  veth_round_trips(state, *ends.master, frame);
 }
 BENCHMARK(BM_VethBareEcho)->Arg(1)->Arg(16)->Arg(64)->Arg(256)->UseRealTime();
 
 void BM_VethSimServer(benchmark::State& state) {
-  VethPair pair;
-  if (!pair.problem().empty()) {
-    state.SkipWithError(pair.problem().c_str());
-    return;
-  }
   const auto slaves = static_cast<std::size_t>(state.range(0));
   auto server = configured_server(slaves);
-  auto master = pair.open("m", false);
-  auto segment = pair.open("s", true);
-  if (!server || !master || !segment) {
-    state.SkipWithError(pair.problem().empty() ? "cannot build the segment"
-                                               : pair.problem().c_str());
+  if (!server) {
+    state.SkipWithError("cannot build the segment");
     return;
   }
-  if (auto r = server->serve(std::move(segment)); !r) {
+  VethEnds ends;
+  if (!ends.open(state)) return;
+  if (auto r = server->serve(std::move(ends.segment)); !r) {
     state.SkipWithError(r.error().describe().c_str());
     return;
   }
-  veth_round_trips(state, *master, cyclic_frame(slaves));
+  veth_round_trips(state, *ends.master, cyclic_frame(slaves));
   server->stop();
 }
 BENCHMARK(BM_VethSimServer)->Arg(1)->Arg(16)->Arg(64)->Arg(256)->UseRealTime();

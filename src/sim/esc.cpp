@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <array>
 #include <cstring>
 
 #include <ecat/sim/application.hpp>
@@ -115,10 +116,17 @@ bool ecat_may_write_register(std::uint16_t address) noexcept {
       {0x0F10, 0x0F17},  // general purpose outputs
       {0x0F80, 0x0FFF},  // user RAM
   };
-  for (const auto& r : kWritable) {
-    if (address >= r.first && address <= r.last) return true;
-  }
-  return false;
+  // Asked for every byte a datagram writes (a broadcast reset block writes ~100 bytes into every
+  // slave): one bit per register, built once from the ranges above.
+  static const std::array<bool, 0x1000> kTable = [] {
+    std::array<bool, 0x1000> table{};
+    for (const auto& r : kWritable) {
+      for (std::uint32_t a = r.first; a <= r.last; ++a)
+        table[a] = true;
+    }
+    return table;
+  }();
+  return address < kTable.size() && kTable[address];
 }
 
 Esc::Esc(EscHardware hardware, std::vector<std::uint8_t> eeprom,
@@ -282,6 +290,31 @@ void Esc::advance(std::int64_t now_ns) {
   }
   if (dc_) dc_->advance(now_ns_);
   application_->advance(*this, now_ns_);
+}
+
+bool Esc::advance_due(std::int64_t now_ns) const noexcept {
+  if (sii_pending_ || (sii_status_ & wire::sii_control::kWriteEnable) != 0 ||
+      wire::load_le16(&memory_[reg::kSiiControl]) != sii_status_) {
+    return true;
+  }
+  // A running process-data watchdog (status bit 0 set) that expires by now_ns (as advance()).
+  const std::int64_t now = std::max(now_ns, now_ns_);
+  for (const auto& sm : sms_) {
+    if (!sm.enabled || !sm.config.control.watchdog ||
+        sm.config.control.direction != wire::SmDirection::write) {
+      continue;
+    }
+    if ((read_u16(reg::kWatchdogStatus) & 1) == 0) break;
+    const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
+    const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
+    if (ticks == 0) break;
+    if (now - sm.last_write_ns > static_cast<std::int64_t>(ticks * (divider + 2) * 40)) return true;
+  }
+  if (dc_ && (dc_->sync_state() == SyncUnitState::waiting ||
+              dc_->sync_state() == SyncUnitState::running)) {
+    return true;
+  }
+  return application_->wants_advance(*this, now);
 }
 
 // ---------------------------------------------------------------------------------------------

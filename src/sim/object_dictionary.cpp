@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <atomic>
 #include <cstdio>
 
 #include <ecat/sim/object_dictionary.hpp>
@@ -492,15 +493,54 @@ OdObject make_sync_manager_types(const std::vector<std::uint8_t>& types) {
 
 // ---- the dictionary -----------------------------------------------------------------------------
 
+std::uint64_t ObjectDictionary::next_generation() noexcept {
+  static std::atomic<std::uint64_t> counter{0};
+  return counter.fetch_add(1, std::memory_order_relaxed) + 1;
+}
+
+ObjectDictionary::ObjectDictionary(const ObjectDictionary& other)
+    : objects_(other.objects_), listener_(other.listener_) {}
+
+ObjectDictionary::ObjectDictionary(ObjectDictionary&& other) noexcept
+    : objects_(std::move(other.objects_)), listener_(std::move(other.listener_)) {
+  other.generation_ = next_generation();
+}
+
+ObjectDictionary& ObjectDictionary::operator=(const ObjectDictionary& other) {
+  if (this != &other) {
+    objects_ = other.objects_;
+    listener_ = other.listener_;
+    generation_ = next_generation();
+  }
+  return *this;
+}
+
+ObjectDictionary& ObjectDictionary::operator=(ObjectDictionary&& other) noexcept {
+  if (this != &other) {
+    objects_ = std::move(other.objects_);
+    listener_ = std::move(other.listener_);
+    generation_ = next_generation();
+    other.generation_ = next_generation();
+  }
+  return *this;
+}
+
+void ObjectDictionary::clear() noexcept {
+  objects_.clear();
+  generation_ = next_generation();
+}
+
 void ObjectDictionary::add(OdObject object) {
   std::stable_sort(
       object.entries.begin(), object.entries.end(),
       [](const ObjectEntry& a, const ObjectEntry& b) { return a.subindex < b.subindex; });
   const auto index = object.index;
   objects_.insert_or_assign(index, std::move(object));
+  generation_ = next_generation();
 }
 
 bool ObjectDictionary::remove(std::uint16_t index) {
+  generation_ = next_generation();
   return objects_.erase(index) != 0;
 }
 

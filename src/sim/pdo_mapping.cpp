@@ -1,4 +1,7 @@
+#include <algorithm>
+#include <array>
 #include <cstdio>
+#include <cstring>
 #include <string>
 
 #include <fmt/format.h>
@@ -14,10 +17,20 @@ constexpr std::uint16_t kAssignmentBase = 0x1C10;
 
 void copy_bits(wire::Bytes src, std::size_t src_bit, std::span<std::uint8_t> dst,
                std::size_t dst_bit, std::size_t bits) {
+  // Never beyond either end.
+  bits = std::min({bits, src.size() * 8 - std::min(src.size() * 8, src_bit),
+                   dst.size() * 8 - std::min(dst.size() * 8, dst_bit)});
+  if (src_bit % 8 == 0 && dst_bit % 8 == 0 && bits >= 8) {
+    // Whole bytes at once (most mapped entries are byte-aligned).
+    const std::size_t bytes = bits / 8;
+    std::memcpy(dst.data() + dst_bit / 8, src.data() + src_bit / 8, bytes);
+    src_bit += bytes * 8;
+    dst_bit += bytes * 8;
+    bits -= bytes * 8;
+  }
   for (std::size_t i = 0; i < bits; ++i) {
     const std::size_t s = src_bit + i;
     const std::size_t d = dst_bit + i;
-    if (s / 8 >= src.size() || d / 8 >= dst.size()) return;
     const bool bit = ((src[s / 8] >> (s % 8)) & 1u) != 0;
     auto& byte = dst[d / 8];
     byte = static_cast<std::uint8_t>(bit ? (byte | (1u << (d % 8))) : (byte & ~(1u << (d % 8))));
@@ -236,11 +249,21 @@ Result<SyncManagerLayout> process_data_layout(const ObjectDictionary& od, std::u
   return layout;
 }
 
+std::vector<ObjectEntry*> resolve_entries(ObjectDictionary& od, const SyncManagerLayout& layout) {
+  std::vector<ObjectEntry*> entries;
+  entries.reserve(layout.entries.size());
+  for (const auto& m : layout.entries)
+    entries.push_back(m.gap ? nullptr : od.find(m.index, m.subindex));
+  return entries;
+}
+
 void pack_inputs(ObjectDictionary& od, const SyncManagerLayout& layout,
-                 std::span<std::uint8_t> image, bool run_read_hooks) {
-  for (const auto& m : layout.entries) {
-    if (m.gap) continue;
-    ObjectEntry* e = od.find(m.index, m.subindex);
+                 std::span<ObjectEntry* const> entries, std::span<std::uint8_t> image,
+                 bool run_read_hooks) {
+  const std::size_t n = std::min(layout.entries.size(), entries.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const MappedEntry& m = layout.entries[i];
+    ObjectEntry* e = entries[i];
     if (e == nullptr) continue;
     if (run_read_hooks && e->on_read) {
       AccessContext context;
@@ -249,29 +272,56 @@ void pack_inputs(ObjectDictionary& od, const SyncManagerLayout& layout,
       context.dictionary = &od;
       (void)e->on_read(*e, context);
     }
-    std::vector<std::uint8_t> v = e->value;
-    v.resize(e->byte_length(), 0);
-    copy_bits(v, 0, image, m.bit_offset, m.bit_length);
+    // The entry's bits (at most its length), zero beyond a value shorter than the entry.
+    const std::size_t bits = std::min<std::size_t>(e->byte_length() * 8, m.bit_length);
+    const std::size_t have = std::min<std::size_t>(e->value.size() * 8, bits);
+    copy_bits(e->value, 0, image, m.bit_offset, have);
+    static constexpr std::uint8_t kZeros[8] = {};
+    for (std::size_t at = have; at < bits; at += 64) {
+      copy_bits(kZeros, 0, image, m.bit_offset + at, std::min<std::size_t>(64, bits - at));
+    }
   }
+}
+
+void pack_inputs(ObjectDictionary& od, const SyncManagerLayout& layout,
+                 std::span<std::uint8_t> image, bool run_read_hooks) {
+  const auto entries = resolve_entries(od, layout);
+  pack_inputs(od, layout, entries, image, run_read_hooks);
+}
+
+std::vector<std::pair<std::uint16_t, std::uint8_t>> unpack_outputs(
+    const SyncManagerLayout& layout, std::span<ObjectEntry* const> entries, wire::Bytes image) {
+  std::vector<std::pair<std::uint16_t, std::uint8_t>> changed;
+  const std::size_t n = std::min(layout.entries.size(), entries.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const MappedEntry& m = layout.entries[i];
+    ObjectEntry* e = entries[i];
+    if (e == nullptr) continue;
+    // Compared in place first: an unchanged output costs no copy.
+    std::array<std::uint8_t, 8> small{};
+    std::vector<std::uint8_t> large;
+    std::span<std::uint8_t> v;
+    if (e->byte_length() <= small.size()) {
+      v = std::span<std::uint8_t>(small.data(), e->byte_length());
+    } else {
+      large.resize(e->byte_length());
+      v = large;
+    }
+    std::copy_n(e->value.begin(), std::min(e->value.size(), v.size()), v.begin());
+    copy_bits(image, m.bit_offset, v, 0, m.bit_length);
+    if (!std::equal(v.begin(), v.end(), e->value.begin(), e->value.end())) {
+      e->value.assign(v.begin(), v.end());
+      changed.emplace_back(m.index, m.subindex);
+    }
+  }
+  return changed;
 }
 
 std::vector<std::pair<std::uint16_t, std::uint8_t>> unpack_outputs(ObjectDictionary& od,
                                                                    const SyncManagerLayout& layout,
                                                                    wire::Bytes image) {
-  std::vector<std::pair<std::uint16_t, std::uint8_t>> changed;
-  for (const auto& m : layout.entries) {
-    if (m.gap) continue;
-    ObjectEntry* e = od.find(m.index, m.subindex);
-    if (e == nullptr) continue;
-    std::vector<std::uint8_t> v = e->value;
-    v.resize(e->byte_length(), 0);
-    copy_bits(image, m.bit_offset, v, 0, m.bit_length);
-    if (v != e->value) {
-      e->value = std::move(v);
-      changed.emplace_back(m.index, m.subindex);
-    }
-  }
-  return changed;
+  const auto entries = resolve_entries(od, layout);
+  return unpack_outputs(layout, entries, image);
 }
 
 }  // namespace ecat::sim

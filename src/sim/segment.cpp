@@ -307,6 +307,12 @@ void Segment::advance(std::int64_t now_ns) {
     node.esc->advance(now_ns);
 }
 
+void Segment::advance_due(std::int64_t now_ns) {
+  for (std::size_t i = 0; i < nodes_.size(); ++i) {
+    if (nodes_[i].esc->advance_due(now_ns)) advance_for_frame(i, now_ns);
+  }
+}
+
 void Segment::dispatch_to_every_slave(std::span<std::uint8_t> frame, std::int64_t now_ns) {
   for (const Visit& v : visits_) {
     if (hooks_ != nullptr && hooks_->slave_unreachable(v.index)) continue;
@@ -363,9 +369,12 @@ void Segment::dispatch(std::span<std::uint8_t> frame, std::int64_t now_ns) {
       if (pass.port_seen[p]) pass.port_time_ns[p] += now_ns;
     }
     if (everyone_.empty() && hits_begin == hits_end && positional == positional_end) {
-      esc.pass_by(pass);
+      // Not addressed: only an ESC with time-driven work due notes the frame passing (pass_by
+      // finishes SII operations and steps DC; an idle ESC has neither to do).
+      if (node.advanced_in == frame_serial_) esc.pass_by(pass);
       continue;
     }
+    advance_for_frame(v.index, now_ns);
     // Walk the frame's datagrams; those not addressing this slave only pass it (pass_by is
     // idempotent and process() starts with it, so one after the last processed one suffices).
     // Should the slave's addresses or FMMUs change on the way, it processes every datagram left.
@@ -474,7 +483,13 @@ bool Segment::process_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) 
     return false;
   }
 
-  advance(now_ns);
+  ++frame_serial_;
+  if (reference_dispatch_) {
+    for (std::size_t i = 0; i < nodes_.size(); ++i)
+      advance_for_frame(i, now_ns);
+  } else {
+    advance_due(now_ns);
+  }
   for (const std::size_t i : index_dirty_) {
     if (nodes_[i].index_dirty) reindex(i);
   }

@@ -119,6 +119,7 @@ void StandardApplication::start(Esc& esc) {
     eoe_->clear_faults();
   }
   layouts_.clear();
+  resolved_.clear();
   valid_outputs_.clear();
   forced_.clear();
   outputs_received_ = 0;
@@ -239,10 +240,14 @@ void StandardApplication::enter(Esc& esc, AlState to) {
   const AlState from = state_;
   if (from == to) return;
   if (from == AlState::op) apply_safe_outputs();
-  if (rank(to) < rank(AlState::safeop)) layouts_.clear();
+  if (rank(to) < rank(AlState::safeop)) {
+    layouts_.clear();
+    resolved_.clear();
+  }
   if (rank(to) >= rank(AlState::safeop) && rank(from) < rank(AlState::safeop)) {
     // The PDO layout is fixed from SAFEOP on: take it as the dictionary says now.
     layouts_.clear();
+    resolved_.clear();
     for (const auto& pd : pd_sms_) {
       if (auto l = process_data_layout(od_, pd.index)) layouts_[pd.index] = std::move(*l);
     }
@@ -397,7 +402,8 @@ void StandardApplication::take_outputs(Esc& esc, std::size_t sm) {
   ++outputs_received_;
   // SAFEOP: the outputs stay in their safe state; only OP applies them.
   if (state != AlState::op) return;
-  auto changed = unpack_outputs(od_, it->second, esc.pdi_read_buffer(sm));
+  auto changed =
+      unpack_outputs(it->second, resolved(it->first, it->second), esc.pdi_read_buffer(sm));
   outputs_changed(changed);
 }
 
@@ -430,15 +436,27 @@ void StandardApplication::publish_inputs(Esc& esc, std::size_t sm) {
   auto it = layouts_.find(static_cast<std::uint8_t>(sm));
   if (it == layouts_.end() || it->second.byte_length == 0) return;
   update_inputs(esc.now_ns());
-  for (const auto& b : bindings_) {
-    if (!b.entry || b.info.direction != SignalDirection::input) continue;
-    if (auto f = forced(b.info.name)) {
-      set_entry_number(od_, b.index, b.subindex, (*f - b.offset) / b.scale);
+  if (!forced_.empty()) {
+    for (const auto& b : bindings_) {
+      if (!b.entry || b.info.direction != SignalDirection::input) continue;
+      if (auto f = forced(b.info.name)) {
+        set_entry_number(od_, b.index, b.subindex, (*f - b.offset) / b.scale);
+      }
     }
   }
   image_.assign(it->second.byte_length, 0);
-  pack_inputs(od_, it->second, image_, true);
+  pack_inputs(od_, it->second, resolved(it->first, it->second), image_, true);
   esc.pdi_write_buffer(sm, image_);
+}
+
+std::span<ObjectEntry* const> StandardApplication::resolved(std::uint8_t sm,
+                                                            const SyncManagerLayout& layout) {
+  ResolvedEntries& r = resolved_[sm];
+  if (r.generation != od_.generation() || r.entries.size() != layout.entries.size()) {
+    r.entries = resolve_entries(od_, layout);
+    r.generation = od_.generation();
+  }
+  return r.entries;
 }
 
 void StandardApplication::on_mailbox_repeat(Esc& esc, std::size_t sm) {
@@ -481,6 +499,13 @@ void StandardApplication::advance(Esc& esc, std::int64_t now_ns) {
   if (emulation && watchdog_handled_ && !watchdog_expired(esc)) watchdog_handled_ = false;
   if (coe_) coe_->advance(esc);
   update(now_ns);
+}
+
+bool StandardApplication::wants_advance(const Esc& esc, std::int64_t now_ns) const {
+  (void)now_ns;
+  if (esc.al_state() != state_ || watchdog_handled_) return true;
+  return state_ == AlState::op && (esc.read_u16(reg::kWatchdogStatus) & 0x0001) == 0 &&
+         watchdog_expired(esc);
 }
 
 void StandardApplication::apply_safe_outputs() {

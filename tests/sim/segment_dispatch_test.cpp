@@ -1,6 +1,8 @@
 // The segment's dispatch indexes (stations and aliases, FMMU ranges, positions) against the
 // reference in which every reachable slave processes every datagram: random frames, the same
-// replies, the same registers and RAM, the same time in every ESC.
+// replies, the same registers and RAM, the same time in every ESC once both are advanced to the
+// same moment (the indexed segment advances only the ESCs a frame addresses or that have
+// time-driven work due).
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -179,7 +181,11 @@ struct FrameMaker {
   }
 };
 
-void expect_same_escs(const Segment& a, const Segment& b, int frame) {
+// Advances both to `now` first: the reference has advanced every ESC to each frame's passing
+// time, the indexed segment only those the frames addressed or that had work due.
+void expect_same_escs(Segment& a, Segment& b, int frame, std::int64_t now) {
+  a.advance(now);
+  b.advance(now);
   for (std::size_t i = 0; i < a.size(); ++i) {
     const auto ma = a.esc(i).memory();
     const auto mb = b.esc(i).memory();
@@ -208,7 +214,8 @@ TEST(SegmentDispatch, IndexedDispatchMatchesEverySlaveProcessingEveryDatagram) {
       ASSERT_EQ(replied_a, replied_b) << "seed " << seed << " frame " << n;
       ASSERT_EQ(a, b) << "seed " << seed << " frame " << n;
       if (n % 50 == 0 || n == 1499) {
-        expect_same_escs(*indexed, *reference, n);
+        now += 1'000'000;  // past every passing time of the frames so far
+        expect_same_escs(*indexed, *reference, n, now);
         if (HasFatalFailure()) return;
         for (std::size_t i = 0; i < indexed->size(); ++i) {
           stations_seen |= indexed->esc(i).station_address() != 0;
@@ -287,6 +294,46 @@ TEST(SegmentDispatch, PositionAddressedDatagramsComeBackIncrementedBySlaveCount)
               static_cast<std::uint16_t>(wire::position_adp(position) + kSlaves));
     EXPECT_EQ(view.wkc, position < kSlaves ? 1 : 0);
   }
+}
+
+// A frame advances the ESCs it addresses and those with time-driven work due, not the others: an
+// EEPROM write running on a slave completes without a datagram for it, an idle slave no datagram
+// addresses keeps its time until one does (then it is advanced first).
+TEST(SegmentDispatch, AFrameAdvancesOnlyAddressedSlavesAndThoseWithWorkDue) {
+  auto segment = make_segment(false);
+  const auto frame_of = [](wire::DatagramHeader header, std::vector<std::uint8_t> data) {
+    std::array<std::uint8_t, wire::kMaxFrameSize> buffer{};
+    wire::FrameBuilder builder(buffer);
+    (void)builder.add(header, wire::Bytes(data));
+    const auto built = builder.finish();
+    return std::vector<std::uint8_t>(built.begin(), built.end());
+  };
+  // The first slave starts an EEPROM write of word 0x40 (0x0502: write enable + write command,
+  // 0x0504: address 0x40, 0x0508: the data), busy for the EEPROM's write cycle.
+  auto start_write = frame_of(
+      {Command::apwr, 0, wire::physical_address(wire::position_adp(0), reg::kSiiControl), 10},
+      {0x01, 0x02, 0x40, 0x00, 0x00, 0x00, 0x34, 0x12, 0x00, 0x00});
+  const auto order = segment->processing_order();
+  ASSERT_EQ(order.size(), kSlaves);
+  Esc& writing = segment->esc(order[0]);
+  Esc& polled = segment->esc(order[3]);
+  Esc& idle = segment->esc(order[5]);
+  ASSERT_TRUE(segment->process_frame(start_write, 1'000'000));
+  ASSERT_NE(writing.read_u16(reg::kSiiControl) & 0x8000, 0) << "the write is running";
+  const std::int64_t idle_since = idle.now_ns();
+  // 50 ms later a frame for the fourth slave only: the first one's write completes, the sixth is
+  // not touched.
+  auto poll = frame_of(
+      {Command::aprd, 0, wire::physical_address(wire::position_adp(3), reg::kAlStatus), 2}, {});
+  ASSERT_TRUE(segment->process_frame(poll, 51'000'000));
+  EXPECT_EQ(writing.read_u16(reg::kSiiControl) & 0x8000, 0) << "the write completed";
+  EXPECT_GE(polled.now_ns(), 51'000'000);
+  EXPECT_EQ(idle.now_ns(), idle_since);
+  // Addressed, the sixth catches up before it processes the datagram.
+  auto read5 = frame_of(
+      {Command::aprd, 0, wire::physical_address(wire::position_adp(5), reg::kAlStatus), 2}, {});
+  ASSERT_TRUE(segment->process_frame(read5, 52'000'000));
+  EXPECT_GE(idle.now_ns(), 52'000'000);
 }
 
 }  // namespace

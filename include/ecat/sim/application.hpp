@@ -55,10 +55,20 @@ class Application {
     (void)sm;
   }
 
-  // Time passes (called before each frame and when the segment is idle).
+  // Time passes (called before a frame that addresses the ESC, before every frame while
+  // wants_advance() says so, and when the segment is idle).
   virtual void advance(Esc& esc, std::int64_t now_ns) {
     (void)esc;
     (void)now_ns;
+  }
+  // Whether advance(esc, now_ns) must run before the next frame even when no datagram of it
+  // addresses this ESC: anything time-driven that shows without the master asking (a model that
+  // moves, a watchdog about to act). An application that returns false is advanced only before
+  // the frames that address it (and at idle advances). The default keeps every frame.
+  virtual bool wants_advance(const Esc& esc, std::int64_t now_ns) const {
+    (void)esc;
+    (void)now_ns;
+    return true;
   }
 };
 
@@ -69,6 +79,12 @@ class BasicApplication : public Application {
  public:
   void start(Esc& esc) override;
   void on_al_control(Esc& esc, std::uint16_t control) override;
+  // Nothing in it is time-driven.
+  bool wants_advance(const Esc& esc, std::int64_t now_ns) const override {
+    (void)esc;
+    (void)now_ns;
+    return false;
+  }
 };
 
 // The AL transition rules every device shares (ETG.1000.6): whether `from` → `to` is a valid

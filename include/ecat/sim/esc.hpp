@@ -151,6 +151,12 @@ class Esc {
 
   // Lets time-driven behaviour (watchdogs, DC SYNC, device dynamics) advance to `now_ns`.
   void advance(std::int64_t now_ns);
+  // Whether advance(now_ns) has something to do that cannot wait until a datagram next addresses
+  // this ESC (the segment advances an ESC before its first datagram of a frame): an SII
+  // operation running or its write enable to clear, a process-data watchdog running out by
+  // now_ns, a DC sync unit generating pulses, or an application that asks for it
+  // (Application::wants_advance). The segment advances only these ESCs on every frame.
+  bool advance_due(std::int64_t now_ns) const noexcept;
 
   // Power cycle: registers back to reset values, station 0, INIT, SMs and FMMUs off; the
   // application restarts.

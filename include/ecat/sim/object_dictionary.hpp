@@ -256,10 +256,23 @@ class ObjectDictionary {
   // the subindex written (0 for complete access). Devices use it to notice mapping changes.
   using ChangeListener = std::function<void(std::uint16_t index, std::uint8_t subindex)>;
 
+  ObjectDictionary() = default;
+  // Copies and moves give both dictionaries new generations (see generation()).
+  ObjectDictionary(const ObjectDictionary& other);
+  ObjectDictionary(ObjectDictionary&& other) noexcept;
+  ObjectDictionary& operator=(const ObjectDictionary& other);
+  ObjectDictionary& operator=(ObjectDictionary&& other) noexcept;
+  ~ObjectDictionary() = default;
+
   // Adds or replaces an object (entries are sorted by subindex).
   void add(OdObject object);
   bool remove(std::uint16_t index);
-  void clear() noexcept { objects_.clear(); }
+  void clear() noexcept;
+  // A value unique in the process, renewed whenever add(), remove(), clear(), a copy or a move
+  // may have moved or dropped entries: an ObjectEntry* taken from find() stays valid while the
+  // generation is unchanged (values change in place). The process-data path resolves its mapped
+  // entries once per layout and generation.
+  std::uint64_t generation() const noexcept { return generation_; }
 
   OdObject* find(std::uint16_t index) noexcept;
   const OdObject* find(std::uint16_t index) const noexcept;
@@ -329,6 +342,9 @@ class ObjectDictionary {
 
   std::map<std::uint16_t, OdObject> objects_;
   ChangeListener listener_;
+  std::uint64_t generation_ = next_generation();
+
+  static std::uint64_t next_generation() noexcept;
 };
 
 // ---- Little-endian value helpers (header-only so templates work for any arithmetic T) -------

@@ -112,4 +112,14 @@ std::vector<std::pair<std::uint16_t, std::uint8_t>> unpack_outputs(ObjectDiction
                                                                    const SyncManagerLayout& layout,
                                                                    wire::Bytes image);
 
+// The dictionary entries `layout` maps, in its order (nullptr for gaps and missing entries):
+// resolved once, valid while od.generation() is unchanged. The overloads below take them instead
+// of looking every entry up per call (the simulator's cyclic path).
+std::vector<ObjectEntry*> resolve_entries(ObjectDictionary& od, const SyncManagerLayout& layout);
+void pack_inputs(ObjectDictionary& od, const SyncManagerLayout& layout,
+                 std::span<ObjectEntry* const> entries, std::span<std::uint8_t> image,
+                 bool run_read_hooks = true);
+std::vector<std::pair<std::uint16_t, std::uint8_t>> unpack_outputs(
+    const SyncManagerLayout& layout, std::span<ObjectEntry* const> entries, wire::Bytes image);
+
 }  // namespace ecat::sim

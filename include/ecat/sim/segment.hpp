@@ -3,8 +3,10 @@
 // them (depth first, ports in ESC forwarding order 0 -> 3 -> 1 -> 2), and returns to the master.
 // Every hop costs time, so DC receive-time latches see realistic, topology-dependent times.
 //
-// What a frame costs: every ESC advances (watchdogs, DC SYNC, device dynamics) and notes the
-// frame passing (its time, for DC); only the ESCs a datagram addresses process it. Indexes kept
+// What a frame costs: the ESCs with time-driven work due (Esc::advance_due: a running SII
+// operation, a watchdog running out, DC SYNC, a device model) advance and note the frame passing
+// (its time, for DC); an ESC a datagram addresses advances just before its first datagram and
+// processes the datagrams that address it; the others are not touched. Indexes kept
 // as registers change (EscLayoutObserver) find them: configured addresses and aliases for FP*,
 // the FMMUs' logical ranges for LRD/LWR/LRW, the position for AP* (whose ADP the slaves passed
 // increment is computed); broadcasts reach every ESC. An ESC whose addressing or FMMUs change while
@@ -107,7 +109,7 @@ class Segment : private EscLayoutObserver {
   // Returns false when no reply goes back (lost frame, malformed frame, master link down).
   bool process_frame(std::span<std::uint8_t> ethercat_frame, std::int64_t now_ns);
 
-  // Lets every ESC's time-driven behaviour advance.
+  // Lets every ESC's time-driven behaviour advance (all of them: the idle advance).
   void advance(std::int64_t now_ns);
 
   // Physical link of slave `index`'s `port` (0 = towards the master). Down on port 0 cuts the
@@ -148,6 +150,7 @@ class Segment : private EscLayoutObserver {
     std::array<std::uint16_t, 2> keys{};  // station address, alias (when enabled and different)
     std::uint8_t key_count = 0;
     std::vector<std::pair<std::uint64_t, std::uint64_t>> logical;  // FMMU bytes [first, end)
+    std::uint64_t advanced_in = 0;  // the frame (frame_serial_) this ESC was last advanced in
   };
   struct LogicalRange {
     std::uint64_t first = 0;
@@ -168,6 +171,15 @@ class Segment : private EscLayoutObserver {
   void rebuild_logical_index();
   void find_addressed();
   void dispatch(std::span<std::uint8_t> frame, std::int64_t now_ns);
+  // Advances the ESCs with work due (Esc::advance_due) for this frame.
+  void advance_due(std::int64_t now_ns);
+  // Advances node `index` for this frame unless it already was.
+  void advance_for_frame(std::size_t index, std::int64_t now_ns) {
+    Node& node = nodes_[index];
+    if (node.advanced_in == frame_serial_) return;
+    node.advanced_in = frame_serial_;
+    node.esc->advance(now_ns);
+  }
   void dispatch_to_every_slave(std::span<std::uint8_t> frame, std::int64_t now_ns);
 
   std::vector<Node> nodes_;
@@ -178,6 +190,7 @@ class Segment : private EscLayoutObserver {
   SegmentHooks* hooks_ = nullptr;
   std::vector<std::function<void(Segment&, std::int64_t)>> after_frame_;
   SegmentStats stats_;
+  std::uint64_t frame_serial_ = 0;  // frames processed (Node::advanced_in)
   struct Slot {
     std::size_t offset = 0;
     std::size_t length = 0;

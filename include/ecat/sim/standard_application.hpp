@@ -37,6 +37,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -106,6 +107,10 @@ class StandardApplication : public DeviceApplication {
   void on_mailbox_repeat(Esc& esc, std::size_t sm) override;
   void on_sync_manager_changed(Esc& esc, std::size_t sm) override;
   void advance(Esc& esc, std::int64_t now_ns) override;
+  // True while advance() has something to do without being addressed: an AL state set through
+  // the PDI to catch up with, or an expired process-data watchdog in OP. A device whose update()
+  // models time overrides this (Cia402Application returns true).
+  bool wants_advance(const Esc& esc, std::int64_t now_ns) const override;
 
   // ---- Signals (DeviceApplication) -------------------------------------------------------------
   std::vector<SignalInfo> signals() const override;
@@ -167,7 +172,8 @@ class StandardApplication : public DeviceApplication {
     (void)index;
     (void)subindex;
   }
-  // Time passes (after the watchdog check).
+  // Time passes (after the watchdog check). Runs when the ESC is advanced: before every frame only
+  // when wants_advance() says so, so a device that models time here overrides wants_advance too.
   virtual void update(std::int64_t now_ns) { (void)now_ns; }
   // Power-up: the dictionary is back at its initial content; reset the model too.
   virtual void reset_model() {}
@@ -230,6 +236,13 @@ class StandardApplication : public DeviceApplication {
   std::unique_ptr<EoeServer> eoe_;
   std::vector<ProcessDataSyncManager> pd_sms_;
   std::map<std::uint8_t, SyncManagerLayout> layouts_;  // frozen at PREOP -> SAFEOP
+  // Each layout's mapped entries, resolved once per layout and dictionary generation.
+  struct ResolvedEntries {
+    std::uint64_t generation = 0;
+    std::vector<ObjectEntry*> entries;
+  };
+  std::map<std::uint8_t, ResolvedEntries> resolved_;
+  std::span<ObjectEntry* const> resolved(std::uint8_t sm, const SyncManagerLayout& layout);
   std::vector<Binding> bindings_;
   std::map<std::string, double, std::less<>> forced_;
   std::vector<std::uint8_t> image_;  // scratch for packing inputs

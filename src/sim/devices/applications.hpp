@@ -17,6 +17,12 @@ class NoFirmware : public DeviceApplication {
     (void)esc;
     (void)control;
   }
+  // Nothing time-driven (the ESC's own watchdog and DC are the ESC's).
+  bool wants_advance(const Esc& esc, std::int64_t now_ns) const override {
+    (void)esc;
+    (void)now_ns;
+    return false;
+  }
 };
 
 class PdoSignalDevice : public StandardApplication {
@@ -38,6 +44,12 @@ class Cia402Application : public StandardApplication {
   void outputs_changed(const std::vector<std::pair<std::uint16_t, std::uint8_t>>& changed) override;
   void object_written(std::uint16_t index, std::uint8_t subindex) override;
   void update(std::int64_t now_ns) override;
+  // The drive's model moves with time: advanced before every frame.
+  bool wants_advance(const Esc& esc, std::int64_t now_ns) const override {
+    (void)esc;
+    (void)now_ns;
+    return true;
+  }
   void on_state_changed(wire::AlState from, wire::AlState to) override;
 
  private:

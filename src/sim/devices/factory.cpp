@@ -21,6 +21,9 @@ class GenericApplication : public DeviceApplication {
   void on_al_control(Esc& esc, std::uint16_t control) override {
     basic_.on_al_control(esc, control);
   }
+  bool wants_advance(const Esc& esc, std::int64_t now_ns) const override {
+    return basic_.wants_advance(esc, now_ns);
+  }
 
  private:
   BasicApplication basic_;
