@@ -57,7 +57,8 @@ TEST(OpenLinkTest, RedundantSpecs) {
   const std::string why = "a redundant ring is raw:PRIMARY,SECONDARY, two interfaces";
   expect_invalid("raw:eth0,", why);
   expect_invalid("raw:,eth1", "no interface after 'raw:'");
-  expect_invalid("raw:eth0,eth1,spin", "busy_poll and spin apply to a single raw port");
+  expect_invalid("raw:eth0,eth1,spin",
+                 "busy_poll and spin apply to a single raw port, not a redundant ring");
   expect_invalid("raw:eth0,eth1,eth2", why);
   auto same = open_link("raw:ecat-none9,ecat-none9");
   ASSERT_FALSE(same.ok());

@@ -45,7 +45,6 @@ simulator:
 
 constexpr std::uint16_t kIoStation = 0x1001;
 constexpr std::uint16_t kSm1Offset = 0x1040;  // the mailbox profile's SM1
-constexpr std::uint16_t kSm1Status = 0x080D;
 
 MasterConfig config(std::chrono::nanoseconds period, TargetState target = TargetState::op) {
   MasterConfig c = test::quick_config(period, target);
