@@ -526,13 +526,32 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
     // The session brings the slave back to its state of before (as after a reconnect) once the
     // update returns, failed or not; the reply waits for that, so that the caller's next request
     // finds the slave where it was and a caller can tell "updated" from "updated, not back".
-    // (A slave that was not running, in INIT, BOOTSTRAP or down, is not waited for.)
+    // (A slave that was not running, in INIT, BOOTSTRAP or down, is not waited for.) An
+    // operational session is waited for too: a restarted device has restarted its clock, and the
+    // session recovers the DC lock after the slave is back.
     const SlaveState before = (*slave)->state();
     const bool running =
         before == SlaveState::preop || before == SlaveState::safeop || before == SlaveState::op;
+    const bool session_operational = master.state() == MasterState::operational;
     auto done = (*slave)->update_firmware(*file, std::move(*data), options);
     const auto deadline = std::chrono::steady_clock::now() + kFirmwareReturnTimeout;
-    while (running && (*slave)->state() != before && std::chrono::steady_clock::now() < deadline) {
+    // The lock is judged by the DC samples taken after the slave is back (a lock lost to the
+    // restarted clock is seen only at the next samples).
+    std::optional<std::uint64_t> dc_samples_when_back;
+    const auto dc_samples = [&]() -> std::optional<std::uint64_t> {
+      auto dc = master.dc_status();
+      if (!dc || dc->samples == 0) return std::nullopt;  // no DC runtime: nothing to wait for
+      return dc->samples;
+    };
+    const auto back = [&] {
+      if ((*slave)->state() != before) return false;
+      if (!session_operational) return true;
+      if (!dc_samples_when_back) dc_samples_when_back = dc_samples().value_or(0);
+      const auto samples = dc_samples();
+      const bool dc_settled = !samples || *samples >= *dc_samples_when_back + 3;
+      return dc_settled && master.state() == MasterState::operational;
+    };
+    while (running && !back() && std::chrono::steady_clock::now() < deadline) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
     if (!done) return done.error();
@@ -544,7 +563,10 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
                                (*slave)->name(), size, to_string(before),
                                kFirmwareReturnTimeout.count(), to_string(now)));
     }
-    return Json{{"size", size}, {"file", *file}, {"state", std::string(to_string(now))}};
+    return Json{{"size", size},
+                {"file", *file},
+                {"state", std::string(to_string(now))},
+                {"session", std::string(to_string(master.state()))}};
   }
   if (op == "soe.read" || op == "soe.write") {
     auto slave = find_slave(master, r);

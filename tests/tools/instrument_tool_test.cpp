@@ -181,7 +181,9 @@ TEST(InstrumentTool, StandaloneCommandsRunTheirOwnSession) {
   // Laid out, not cycling: the slaves are held in PREOP, nothing moves.
   const auto domains = json::parse(r.out)["domains"];
   EXPECT_EQ(domains[0]["id"], "main");
-  EXPECT_EQ(domains[0]["image_size"], 40);
+  // 40 bytes of process data and the SM1 status byte of each mailbox slave with process data
+  // (rtd, drive), mapped so that waiting for a mailbox reply costs no frame.
+  EXPECT_EQ(domains[0]["image_size"], 42);
   EXPECT_EQ(domains[0]["state"], "open");
 }
 
@@ -322,8 +324,9 @@ kill -TERM $pid; wait $pid; echo $? > serve.code)",
   (void)tool.run_script("cd '" + tool.dir().string() + "' && " + script);
   const auto file = [&](const char* name) { return read_text_file(tool.dir() / name); };
   EXPECT_EQ(file("serve.code"), "0\n") << file("serve.err");
-  EXPECT_EQ(file("image.bin").size(), 40u);  // the default ring's image, raw
-  EXPECT_EQ(json::parse(file("image.json"))["size"], 40);
+  // The default ring's image, raw: process data and two SM1 status bytes (rtd, drive).
+  EXPECT_EQ(file("image.bin").size(), 42u);
+  EXPECT_EQ(json::parse(file("image.json"))["size"], 42);
   EXPECT_EQ(file("states.txt"), "now deactivated\n");
   EXPECT_EQ(json::parse(file("states.json"))["state"], "operational");
   EXPECT_EQ(json::parse(file("reg_write.json"))["wkc"], 1);
