@@ -11,6 +11,8 @@
 
 #include <ecat/ecat.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
+
 namespace ecat {
 namespace {
 

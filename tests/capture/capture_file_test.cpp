@@ -12,6 +12,7 @@
 #include <ecat/capture/capture_file.hpp>
 #include <ecat/wire/bytes.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
 #include "support/shared_data.hpp"
 
 namespace ecat::capture {

@@ -6,6 +6,8 @@
 
 #include <ecat/config/eni.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
+
 namespace ecat::config {
 namespace {
 

@@ -13,6 +13,7 @@
 #include <ecat/master/master.hpp>
 #include <ecat/master/slave.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
 #include "master/master_test_support.hpp"
 
 namespace ecat::master {

@@ -9,6 +9,7 @@
 
 #include <ecat/ecat.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
 #include "support/counting_allocator.hpp"
 
 namespace allocs = ecat::test::allocations;

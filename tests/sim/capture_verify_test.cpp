@@ -23,6 +23,7 @@
 #include <ecat/wire/registers.hpp>
 #include <ecat/wire/sii.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
 #include "support/shared_data.hpp"
 
 namespace ecat::sim {

@@ -26,6 +26,8 @@
 #include <ecat/wire/mailbox.hpp>
 #include <ecat/wire/soe.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
+
 namespace ecat::sim {
 namespace {
 

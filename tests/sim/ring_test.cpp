@@ -16,6 +16,8 @@
 #include <ecat/sim/server.hpp>
 #include <ecat/sim/standard_application.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
+
 namespace ecat::sim {
 namespace {
 

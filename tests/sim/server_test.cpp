@@ -39,6 +39,8 @@
 #include <ecat/wire/frame.hpp>
 #include <ecat/wire/registers.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
+
 namespace ecat::sim {
 namespace {
 

@@ -12,6 +12,8 @@
 
 #include <gtest/gtest.h>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
+
 namespace ecat::test {
 
 inline std::filesystem::path shared_data_dir() {
@@ -34,10 +36,10 @@ inline std::vector<std::uint8_t> read_file(const std::filesystem::path& path) {
 }  // namespace ecat::test
 
 // Declares `var` as the path of a shared data file, or skips the test when it is absent.
-#define ECAT_SHARED_DATA_OR_SKIP(var, relative)                                              \
-  const auto var##_maybe = ::ecat::test::shared_data(relative);                              \
-  if (!var##_maybe) {                                                                        \
-    GTEST_SKIP() << "real-device data " << relative << " not found under "                  \
+#define ECAT_SHARED_DATA_OR_SKIP(var, relative)                                            \
+  const auto var##_maybe = ::ecat::test::shared_data(relative);                            \
+  if (!var##_maybe) {                                                                      \
+    GTEST_SKIP() << "real-device data " << relative << " not found under "                 \
                  << ::ecat::test::shared_data_dir() << " (it is not part of the project)"; \
-  }                                                                                          \
+  }                                                                                        \
   const std::filesystem::path var = *var##_maybe

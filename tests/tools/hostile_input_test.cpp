@@ -34,6 +34,7 @@
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
 #include "support/tool_runner.hpp"
 
 namespace ecat::test {

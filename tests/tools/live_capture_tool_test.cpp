@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include "ecat_test_paths.hpp"  // ECAT_SOURCE_DIR, ECAT_BINARY_DIR, ECAT_SHARED_DATA_DIR
 #include "support/tool_runner.hpp"
 
 namespace {
