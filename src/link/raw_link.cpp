@@ -222,6 +222,20 @@ RawLink::~RawLink() {
 
 Result<void> RawLink::send(wire::Bytes ethercat_frame) {
   Impl& s = *impl_;
+  wire::EthernetHeader header;
+  header.destination = wire::kBroadcastMac;
+  header.source = s.source_mac;
+  if (s.options.responder) {
+    std::lock_guard lock(s.responder_mutex);
+    header.destination = s.reply_destination;
+    header.source = s.reply_source;
+  }
+  return send_as(ethercat_frame, header.source, header.destination);
+}
+
+Result<void> RawLink::send_as(wire::Bytes ethercat_frame, const wire::MacAddress& source,
+                              const wire::MacAddress& destination) {
+  Impl& s = *impl_;
   if (ethercat_frame.size() > s.max_frame) {
     return Error(Errc::invalid_argument,
                  fmt::format("{}: frame of {} bytes exceeds the {}-byte maximum",
@@ -231,14 +245,9 @@ Result<void> RawLink::send(wire::Bytes ethercat_frame) {
   if (!use) return Error(Errc::closed, fmt::format("{}: link is closed", s.options.interface));
 
   wire::EthernetHeader header;
-  header.destination = wire::kBroadcastMac;
-  header.source = s.source_mac;
+  header.destination = destination;
+  header.source = source;
   header.ether_type = wire::kEtherTypeEtherCat;
-  if (s.options.responder) {
-    std::lock_guard lock(s.responder_mutex);
-    header.destination = s.reply_destination;
-    header.source = s.reply_source;
-  }
   const wire::Bytes out = wire::encode_ethernet(header, ethercat_frame, s.tx);
   if (out.empty()) {
     return Error(Errc::internal, fmt::format("{}: Ethernet encoding of a {}-byte frame failed",

@@ -38,10 +38,10 @@ using Json = nlohmann::ordered_json;
 // The request's "id" as it will be echoed; none when the request had none.
 using RequestId = std::optional<Json>;
 
-constexpr std::array<std::string_view, 13> kOps{
+constexpr std::array<std::string_view, 14> kOps{
     "status",      "fault.inject", "fault.clear",  "fault.list",  "signals",
     "signal.get",  "signal.set",   "signal.clear", "power_cycle", "link",
-    "memory.read", "profiles",     "ping"};
+    "memory.read", "profiles",     "ring",         "ping"};
 
 std::string hex_bytes(std::span<const std::uint8_t> bytes) {
   std::string out;
@@ -89,6 +89,7 @@ Json faults_json(const FaultInfo& f) {
     out["logical_wkc_offsets"][slave] = delta;
   out["disconnected"] = f.disconnected;
   out["links_down"] = f.links_down;
+  if (!f.ring.empty()) out["ring"] = f.ring;
   return out;
 }
 
@@ -194,6 +195,15 @@ class RequestReader {
   const SpecNode& root_;
   SpecContext c_{};
 };
+
+Result<wire::RedundantPort> master_port(const RequestReader& r, std::string_view key) {
+  auto text = r.text(key);
+  if (!text) return std::move(text).error();
+  if (*text == "primary") return wire::RedundantPort::primary;
+  if (*text == "secondary") return wire::RedundantPort::secondary;
+  return Error(Errc::invalid_argument,
+               fmt::format("{}: unknown master port '{}' (known: primary, secondary)", key, *text));
+}
 
 std::string dispatch(SimServer& server, const RequestReader& r, const std::string& op,
                      const RequestId& id) {
@@ -323,6 +333,60 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
     if (!port) return fail(port.error());
     ECAT_CHECK(server.set_link(*slave, static_cast<std::uint8_t>(*port), *up));
     return reply(ok_reply(id));
+  }
+  if (op == "ring") {
+    // The cabling of a redundant segment: one change (break_after, cut, heal, or a port's delay),
+    // made as the ring fault of the same meaning, or none to read it.
+    ECAT_CHECK(r.keys({"op", "id", "break_after", "cut", "heal", "port", "delay_ms", "from"}));
+    const auto has = [&](std::string_view key) { return r.root().find(key) != nullptr; };
+    const int changes = (has("break_after") ? 1 : 0) + (has("cut") ? 1 : 0) +
+                        (has("heal") ? 1 : 0) + (has("delay_ms") ? 1 : 0);
+    if (changes > 1) {
+      return error_reply("ring: give one of break_after, cut, heal and delay_ms", id);
+    }
+    if ((has("port") || has("from")) && !has("delay_ms")) {
+      return error_reply("ring: port and from go with delay_ms", id);
+    }
+    std::optional<Fault> change;
+    if (has("break_after")) {
+      auto after = r.integer("break_after", 1, 4095);
+      if (!after) return fail(after.error());
+      change = fault::ring_break(static_cast<std::uint32_t>(*after));
+    } else if (has("cut")) {
+      auto port = master_port(r, "cut");
+      if (!port) return fail(port.error());
+      change = fault::ring_cut(*port);
+    } else if (has("heal")) {
+      auto heal = r.boolean("heal");
+      if (!heal) return fail(heal.error());
+      if (!*heal) return error_reply("heal: only true heals (break_after or cut break)", id);
+      change = fault::ring_heal();
+    } else if (has("delay_ms")) {
+      auto port = master_port(r, "port");
+      if (!port) return fail(port.error());
+      auto ms = r.real("delay_ms");
+      if (!ms) return fail(ms.error());
+      if (!std::isfinite(*ms) || *ms < 0 || *ms > 86'400'000.0) {
+        return error_reply(fmt::format("delay_ms: {} is out of range (0 to 86400000)", *ms), id);
+      }
+      std::optional<wire::RedundantPort> from;
+      if (has("from")) {
+        auto parsed = master_port(r, "from");
+        if (!parsed) return fail(parsed.error());
+        from = *parsed;
+      }
+      change = fault::port_delay(
+          *port, std::chrono::nanoseconds(static_cast<std::int64_t>(std::llround(*ms * 1e6))),
+          from);
+    }
+    if (change) ECAT_CHECK(server.inject(*change));
+    const auto info = server.fault_info();
+    if (info.ring.empty()) {
+      return error_reply("ring: the segment has no second master port (serve it redundantly)", id);
+    }
+    Json out = ok_reply(id);
+    out["ring"] = info.ring;
+    return reply(out);
   }
   if (op == "memory.read") {
     ECAT_CHECK(r.keys({"op", "id", "slave", "address", "length"}));

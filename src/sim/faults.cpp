@@ -66,6 +66,14 @@ constexpr std::array<FaultKindInfo, kFaultKindCount> kKinds{{
     {FaultKind::link_up, "link_up", "SLAVE PORT", "bring the link on the slave's PORT up"},
     {FaultKind::master_link_down, "master_link_down", "", "take the master's link down"},
     {FaultKind::master_link_up, "master_link_up", "", "bring the master's link up"},
+    {FaultKind::ring_break, "ring_break", "AFTER",
+     "redundant ring: the cable after the AFTER-th slave breaks (1..slaves-1)"},
+    {FaultKind::ring_cut, "ring_cut", "PORT",
+     "redundant ring: the cable at the master's PORT (primary, secondary) is cut"},
+    {FaultKind::ring_heal, "ring_heal", "", "redundant ring: every cable whole again"},
+    {FaultKind::port_delay, "port_delay", "PORT MS [FROM]",
+     "redundant ring: replies leaving by master PORT come MS later (0: no delay); only those to "
+     "frames that entered by port FROM"},
 }};
 
 constexpr std::array<ProtocolFaultKind, 9> kProtocolKinds{
@@ -346,6 +354,10 @@ FaultClass fault_class(FaultKind kind) noexcept {
     case FaultKind::link_up:
     case FaultKind::master_link_down:
     case FaultKind::master_link_up:
+    case FaultKind::ring_break:
+    case FaultKind::ring_cut:
+    case FaultKind::ring_heal:
+    case FaultKind::port_delay:
       return FaultClass::segment;
   }
   return FaultClass::segment;
@@ -518,6 +530,27 @@ Fault master_link_down() {
 Fault master_link_up() {
   return make(FaultKind::master_link_up);
 }
+Fault ring_break(std::uint32_t after) {
+  auto f = make(FaultKind::ring_break);
+  f.effect.after = after;
+  return f;
+}
+Fault ring_cut(wire::RedundantPort port) {
+  auto f = make(FaultKind::ring_cut);
+  f.effect.master_port = port;
+  return f;
+}
+Fault ring_heal() {
+  return make(FaultKind::ring_heal);
+}
+Fault port_delay(wire::RedundantPort port, std::chrono::nanoseconds delay,
+                 std::optional<wire::RedundantPort> from) {
+  auto f = make(FaultKind::port_delay);
+  f.effect.master_port = port;
+  f.effect.ns = delay.count();
+  f.effect.from = from;
+  return f;
+}
 
 Fault next(Fault fault, std::uint64_t exchanges) {
   fault.exchanges = exchanges;
@@ -646,6 +679,16 @@ std::string describe(const FaultEffect& e) {
       return "master link down";
     case FaultKind::master_link_up:
       return "master link up";
+    case FaultKind::ring_break:
+      return fmt::format("ring break after slave {}", e.after);
+    case FaultKind::ring_cut:
+      return fmt::format("ring cut at the master's {} port", wire::to_string(e.master_port));
+    case FaultKind::ring_heal:
+      return "ring whole";
+    case FaultKind::port_delay:
+      return fmt::format("{} port replies +{}{}", wire::to_string(e.master_port),
+                         duration_text(std::chrono::nanoseconds(e.ns)),
+                         e.from ? fmt::format(" (from {})", wire::to_string(*e.from)) : "");
   }
   return "?";
 }
@@ -740,6 +783,12 @@ Result<void> validate_effect(const FaultEffect& e) {
     case FaultKind::link_down:
     case FaultKind::link_up:
       if (e.port > 3) return bad(fmt::format("port {} does not exist (0..3)", e.port));
+      break;
+    case FaultKind::ring_break:
+      if (e.after == 0) return bad("a ring breaks after slave 1 at the earliest");
+      break;
+    case FaultKind::port_delay:
+      if (e.ns < 0) return bad("the delay must not be negative");
       break;
     case FaultKind::foe_fault:
       if (e.foe == FoeFaultMode::busy && (e.value == 0 || e.value > 0xFFFF)) {
@@ -936,6 +985,17 @@ Json effect_json(const Fault& f) {
     case FaultKind::link_up:
       j["port"] = e.port;
       break;
+    case FaultKind::ring_break:
+      j["after"] = e.after;
+      break;
+    case FaultKind::ring_cut:
+      j["port"] = wire::to_string(e.master_port);
+      break;
+    case FaultKind::port_delay:
+      j["port"] = wire::to_string(e.master_port);
+      j["ms"] = ms_value(std::chrono::nanoseconds(e.ns));
+      if (e.from) j["from"] = wire::to_string(*e.from);
+      break;
     default:
       break;
   }
@@ -1001,6 +1061,22 @@ Result<std::chrono::nanoseconds> to_ms(const SpecContext& c, const SpecNode& n,
         Errc::out_of_range);
   }
   return std::chrono::nanoseconds(static_cast<std::int64_t>(std::llround(*ms * 1e6)));
+}
+
+// A master port of a redundant ring: "primary" or "secondary" at `key`.
+Result<std::optional<wire::RedundantPort>> master_port_key(const SpecContext& c,
+                                                           const SpecNode& node,
+                                                           const std::string& path,
+                                                           std::string_view key) {
+  auto found = require(c, node, path, key);
+  if (!found) return std::move(found).error();
+  const std::string p = join_path(path, key);
+  auto text = to_text(c, **found, p);
+  if (!text) return std::move(text).error();
+  if (*text == "primary") return std::optional(wire::RedundantPort::primary);
+  if (*text == "secondary") return std::optional(wire::RedundantPort::secondary);
+  return spec_error(c, **found, p,
+                    fmt::format("unknown master port '{}' (known: primary, secondary)", *text));
 }
 
 Result<std::string> slave_name(const SpecContext& c, const SpecNode& node,
@@ -1267,6 +1343,28 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
     case FaultKind::link_up: {
       ECAT_TRY(port, int_key<std::uint8_t>(c, node, path, "port", 0, 3));
       e.port = *port;
+      break;
+    }
+    case FaultKind::ring_break: {
+      ECAT_TRY(after, int_key<std::uint32_t>(c, node, path, "after", 1, 4095));
+      e.after = *after;
+      break;
+    }
+    case FaultKind::ring_cut: {
+      ECAT_TRY(port, master_port_key(c, node, path, "port"));
+      e.master_port = **port;
+      break;
+    }
+    case FaultKind::port_delay: {
+      ECAT_TRY(port, master_port_key(c, node, path, "port"));
+      e.master_port = **port;
+      ECAT_TRY(ms_node, require(c, node, path, "ms"));
+      ECAT_TRY(delay, to_ms(c, **ms_node, join_path(path, "ms"), false));
+      e.ns = delay->count();
+      if (node.find("from") != nullptr) {
+        ECAT_TRY(from, master_port_key(c, node, path, "from"));
+        e.from = *from;
+      }
       break;
     }
     case FaultKind::foe_fault: {
@@ -1780,6 +1878,21 @@ struct FaultInjector::Impl {
   }
 
   Result<void> check_effect(const FaultEffect& e) {
+    if (e.kind == FaultKind::ring_break || e.kind == FaultKind::ring_cut ||
+        e.kind == FaultKind::ring_heal || e.kind == FaultKind::port_delay) {
+      if (!cabling) {
+        return Error(Errc::unsupported,
+                     fmt::format("{}: the segment has no second master port (serve it redundantly: "
+                                 "ecat sim --redundant-interface, sim::RedundantPorts)",
+                                 to_string(e.kind)));
+      }
+      if (e.kind == FaultKind::ring_break) {
+        auto route = route_redundant(RedundantTopology::broken_after(e.after), segment.size(),
+                                     wire::RedundantPort::primary);
+        if (!route) return Error(route.error().code(), "ring_break: " + route.error().message());
+      }
+      return ok();
+    }
     if (!needs_slave(e.kind)) return ok();
     auto index = find_slave(e.slave);
     if (!index) return std::move(index).error();
@@ -1941,6 +2054,22 @@ struct FaultInjector::Impl {
       case FaultKind::master_link_up:
         segment.set_master_link(true);
         master_down = false;
+        break;
+      // Checked at injection; a detached ring (the ports gone meanwhile) ignores them.
+      case FaultKind::ring_break:
+        if (cabling) cabling->topology = RedundantTopology::broken_after(e.after);
+        break;
+      case FaultKind::ring_cut:
+        if (cabling) cabling->topology = RedundantTopology::cut_at(e.master_port);
+        break;
+      case FaultKind::ring_heal:
+        if (cabling) cabling->topology = RedundantTopology::whole_ring();
+        break;
+      case FaultKind::port_delay:
+        if (cabling) {
+          cabling->delays[static_cast<std::size_t>(e.master_port)] =
+              RedundantPortDelay{std::chrono::nanoseconds(e.ns), e.from};
+        }
         break;
       default:
         break;
@@ -2139,6 +2268,9 @@ struct FaultInjector::Impl {
   std::vector<std::pair<std::size_t, wire::AlState>> refusals;  // refuse_state rules set
   std::vector<std::pair<std::size_t, std::uint8_t>> links_down;
   bool master_down = false;
+  // A second master port's cabling (RedundantPorts), and the one clear() returns to.
+  std::optional<RedundantCabling> cabling;
+  RedundantCabling cabling_base;
   std::vector<std::uint8_t> previous_reply;
   std::vector<std::uint8_t> scratch;
 };
@@ -2150,6 +2282,46 @@ FaultInjector::FaultInjector(Segment& segment) : impl_(std::make_unique<Impl>(se
 
 FaultInjector::~FaultInjector() {
   impl_->segment.set_hooks(nullptr);
+}
+
+Result<void> FaultInjector::attach_redundant_ring(const RedundantCabling& base) {
+  Impl& s = *impl_;
+  if (s.cabling) {
+    return Error(Errc::wrong_state, "the segment has a second master port already");
+  }
+  if (auto r = route_redundant(base.topology, s.segment.size(), wire::RedundantPort::primary); !r) {
+    return std::move(r).error();
+  }
+  s.cabling = base;
+  s.cabling_base = base;
+  return ok();
+}
+
+void FaultInjector::detach_redundant_ring() {
+  impl_->cabling.reset();
+}
+
+const std::optional<RedundantCabling>& FaultInjector::redundant_cabling() const noexcept {
+  return impl_->cabling;
+}
+
+Result<void> FaultInjector::set_redundant_topology(const RedundantTopology& topology) {
+  Impl& s = *impl_;
+  if (!s.cabling) return Error(Errc::unsupported, "the segment has no second master port");
+  if (auto r = route_redundant(topology, s.segment.size(), wire::RedundantPort::primary); !r) {
+    return std::move(r).error();
+  }
+  s.cabling->topology = topology;
+  return ok();
+}
+
+Result<void> FaultInjector::set_port_delay(wire::RedundantPort egress,
+                                           const RedundantPortDelay& delay) {
+  Impl& s = *impl_;
+  if (!s.cabling) return Error(Errc::unsupported, "the segment has no second master port");
+  s.cabling->delays[static_cast<std::size_t>(egress)] =
+      RedundantPortDelay{std::max(std::chrono::nanoseconds(0), delay.delay), delay.from};
+  return ok();
 }
 
 Result<void> FaultInjector::inject(const Fault& fault, std::int64_t now_ns) {
@@ -2188,6 +2360,7 @@ void FaultInjector::clear() {
   for (const auto& [slave, state] : s.refusals)
     s.segment.esc(slave).set_al_refusal(state, std::nullopt);
   s.refusals.clear();
+  if (s.cabling) s.cabling = s.cabling_base;
   for (const auto& [slave, port] : s.links_down)
     s.segment.set_link(slave, port, true);
   s.links_down.clear();
@@ -2285,6 +2458,7 @@ FaultInfo FaultInjector::info(std::int64_t now_ns) const {
     info.active.emplace_back("master link down");
     info.links_down.emplace_back("master");
   }
+  if (s.cabling) info.ring = describe(*s.cabling);
   for (const auto& task : s.tasks) {
     ScheduledFaultInfo sched;
     sched.description = task.description;

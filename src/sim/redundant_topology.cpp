@@ -1,7 +1,10 @@
 #include <algorithm>
+#include <atomic>
 #include <condition_variable>
 #include <cstring>
 #include <mutex>
+#include <thread>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -23,6 +26,18 @@ std::string describe(const RedundantTopology& topology) {
       break;
   }
   return "whole";
+}
+
+std::string describe(const RedundantCabling& cabling) {
+  std::string out = describe(cabling.topology);
+  for (const RedundantPort port : {RedundantPort::primary, RedundantPort::secondary}) {
+    const RedundantPortDelay& d = cabling.delays[static_cast<std::size_t>(port)];
+    if (d.delay.count() <= 0) continue;
+    out += fmt::format("; {} +{} us{}", wire::to_string(port),
+                       static_cast<double>(d.delay.count()) / 1e3,
+                       d.from ? fmt::format(" (from {})", wire::to_string(*d.from)) : "");
+  }
+  return out;
 }
 
 Result<RedundantRoute> route_redundant(const RedundantTopology& topology, std::size_t slave_count,
@@ -84,11 +99,6 @@ struct Slot {
   std::chrono::steady_clock::time_point due{};
 };
 
-struct Delay {
-  std::chrono::nanoseconds delay{0};
-  std::optional<RedundantPort> from_ingress;
-};
-
 struct PortQueue {
   std::vector<Slot> slots;
   std::size_t head = 0;
@@ -111,50 +121,54 @@ struct RedundantPorts::Shared {
   std::vector<std::uint8_t> work = std::vector<std::uint8_t>(wire::kMaxFrameSize);
   RedundantPortsStats stats;
   std::size_t slave_count = 0;
-  std::array<Delay, 2> delays{};  // per egress port
 
-  // The frame the master sent on `ingress`, through the ring.
-  void carry(RedundantPort ingress, wire::Bytes frame) {
+  // The frame the master sent on `ingress` (from `source`: the requester's address), through the
+  // ring. Returns the port its reply was queued for, if any.
+  std::optional<RedundantPort> carry(RedundantPort ingress, wire::Bytes frame,
+                                     const wire::MacAddress& source) {
     std::unique_lock lock(mutex);
     ++stats.frames;
     if (server == nullptr || frame.size() > work.size()) {
       ++stats.lost;
-      return;
-    }
-    const auto route = route_redundant(options.topology, slave_count, ingress);
-    if (!route || !route->egress) {
-      ++stats.lost;
-      return;
+      return std::nullopt;
     }
     std::memcpy(work.data(), frame.data(), frame.size());
     const std::span<std::uint8_t> bytes(work.data(), frame.size());
-    if (route->first < route->last) {
-      const std::int64_t now = server->now_ns();
-      const bool replied = server->with_segment([&](Segment& segment, FaultInjector& injector) {
-        RangeHooks hooks(injector, route->first, route->last);
-        segment.set_hooks(&hooks);
-        const bool ok = segment.process_frame(bytes, now);
-        segment.set_hooks(&injector);
-        return ok;
-      });
-      if (!replied) {
-        ++stats.lost;
-        return;
-      }
+    // The cabling is the injector's (faults change it): the route and the delay are read under
+    // the server's lock, with the frame's trip through the slaves.
+    const std::int64_t now = server->now_ns();
+    std::optional<RedundantRoute> route;
+    RedundantPortDelay delay;
+    const bool replied = server->with_segment([&](Segment& segment, FaultInjector& injector) {
+      const auto& cabling = injector.redundant_cabling();
+      if (!cabling) return false;
+      auto r = route_redundant(cabling->topology, slave_count, ingress);
+      if (!r || !r->egress) return false;
+      route = *r;
+      delay = cabling->delays[side(*r->egress)];
+      if (r->first >= r->last) return true;  // passes every slave unprocessed
+      RangeHooks hooks(injector, r->first, r->last);
+      segment.set_hooks(&hooks);
+      const bool ok = segment.process_frame(bytes, now);
+      segment.set_hooks(&injector);
+      return ok;
+    });
+    if (!replied) {
+      ++stats.lost;
+      return std::nullopt;
     }
     PortQueue& q = queues[side(*route->egress)];
     if (q.count == q.slots.size()) {
       ++stats.overflowed;
-      return;
+      return std::nullopt;
     }
     Slot& slot = q.slots[(q.head + q.count) % q.slots.size()];
     std::memcpy(slot.bytes.data(), bytes.data(), bytes.size());
     slot.size = bytes.size();
-    slot.source = ingress == RedundantPort::primary ? options.primary_mac : options.secondary_mac;
+    slot.source = source;
     slot.source[0] |= 0x02;  // set by the ESCs the frame passed
-    const Delay& delay = delays[side(*route->egress)];
     slot.due = std::chrono::steady_clock::now();
-    if (!delay.from_ingress || *delay.from_ingress == ingress) slot.due += delay.delay;
+    if (!delay.from || *delay.from == ingress) slot.due += delay.delay;
     ++q.count;
     if (*route->egress == ingress) {
       ++stats.bounces;
@@ -163,6 +177,33 @@ struct RedundantPorts::Shared {
     }
     lock.unlock();
     arrived.notify_all();
+    return route->egress;
+  }
+
+  // The earliest reply waiting for `port`, if any (steady clock).
+  std::optional<std::chrono::steady_clock::time_point> next_due(RedundantPort port) const {
+    std::lock_guard lock(mutex);
+    const PortQueue& q = queues[side(port)];
+    if (q.count == 0) return std::nullopt;
+    return q.slots[q.head].due;
+  }
+
+  // Takes the reply at the head of `port`'s queue when it is due: copies it into `out` and gives
+  // its size and source address.
+  std::optional<std::pair<std::size_t, wire::MacAddress>> take_due(RedundantPort port,
+                                                                   std::span<std::uint8_t> out) {
+    std::lock_guard lock(mutex);
+    PortQueue& q = queues[side(port)];
+    if (q.count == 0 || q.slots[q.head].due > std::chrono::steady_clock::now()) {
+      return std::nullopt;
+    }
+    const Slot& slot = q.slots[q.head];
+    const std::size_t size = std::min(slot.size, out.size());
+    std::memcpy(out.data(), slot.bytes.data(), size);
+    const wire::MacAddress source = slot.source;
+    q.head = (q.head + 1) % q.slots.size();
+    --q.count;
+    return std::make_pair(size, source);
   }
 };
 
@@ -181,7 +222,8 @@ class PortLink final : public link::Link {
     }
     ++stats_.frames_sent;
     stats_.bytes_sent += frame.size();
-    shared_->carry(port_, frame);
+    const auto& o = shared_->options;
+    shared_->carry(port_, frame, port_ == RedundantPort::primary ? o.primary_mac : o.secondary_mac);
     return {};
   }
 
@@ -241,6 +283,77 @@ class PortLink final : public link::Link {
 
 }  // namespace
 
+// ---- Serving two raw interfaces ----------------------------------------------------------------
+
+struct RedundantPorts::Serving {
+  std::shared_ptr<Shared> shared;
+  std::array<std::unique_ptr<link::RawLink>, 2> links;
+  // One sender per link at a time (a reply may leave by either port from either thread), and the
+  // frame being sent.
+  std::array<std::mutex, 2> send_mutex;
+  std::array<std::vector<std::uint8_t>, 2> tx{std::vector<std::uint8_t>(wire::kMaxFrameSize),
+                                              std::vector<std::uint8_t>(wire::kMaxFrameSize)};
+  std::array<std::thread, 2> threads;
+  std::atomic<bool> stopping{false};
+
+  // Sends the replies due on `port`, in order. Returns whether some wait on (held back).
+  bool flush(RedundantPort port) {
+    const std::size_t i = side(port);
+    std::lock_guard send_lock(send_mutex[i]);
+    while (auto taken = shared->take_due(port, tx[i])) {
+      const auto sent = links[i]->send_as(wire::Bytes(tx[i].data(), taken->first), taken->second,
+                                          wire::kBroadcastMac);
+      if (!sent) {
+        std::lock_guard lock(shared->mutex);
+        ++shared->stats.send_errors;
+      }
+    }
+    return shared->next_due(port).has_value();
+  }
+
+  void run(RedundantPort port) {
+    const std::size_t i = side(port);
+    link::RawLink& link = *links[i];
+    const RedundantPort other =
+        port == RedundantPort::primary ? RedundantPort::secondary : RedundantPort::primary;
+    while (!stopping.load(std::memory_order_relaxed)) {
+      // The primary's thread keeps the segment's time moving (watchdogs, scheduled faults).
+      std::chrono::nanoseconds timeout = std::chrono::milliseconds(100);
+      if (port == RedundantPort::primary) {
+        SimServer* server = nullptr;
+        {
+          std::lock_guard lock(shared->mutex);
+          server = shared->server;
+        }
+        if (server != nullptr) timeout = server->tick();
+      }
+      if (const auto due = shared->next_due(port)) {
+        const auto until = *due - std::chrono::steady_clock::now();
+        timeout = std::max(
+            std::chrono::nanoseconds(0),
+            std::min(timeout, std::chrono::duration_cast<std::chrono::nanoseconds>(until)));
+      }
+      auto received = link.receive(timeout);
+      if (stopping.load(std::memory_order_relaxed)) break;
+      if (!received) {
+        if (received.error().code() == Errc::closed) break;
+        // An interface gone down: not a busy spin.
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+        continue;
+      }
+      if (received->has_value()) {
+        const link::ReceivedFrame& frame = **received;
+        if (const auto egress = shared->carry(port, frame.frame, frame.source)) {
+          // Sent from here when due (no thread hop on the way out); a held-back reply on the
+          // other port is that port's thread's to send: it learns its new deadline.
+          if (flush(*egress) && *egress == other) links[side(other)]->interrupt();
+        }
+      }
+      (void)flush(port);
+    }
+  }
+};
+
 Result<std::unique_ptr<RedundantPorts>> RedundantPorts::create(SimServer& server,
                                                                RedundantPortsOptions options) {
   if (wire::same_station_mac(options.primary_mac, options.secondary_mac)) {
@@ -258,8 +371,11 @@ Result<std::unique_ptr<RedundantPorts>> RedundantPorts::create(SimServer& server
                                order[i], i));
     }
   }
-  if (auto checked = route_redundant(options.topology, count, RedundantPort::primary); !checked) {
-    return checked.error();
+  const RedundantCabling base{options.topology, options.delays};
+  if (auto attached = server.with_segment(
+          [&](Segment&, FaultInjector& injector) { return injector.attach_redundant_ring(base); });
+      !attached) {
+    return attached.error();
   }
   std::unique_ptr<RedundantPorts> ports(new RedundantPorts());
   ports->shared_ = std::make_shared<Shared>();
@@ -273,33 +389,85 @@ Result<std::unique_ptr<RedundantPorts>> RedundantPorts::create(SimServer& server
 }
 
 RedundantPorts::~RedundantPorts() {
-  std::lock_guard lock(shared_->mutex);
-  shared_->server = nullptr;
+  stop();
+  SimServer* server = nullptr;
+  {
+    std::lock_guard lock(shared_->mutex);
+    server = std::exchange(shared_->server, nullptr);
+  }
+  if (server != nullptr) {
+    server->with_segment(
+        [](Segment&, FaultInjector& injector) { injector.detach_redundant_ring(); });
+  }
 }
 
 std::unique_ptr<link::Link> RedundantPorts::take_link(RedundantPort port) {
   return std::make_unique<PortLink>(shared_, port);
 }
 
+Result<void> RedundantPorts::serve(std::unique_ptr<link::RawLink> primary,
+                                   std::unique_ptr<link::RawLink> secondary) {
+  if (!primary || !secondary) return Error(Errc::invalid_argument, "serve: a port has no link");
+  if (serving_) {
+    return Error(Errc::wrong_state,
+                 fmt::format("the redundant segment already serves {}", served()));
+  }
+  auto serving = std::make_unique<Serving>();
+  serving->shared = shared_;
+  serving->links = {std::move(primary), std::move(secondary)};
+  Serving& s = *serving;
+  for (const RedundantPort port : {RedundantPort::primary, RedundantPort::secondary}) {
+    s.threads[side(port)] = std::thread([&s, port] { s.run(port); });
+  }
+  serving_ = std::move(serving);
+  return ok();
+}
+
+void RedundantPorts::stop() {
+  if (!serving_) return;
+  serving_->stopping = true;
+  for (auto& link : serving_->links)
+    link->interrupt();
+  for (auto& thread : serving_->threads) {
+    if (thread.joinable()) thread.join();
+  }
+  for (auto& link : serving_->links)
+    link->close();
+  serving_.reset();
+}
+
+bool RedundantPorts::serving() const {
+  return serving_ != nullptr;
+}
+
+std::string RedundantPorts::served() const {
+  if (!serving_) return {};
+  return serving_->links[0]->name() + "," + serving_->links[1]->name();
+}
+
 Result<void> RedundantPorts::set_topology(const RedundantTopology& topology) {
   std::lock_guard lock(shared_->mutex);
-  if (auto checked = route_redundant(topology, shared_->slave_count, RedundantPort::primary);
-      !checked) {
-    return checked.error();
-  }
-  shared_->options.topology = topology;
-  return {};
+  if (shared_->server == nullptr) return Error(Errc::closed, "the redundant segment is gone");
+  return shared_->server->with_segment(
+      [&](Segment&, FaultInjector& injector) { return injector.set_redundant_topology(topology); });
 }
 
 void RedundantPorts::set_delay(RedundantPort egress, std::chrono::nanoseconds delay,
                                std::optional<RedundantPort> from_ingress) {
   std::lock_guard lock(shared_->mutex);
-  shared_->delays[side(egress)] = Delay{std::max(std::chrono::nanoseconds(0), delay), from_ingress};
+  if (shared_->server == nullptr) return;
+  shared_->server->with_segment([&](Segment&, FaultInjector& injector) {
+    (void)injector.set_port_delay(egress, RedundantPortDelay{delay, from_ingress});
+  });
 }
 
 RedundantTopology RedundantPorts::topology() const {
   std::lock_guard lock(shared_->mutex);
-  return shared_->options.topology;
+  if (shared_->server == nullptr) return {};
+  return shared_->server->with_segment([](Segment&, FaultInjector& injector) {
+    const auto& cabling = injector.redundant_cabling();
+    return cabling ? cabling->topology : RedundantTopology{};
+  });
 }
 
 RedundantPortsStats RedundantPorts::stats() const {

@@ -109,7 +109,8 @@ class RingParser {
  private:
   Result<void> parse_simulator(const SpecNode& node, Ring& ring) {
     const std::string path = "simulator";
-    if (auto r = tree::check_keys(c_, node, path, {"slaves", "wiring", "faults"}); !r) return r;
+    if (auto r = tree::check_keys(c_, node, path, {"slaves", "wiring", "faults", "redundancy"}); !r)
+      return r;
     auto slaves = tree::require(c_, node, path, "slaves");
     if (!slaves) return std::move(slaves).error();
     const SpecNode& list = **slaves;
@@ -135,6 +136,9 @@ class RingParser {
         }
       }
     }
+    if (const SpecNode* redundancy = node.find("redundancy")) {
+      if (auto r = parse_redundancy(*redundancy, ring); !r) return r;
+    }
     if (const SpecNode* faults = node.find("faults")) {
       const std::string faults_path = "simulator.faults";
       if (!faults->is_null()) {
@@ -151,6 +155,84 @@ class RingParser {
       }
     }
     return ok();
+  }
+
+  // simulator.redundancy: the cabling of the second master port when the ring is served
+  // redundantly: {break_after: N | cut: PORT, delays: [{port, ms, from}]}.
+  Result<void> parse_redundancy(const SpecNode& node, Ring& ring) {
+    const std::string path = "simulator.redundancy";
+    RedundantCabling cabling;
+    if (!node.is_null()) {
+      if (!node.is_mapping()) {
+        return spec_error(c_, node, path, "expected a mapping {break_after | cut, delays}");
+      }
+      if (auto r = tree::check_keys(c_, node, path, {"break_after", "cut", "delays"}); !r) return r;
+      const SpecNode* after = node.find("break_after");
+      const SpecNode* cut = node.find("cut");
+      if (after != nullptr && cut != nullptr) {
+        return spec_error(c_, *cut, tree::join_path(path, "cut"),
+                          "a ring breaks at one place: give break_after or cut, not both");
+      }
+      if (after != nullptr) {
+        const std::string p = tree::join_path(path, "break_after");
+        const auto max = static_cast<std::int64_t>(ring.slaves.size()) - 1;
+        if (max < 1) {
+          return spec_error(c_, *after, p, "a ring of one slave has no cable between slaves");
+        }
+        auto n = tree::to_int(c_, *after, p, 1, max);
+        if (!n) return std::move(n).error();
+        cabling.topology = RedundantTopology::broken_after(static_cast<std::size_t>(*n));
+      }
+      if (cut != nullptr) {
+        auto port = master_port(*cut, tree::join_path(path, "cut"));
+        if (!port) return std::move(port).error();
+        cabling.topology = RedundantTopology::cut_at(*port);
+      }
+      if (const SpecNode* delays = node.find("delays"); delays != nullptr && !delays->is_null()) {
+        const std::string dp = tree::join_path(path, "delays");
+        if (!delays->is_sequence()) {
+          return spec_error(c_, *delays, dp, "expected a list of {port, ms, from}");
+        }
+        for (std::size_t i = 0; i < delays->items.size(); ++i) {
+          const SpecNode& d = delays->items[i];
+          const std::string ip = tree::index_path(dp, i);
+          if (auto r = tree::check_keys(c_, d, ip, {"port", "ms", "from"}); !r) return r;
+          auto port_node = tree::require(c_, d, ip, "port");
+          if (!port_node) return std::move(port_node).error();
+          auto port = master_port(**port_node, tree::join_path(ip, "port"));
+          if (!port) return std::move(port).error();
+          auto ms_node = tree::require(c_, d, ip, "ms");
+          if (!ms_node) return std::move(ms_node).error();
+          auto ms = tree::to_double(c_, **ms_node, tree::join_path(ip, "ms"));
+          if (!ms) return std::move(ms).error();
+          if (!(*ms >= 0 && *ms <= 86'400'000.0)) {
+            return spec_error(
+                c_, **ms_node, tree::join_path(ip, "ms"),
+                fmt::format("{} ms is out of range (0 to 86400000)", (*ms_node)->text));
+          }
+          RedundantPortDelay delay;
+          delay.delay =
+              std::chrono::nanoseconds(static_cast<std::int64_t>(std::llround(*ms * 1e6)));
+          if (const SpecNode* from = d.find("from")) {
+            auto f = master_port(*from, tree::join_path(ip, "from"));
+            if (!f) return std::move(f).error();
+            delay.from = *f;
+          }
+          cabling.delays[static_cast<std::size_t>(*port)] = delay;
+        }
+      }
+    }
+    ring.redundancy = cabling;
+    return ok();
+  }
+
+  Result<wire::RedundantPort> master_port(const SpecNode& node, const std::string& path) {
+    auto text = tree::to_text(c_, node, path);
+    if (!text) return std::move(text).error();
+    if (*text == "primary") return wire::RedundantPort::primary;
+    if (*text == "secondary") return wire::RedundantPort::secondary;
+    return spec_error(c_, node, path,
+                      fmt::format("unknown master port '{}' (known: primary, secondary)", *text));
   }
 
   Result<void> check_slave_name(const std::string& name, const SpecNode& where,

@@ -277,6 +277,22 @@ Result<void> SimServer::serve(std::unique_ptr<link::Link> link) {
   return ok();
 }
 
+std::chrono::nanoseconds SimServer::tick() {
+  std::lock_guard lock(mutex_);
+  Impl& s = *impl_;
+  const std::int64_t period = s.options.advance_period.count();
+  const std::int64_t now = s.clock();
+  if (now - s.last_advance >= period) {
+    segment_->advance(now);
+    s.last_advance = now;
+    ++s.stats.idle_advances;
+  }
+  injector_->advance(now);
+  std::int64_t deadline = s.last_advance + period;
+  if (auto due = injector_->next_due_ns()) deadline = std::min(deadline, *due);
+  return std::chrono::nanoseconds(std::max<std::int64_t>(0, deadline - now));
+}
+
 Result<std::unique_ptr<link::Link>> SimServer::serve_memory(std::size_t queue_depth) {
   auto [master, segment_end] = link::make_memory_link_pair(queue_depth);
   if (auto r = serve(std::move(segment_end)); !r) return std::move(r).error();

@@ -1,6 +1,7 @@
 // ecat sim: serve a simulated ring, and talk to a running one.
 //
-//   ecat sim --ring FILE (--udp ADDR:PORT | --interface IFACE) [--control PATH] [--summary]
+//   ecat sim --ring FILE (--udp ADDR:PORT | --interface IFACE [--redundant-interface IFACE2])
+//            [--control PATH] [--summary]
 //   ecat sim status [--json]
 //   ecat sim fault inject KIND ARGS... [--next N] [--after-ms MS] [--after MILESTONE]
 //   ecat sim fault inject --json '{"kind":"disconnect","slave":"outputs","next":30}'
@@ -31,6 +32,7 @@
 #include <ecat/sim/control.hpp>
 #include <ecat/sim/device.hpp>
 #include <ecat/sim/faults.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
@@ -49,6 +51,8 @@ struct Options {
   std::string ring;
   std::string udp;
   std::string interface;
+  // The ring's far end (the last slave's port 1), cabled to a redundant master's second port.
+  std::string redundant_interface;
   // Raw serving: latency options of the RawLink (docs/BENCHMARKS.md: a sleeping receive is most
   // of the simulator's share of a veth round trip).
   bool spin = false;
@@ -73,6 +77,18 @@ int fail(int code, const std::string& message) {
 }
 
 // ---- Serving ------------------------------------------------------------------------------------
+
+Result<std::unique_ptr<link::RawLink>> open_raw(const Options& o, const std::string& interface,
+                                                bool responder) {
+  link::RawLinkOptions options;
+  options.interface = interface;
+  options.responder = responder;
+  options.spin = o.spin;
+  options.busy_poll_us = o.busy_poll_us;
+  // Only EtherCAT frames reach the simulator: a shared network costs it nothing.
+  options.kernel_filter = true;
+  return link::RawLink::open(options);
+}
 
 // --udp ADDR:PORT, :PORT or PORT. Without an address the simulator listens on loopback only;
 // another address (0.0.0.0, "*", a host's own address) is the user's choice and is said aloud.
@@ -106,14 +122,7 @@ Result<std::unique_ptr<link::Link>> open_served_link(const Options& o) {
     }
     return std::unique_ptr<link::Link>(std::move(*link));
   }
-  link::RawLinkOptions options;
-  options.interface = o.interface;
-  options.responder = true;
-  options.spin = o.spin;
-  options.busy_poll_us = o.busy_poll_us;
-  // Only EtherCAT frames reach the simulator: a shared network costs it nothing.
-  options.kernel_filter = true;
-  auto link = link::RawLink::open(options);
+  auto link = open_raw(o, o.interface, true);
   if (!link) return std::move(link).error();
   return std::unique_ptr<link::Link>(std::move(*link));
 }
@@ -141,13 +150,54 @@ int serve(const Options& o) {
   if ((o.spin || o.busy_poll_us != 0) && o.interface.empty()) {
     return fail(2, "--spin and --busy-poll apply to raw serving: give --interface IFACE");
   }
+  const bool redundant = !o.redundant_interface.empty();
+  if (redundant && o.interface.empty()) {
+    return fail(2,
+                "--redundant-interface serves the ring's second master port on a raw interface: "
+                "give the first with --interface IFACE (a redundant ring is not served over UDP)");
+  }
+  if (redundant && o.redundant_interface == o.interface) {
+    return fail(2, fmt::format("--interface and --redundant-interface are both {}: a ring's two "
+                               "ends need two interfaces",
+                               o.interface));
+  }
   auto ring = sim::load_ring(o.ring);
   if (!ring) return fail(2, ring.error().describe());
   auto server = sim::make_server(*ring);
   if (!server) return fail(2, server.error().describe());
-  auto link = open_served_link(o);
-  if (!link) return fail(2, link.error().describe());
-  const std::string link_name = (*link)->name();
+  if (ring->redundancy && !redundant) {
+    std::fprintf(stderr,
+                 "ecat sim: %s: simulator.redundancy applies only to a ring served with "
+                 "--redundant-interface; ignored\n",
+                 o.ring.c_str());
+  }
+  std::unique_ptr<sim::RedundantPorts> ports;
+  Result<std::unique_ptr<link::Link>> link = std::unique_ptr<link::Link>();
+  std::string link_name;
+  if (redundant) {
+    sim::RedundantPortsOptions options;
+    if (ring->redundancy) {
+      options.topology = ring->redundancy->topology;
+      options.delays = ring->redundancy->delays;
+    }
+    auto created = sim::RedundantPorts::create(**server, options);
+    if (!created) return fail(2, created.error().context(o.ring).describe());
+    ports = std::move(*created);
+    auto primary = open_raw(o, o.interface, false);
+    if (!primary) return fail(2, primary.error().describe());
+    auto secondary = open_raw(o, o.redundant_interface, false);
+    if (!secondary) return fail(2, secondary.error().describe());
+    link_name = fmt::format("{} (primary) and {} (secondary, the last slave's port 1)", o.interface,
+                            o.redundant_interface);
+    link = std::unique_ptr<link::Link>();
+    if (auto r = ports->serve(std::move(*primary), std::move(*secondary)); !r) {
+      return fail(2, r.error().describe());
+    }
+  } else {
+    link = open_served_link(o);
+    if (!link) return fail(2, link.error().describe());
+    link_name = (*link)->name();
+  }
 
   // SIGINT and SIGTERM are taken synchronously by this thread (sigtimedwait); every thread
   // started from here on inherits the blocked mask.
@@ -157,10 +207,13 @@ int serve(const Options& o) {
   sigaddset(&stop_signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
 
-  if (auto r = (*server)->serve(std::move(*link)); !r) return fail(2, r.error().describe());
+  if (!redundant) {
+    if (auto r = (*server)->serve(std::move(*link)); !r) return fail(2, r.error().describe());
+  }
   const std::string control_path = o.control.empty() ? sim::default_control_path() : o.control;
   auto control = sim::ControlServer::start(**server, control_path);
   if (!control) {
+    if (ports) ports->stop();
     (*server)->stop();
     return fail(2, control.error().describe());
   }
@@ -174,15 +227,28 @@ int serve(const Options& o) {
     timespec one_second{1, 0};
     received = sigtimedwait(&stop_signals, nullptr, &one_second);
     if (received <= 0 && o.summary) {
-      const auto status = (*server)->status();
-      std::printf("%s\n", summary_line(status, previous_frames).c_str());
+      auto status = (*server)->status();
+      if (ports) {
+        const auto p = ports->stats();
+        status.counters.frames = p.frames;
+        status.counters.replies = p.crosses + p.bounces;
+        status.counters.lost = p.lost;
+      }
+      std::printf("%s%s\n", summary_line(status, previous_frames).c_str(),
+                  status.faults.ring.empty() ? "" : ("  ring: " + status.faults.ring).c_str());
       std::fflush(stdout);
       previous_frames = status.counters.frames;
     }
   }
   (*control)->stop();
+  if (ports) ports->stop();
   (*server)->stop();
-  const auto stats = (*server)->stats();
+  auto stats = (*server)->stats();
+  if (ports) {
+    const auto p = ports->stats();
+    stats.frames = p.frames;
+    stats.replies = p.crosses + p.bounces;
+  }
   std::printf("ecat sim: stopped by %s after %llu frames, %llu replies\n",
               received == SIGINT ? "SIGINT" : "SIGTERM",
               static_cast<unsigned long long>(stats.frames),
@@ -285,6 +351,9 @@ int status(const Options& o) {
               c.value("frames", 0ull), c.value("replies", 0ull), c.value("lost", 0ull),
               c.value("malformed", 0ull), c.value("delayed", 0ull));
   print_faults(b.value("faults", json::object()));
+  if (const auto ring = b["faults"].value("ring", std::string()); !ring.empty()) {
+    std::printf("redundant ring:   %s\n", ring.c_str());
+  }
   return 0;
 }
 
@@ -428,7 +497,8 @@ int profiles() {
 Command setup(CLI::App& parent) {
   auto* app = parent.add_subcommand(
       "sim",
-      "Serve a simulated EtherCAT ring (--ring FILE --udp ADDR:PORT | --interface IFACE), "
+      "Serve a simulated EtherCAT ring (--ring FILE --udp ADDR:PORT | --interface IFACE "
+      "[--redundant-interface IFACE2]), "
       "or control a running one");
   auto o = std::make_shared<Options>();
   app->add_option("--ring", o->ring, "Ring file (YAML, see docs/RING-FILE.md)");
@@ -437,6 +507,10 @@ Command setup(CLI::App& parent) {
                   "0.0.0.0 or * for every interface; port 0: any)");
   app->add_option("--interface", o->interface,
                   "Serve raw EtherCAT on network interface IFACE (needs CAP_NET_RAW)");
+  app->add_option("--redundant-interface", o->redundant_interface,
+                  "Cable redundancy: serve the ring's far end (the last slave's port 1) on IFACE2, "
+                  "for a master on raw:IFACE,IFACE2 (with --interface; see simulator.redundancy "
+                  "and the ring faults)");
   app->add_flag("--spin", o->spin,
                 "Raw serving: wait for frames without sleeping (lowest latency; costs a CPU core)");
   app->add_option("--busy-poll", o->busy_poll_us,

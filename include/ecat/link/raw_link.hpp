@@ -47,6 +47,11 @@ class RawLink final : public Link {
   ~RawLink() override;
 
   Result<void> send(wire::Bytes ethercat_frame) override;
+  // Sends with these Ethernet addresses instead of the link's own (or, for a responder, the last
+  // request's): a simulated segment with two master ports sends a reply out of the port the ring
+  // leads it to, with the address of the port that sent the request.
+  Result<void> send_as(wire::Bytes ethercat_frame, const wire::MacAddress& source,
+                       const wire::MacAddress& destination);
   Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override;
   void interrupt() override;
   void close() override;

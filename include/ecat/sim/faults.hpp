@@ -32,10 +32,12 @@
 #include <ecat/sim/coe_server.hpp>
 #include <ecat/sim/eoe_server.hpp>
 #include <ecat/sim/foe_server.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/segment.hpp>
 #include <ecat/sim/soe_server.hpp>
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/frame.hpp>
+#include <ecat/wire/redundancy.hpp>
 
 namespace ecat::sim {
 
@@ -72,8 +74,14 @@ enum class FaultKind : std::uint8_t {
   link_up,           // ... and comes back
   master_link_down,  // the master's own cable to the first slave
   master_link_up,
+  // ---- Redundant ring faults: the cabling of a segment with a second master port
+  //      (RedundantPorts), applied once; refused on a segment without one.
+  ring_break,  // the cable after the `after`-th slave breaks (1..slaves-1)
+  ring_cut,    // the cable at the master's port `master_port` is cut
+  ring_heal,   // every cable of the ring whole again
+  port_delay,  // replies leaving by `master_port` held back `ns` (only those entered by `from`)
 };
-constexpr std::size_t kFaultKindCount = 28;
+constexpr std::size_t kFaultKindCount = 32;
 
 // What a foe_fault does. `error`, `drop_reply`, `wrong_packet` and `busy` are the FoE server's
 // own faults (FoeFaultKind); `wrong_password` is an ERROR 0x800A (FoE "no rights") to the
@@ -114,6 +122,12 @@ struct FaultEffect {
   std::uint8_t mask = 0xFF;     // corrupt_byte
   std::uint8_t frame_type = 0;  // unsupported_type
   std::uint8_t port = 0;        // link_down, link_up (0..3)
+  // ring_break: the slaves before the break, counted from the primary port (1..slaves-1).
+  std::uint32_t after = 0;
+  // ring_cut, port_delay: the master's port; port_delay: `ns` (0: none), and only the replies to
+  // frames that entered by `from` when set.
+  wire::RedundantPort master_port = wire::RedundantPort::primary;
+  std::optional<wire::RedundantPort> from;
   // foe_fault, soe_fault, eoe_fault, voe_fault: what goes wrong (the `mode` key).
   FoeFaultMode foe = FoeFaultMode::error;
   SoeFaultKind soe = SoeFaultKind::error_response;
@@ -209,6 +223,13 @@ Fault link_down(std::string slave, std::uint8_t port);
 Fault link_up(std::string slave, std::uint8_t port);
 Fault master_link_down();
 Fault master_link_up();
+// A segment with a second master port (RedundantPorts): the ring breaks after the `after`-th
+// slave, or is cut at a master port, or is whole again; a port's replies are held back.
+Fault ring_break(std::uint32_t after);
+Fault ring_cut(wire::RedundantPort port);
+Fault ring_heal();
+Fault port_delay(wire::RedundantPort port, std::chrono::nanoseconds delay,
+                 std::optional<wire::RedundantPort> from = std::nullopt);
 
 // Scheduling. next() is only valid around per-exchange kinds.
 Fault next(Fault fault, std::uint64_t exchanges = 1);
@@ -280,6 +301,9 @@ struct FaultInfo {
   std::map<std::string, std::int64_t> logical_wkc_offsets;  // slave -> delta
   std::vector<std::string> disconnected;
   std::vector<std::string> links_down;  // "outputs:1", "master"
+  // A segment with a second master port: its cabling ("break after 2; secondary +200 us"), else
+  // empty.
+  std::string ring;
 };
 
 struct FaultStats {
@@ -327,6 +351,18 @@ class FaultInjector final : public SegmentHooks {
   // segment produced; it may shrink or be replaced) and says how to send it. Call once per reply
   // of a processed frame. Also remembers the reply for replay_previous.
   ReplyPlan shape_reply(std::vector<std::uint8_t>& reply);
+
+  // ---- The cabling of a redundant segment (RedundantPorts) ----
+  // Kept here so that faults, scripts, the control channel and the API change it under the one
+  // lock that serializes the segment. attach: the ring faults apply from now on, and clear()
+  // returns the cabling to `base`; detach: they are refused again.
+  Result<void> attach_redundant_ring(const RedundantCabling& base);
+  void detach_redundant_ring();
+  // Empty when no second master port is attached.
+  const std::optional<RedundantCabling>& redundant_cabling() const noexcept;
+  // Errc::invalid_argument for a break outside 1..slaves-1, Errc::unsupported when detached.
+  Result<void> set_redundant_topology(const RedundantTopology& topology);
+  Result<void> set_port_delay(wire::RedundantPort egress, const RedundantPortDelay& delay);
 
   // ---- SegmentHooks ----
   bool before_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) override;

@@ -11,17 +11,25 @@
 // from n, as real slaves behind a break do. A cut at a master port loses that port's frames, and
 // the other port's frame goes through every slave and back.
 //
-// The two ports are in-process links (like SimServer::function_link: the master's send()
-// processes the frame in its thread, under the server's lock; no thread, deterministic). Replies
-// carry the requester's source address with bit 1 of the first byte set, as an ESC sets it.
+// The two ports are in-process links (take_link; like SimServer::function_link: the master's
+// send() processes the frame in its thread, under the server's lock; no thread, deterministic),
+// or two raw interfaces served by a thread each (serve: `ecat sim --interface A
+// --redundant-interface B`). Replies carry the requester's source address with bit 1 of the first
+// byte set, as an ESC sets it.
 //
 // A port's replies can be held back (set_delay: all of them, or only those of frames that entered
 // by a given port), as a slow master NIC or a late passthrough copy would arrive.
+//
+// The cabling (topology and delays) is segment state: the server's FaultInjector keeps it, so the
+// ring faults (ring_break, ring_cut, ring_heal, port_delay: faults.hpp), scripts, the control
+// channel and set_topology/set_delay all change it under the server's lock, and fault.clear
+// returns it to the one the ports were created with.
 //
 // Not yet modelled: the DL status of the ports at the break (every ESC still reports the links of
 // the whole ring) and a link on the last slave's port 1.
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -30,6 +38,7 @@
 #include <string>
 
 #include <ecat/link/link.hpp>
+#include <ecat/link/raw_link.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/frame.hpp>
 #include <ecat/wire/redundancy.hpp>
@@ -66,27 +75,45 @@ struct RedundantRoute {
 Result<RedundantRoute> route_redundant(const RedundantTopology& topology, std::size_t slave_count,
                                        wire::RedundantPort ingress);
 
+// Replies leaving by a port held back `delay` (0: none); only those to frames that entered by
+// `from` when set.
+struct RedundantPortDelay {
+  std::chrono::nanoseconds delay{0};
+  std::optional<wire::RedundantPort> from;
+};
+
+struct RedundantCabling {
+  RedundantTopology topology{};
+  std::array<RedundantPortDelay, 2> delays{};  // by egress port: primary, secondary
+};
+// "whole", "break after 2; secondary +200 us (from secondary)"
+std::string describe(const RedundantCabling& cabling);
+
 struct RedundantPortsOptions {
   // The Ethernet addresses of the master's two ports (the requesters): replies carry them.
   wire::MacAddress primary_mac{0x02, 0xEC, 0x00, 0x00, 0x00, 0x01};
   wire::MacAddress secondary_mac{0x02, 0xEC, 0x00, 0x00, 0x00, 0x02};
   RedundantTopology topology{};
+  std::array<RedundantPortDelay, 2> delays{};  // by egress port
   // Replies that may wait on one port at once.
   std::size_t queue_depth = 16;
 };
 
 struct RedundantPortsStats {
-  std::uint64_t frames = 0;      // frames sent by the master on either port
-  std::uint64_t crosses = 0;     // replies that left by the other port
-  std::uint64_t bounces = 0;     // replies that came back to the port they entered
-  std::uint64_t lost = 0;        // frames lost on a cut cable or by a fault
-  std::uint64_t overflowed = 0;  // replies dropped on a full queue
+  std::uint64_t frames = 0;       // frames sent by the master on either port
+  std::uint64_t crosses = 0;      // replies that left by the other port
+  std::uint64_t bounces = 0;      // replies that came back to the port they entered
+  std::uint64_t lost = 0;         // frames lost on a cut cable or by a fault
+  std::uint64_t overflowed = 0;   // replies dropped on a full queue
+  std::uint64_t send_errors = 0;  // replies a raw port could not send
 };
 
 class RedundantPorts {
  public:
   // Over `server` (which must outlive the ports and the links), serving nothing else. The slaves
-  // are the ring in position order; Errc::invalid_argument for a ring that is not a line.
+  // are the ring in position order; Errc::invalid_argument for a ring that is not a line, or a
+  // topology it cannot have; Errc::wrong_state when the server has a second master port already.
+  // The options' topology and delays are the cabling fault.clear returns to.
   static Result<std::unique_ptr<RedundantPorts>> create(SimServer& server,
                                                         RedundantPortsOptions options = {});
   ~RedundantPorts();
@@ -96,6 +123,19 @@ class RedundantPorts {
   // The master's end of one cable ("sim-primary", "sim-secondary"); take each once. The links
   // stay valid after the RedundantPorts is gone (then they lose every frame).
   std::unique_ptr<link::Link> take_link(wire::RedundantPort port);
+
+  // Serves the two master ports on raw interfaces until stop(): a thread per port receives what
+  // the master sends there and carries it through the ring; replies leave by the port the route
+  // says (sent from whichever thread has one ready; a held-back reply by its port's thread), and
+  // the primary's thread keeps the segment's time moving (SimServer::tick). Open the links
+  // without `responder`: the replies' addresses are set here. Errc::wrong_state when already
+  // serving.
+  Result<void> serve(std::unique_ptr<link::RawLink> primary,
+                     std::unique_ptr<link::RawLink> secondary);
+  void stop();
+  bool serving() const;
+  // "eth1,eth2", while serving.
+  std::string served() const;
 
   // Thread-safe; takes effect from the next frame.
   Result<void> set_topology(const RedundantTopology& topology);
@@ -107,10 +147,12 @@ class RedundantPorts {
   RedundantPortsStats stats() const;
 
   struct Shared;
+  struct Serving;
 
  private:
   RedundantPorts() = default;
   std::shared_ptr<Shared> shared_;
+  std::unique_ptr<Serving> serving_;
 };
 
 }  // namespace ecat::sim

@@ -61,6 +61,9 @@ struct Ring {
   std::vector<RingSlave> slaves;
   std::vector<RingWire> wiring;
   std::vector<RingFault> faults;  // injected when the simulator starts
+  // simulator.redundancy: the cabling when the ring is served with a second master port
+  // (RedundantPortsOptions::topology and delays); none when the section is absent.
+  std::optional<RedundantCabling> redundancy;
   // The master sections present in the file (not read by the simulator).
   std::vector<std::string> master_sections;
 

@@ -100,6 +100,11 @@ class SimServer {
   // first send() after they are due (as a late reply would).
   std::unique_ptr<link::Link> function_link(std::string name = "sim");
 
+  // For a transport of its own (RedundantPorts serving two raw interfaces): advances the segment
+  // when `advance_period` passed since it last did, lets time-scheduled faults fire, and returns
+  // how long until that is due again (what a serving thread may wait for a frame).
+  std::chrono::nanoseconds tick();
+
   // Processes one frame synchronously and returns the replies that leave now (normally one;
   // none for a lost frame; more for duplicates or released delayed replies).
   std::vector<std::vector<std::uint8_t>> exchange(wire::Bytes frame);
