@@ -5,8 +5,11 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <unistd.h>
 
 #include <ecat/link/redundant_link.hpp>
+#include <ecat/sim/control.hpp>
 #include <ecat/sim/redundant_ring.hpp>
 
 #include "scenarios/scenario_support.hpp"
@@ -19,9 +22,10 @@ using link::RingState;
 using sim::RedundantTopology;
 using wire::RedundantPort;
 
-RingSpec redundant_spec(std::chrono::nanoseconds period = 5ms) {
+RingSpec redundant_spec(std::chrono::nanoseconds period = 5ms,
+                        Transport transport = Transport::redundant) {
   RingSpec spec;
-  spec.transport = Transport::redundant;
+  spec.transport = transport;
   spec.domain_period = period;
   return spec;
 }
@@ -55,11 +59,17 @@ bool cycles_pass(ScenarioRing& ring, std::uint64_t n) {
 
 // Process data keeps flowing through `topology` with the whole ring's working counter, losing
 // no cycle but possibly the one in flight at the moment of the change.
-void expect_flows_through(ScenarioRing& ring, const RedundantTopology& topology) {
+void expect_flows_through(ScenarioRing& ring, const RedundantTopology& topology,
+                          const std::function<void()>& change = {}) {
   SCOPED_TRACE(sim::describe(topology));
   ASSERT_TRUE(cycles_pass(ring, 5));
   const auto before = ring.domain_stats();
-  ASSERT_TRUE(ring.redundant_ports->set_topology(topology));
+  if (change) {
+    change();
+    ASSERT_EQ(sim::describe(ring.redundant_ports->topology()), sim::describe(topology));
+  } else {
+    ASSERT_TRUE(ring.redundant_ports->set_topology(topology));
+  }
   ASSERT_TRUE(cycles_pass(ring, 20)) << ring.describe();
   const auto after = ring.domain_stats();
   EXPECT_LE(invalid_since(before, after), 1u) << ring.describe() << debug_status(ring);
@@ -160,6 +170,134 @@ TEST(Scenario45, RedundantSecondaryCutAt1ms) {
   secondary_cut(1ms);
 }
 
+// ---- over two veth pairs: the simulator serving both ends of the ring on raw interfaces --------
+
+TEST(Scenario45, RedundantSecondaryCutOverTwoVethPairs) {
+  std::string skip;
+  auto ring = ScenarioRing::operational(redundant_spec(5ms, Transport::redundant_raw), &skip);
+  if (!skip.empty()) GTEST_SKIP() << skip;
+  ASSERT_TRUE(ring);
+  EXPECT_TRUE(ring->redundant_ports->serving());
+  EXPECT_EQ(ring->redundant_ports->served(), "segment,segment2");
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::secondary));
+  EXPECT_GT(ring->redundant_link->status().lone_bounces, 0u);
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::whole);
+  expect_never_recovered(*ring);
+}
+
+// The control channel of `ecat sim` on a socket of its own, as a test harness drives it.
+class ControlChannel {
+ public:
+  explicit ControlChannel(sim::SimServer& server)
+      : path_(fmt::format("{}ecat-sim-redundant-{}.sock", ::testing::TempDir(), ::getpid())) {
+    auto started = sim::ControlServer::start(server, path_);
+    EXPECT_TRUE(started) << started.error().describe();
+    if (started) server_ = std::move(*started);
+  }
+  nlohmann::json call(const std::string& request) {
+    auto reply = sim::control_call(path_, request);
+    EXPECT_TRUE(reply) << reply.error().describe();
+    if (!reply) return {};
+    return nlohmann::json::parse(*reply);
+  }
+
+ private:
+  std::string path_;
+  std::unique_ptr<sim::ControlServer> server_;
+};
+
+TEST(Scenario00, RedundantRingOverTwoVethPairsBreaksAndHealsByTheControlChannel) {
+  std::string skip;
+  auto ring = ScenarioRing::operational(redundant_spec(5ms, Transport::redundant_raw), &skip);
+  if (!skip.empty()) GTEST_SKIP() << skip;
+  ASSERT_TRUE(ring);
+  ControlChannel control(*ring->server);
+  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
+  auto status = ring->redundant_link->status();
+  EXPECT_EQ(status.topology, RedundancyTopology::redundant);
+  EXPECT_EQ(status.ring, RingState::whole);
+  EXPECT_GT(status.forward_crosses, 0u);
+  EXPECT_GT(status.passthrough_copies, 0u);
+  EXPECT_EQ(control.call(R"({"op":"ring"})").value("ring", ""), "whole");
+
+  // A break in the middle: both halves carry process data, merged by the master's link.
+  expect_flows_through(*ring, RedundantTopology::broken_after(2), [&] {
+    const auto reply = control.call(R"({"op":"ring","break_after":2})");
+    EXPECT_TRUE(reply.value("ok", false)) << reply.dump();
+    EXPECT_EQ(reply.value("ring", ""), "break after 2");
+  });
+  status = ring->redundant_link->status();
+  EXPECT_EQ(status.ring, RingState::broken);
+  EXPECT_GT(status.merged, 20u);
+  const auto sim_status = control.call(R"({"op":"status"})");
+  EXPECT_EQ(sim_status["faults"].value("ring", ""), "break after 2") << sim_status.dump();
+  const auto master_status = ring->master->status();
+  ASSERT_TRUE(master_status.redundancy);
+  EXPECT_EQ(master_status.redundancy->ring, RingState::broken);
+
+  // Healed: redundant again, the primary's frames cross the whole ring.
+  expect_flows_through(*ring, RedundantTopology::whole_ring(), [&] {
+    EXPECT_TRUE(control.call(R"({"op":"ring","heal":true})").value("ok", false));
+  });
+  status = ring->redundant_link->status();
+  EXPECT_EQ(status.ring, RingState::whole);
+  EXPECT_EQ(status.ring_heals, 1u);
+
+  // The same as a fault (what `ecat sim fault inject ring_cut primary` sends), and back.
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary), [&] {
+    const auto reply =
+        control.call(R"({"op":"fault.inject","fault":{"kind":"ring_cut","port":"primary"}})");
+    EXPECT_TRUE(reply.value("ok", false)) << reply.dump();
+  });
+  expect_flows_through(*ring, RedundantTopology::whole_ring(), [&] {
+    EXPECT_TRUE(control.call(R"({"op":"fault.clear"})").value("ok", false));
+  });
+
+  // Bad values are named.
+  auto refused = control.call(R"({"op":"ring","break_after":3})");
+  EXPECT_FALSE(refused.value("ok", true));
+  EXPECT_NE(refused.value("error", "").find("cannot break after slave 3 (1..2)"), std::string::npos)
+      << refused.dump();
+  refused = control.call(R"({"op":"ring","cut":"tertiary"})");
+  EXPECT_NE(refused.value("error", "").find("unknown master port 'tertiary'"), std::string::npos)
+      << refused.dump();
+  refused = control.call(R"({"op":"fault.inject","fault":{"kind":"ring_break","after":0}})");
+  EXPECT_FALSE(refused.value("ok", true)) << refused.dump();
+  expect_never_recovered(*ring);
+  EXPECT_EQ(ring->redundant_ports->stats().send_errors, 0u);
+}
+
+// ---- 42 (the redundant part): the primary cable pulled and replugged, one direction slow ------
+
+TEST(Scenario42, RedundantReplugWithAsymmetricDelayLosesNoCycle) {
+  auto ring = ScenarioRing::operational(redundant_spec());
+  ASSERT_TRUE(ring);
+  // Pulled: the secondary carries the ring alone (the cycle in flight may be lost).
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary));
+  Monitor monitor(*ring->master);
+  // Replugged with the link's two directions out of step: what leaves the ring into the primary
+  // port comes a frame timeout and more late (the PHY of the reference's NIC), what the primary
+  // sends goes in at once.
+  ASSERT_TRUE(cycles_pass(*ring, 5));
+  const auto before = ring->domain_stats();
+  ASSERT_TRUE(ring->server->inject(sim::fault::script(
+      {sim::fault::port_delay(RedundantPort::primary, 25ms), sim::fault::ring_heal()})));
+  EXPECT_EQ(ring->redundant_ports->topology().kind, RedundantTopology::Kind::whole);
+  ASSERT_TRUE(cycles_pass(*ring, 40)) << ring->describe();
+  // The link settles: the delay goes.
+  ASSERT_TRUE(ring->server->inject(sim::fault::port_delay(RedundantPort::primary, 0ms)));
+  ASSERT_TRUE(cycles_pass(*ring, 20)) << ring->describe();
+  const auto after = ring->domain_stats();
+  EXPECT_EQ(invalid_since(before, after), 0u) << ring->describe() << debug_status(*ring);
+  EXPECT_EQ(after.last_wkc, before.last_wkc);
+  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
+  EXPECT_TRUE(ring->loopback(false)) << ring->describe();
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::whole);
+  expect_never_recovered(*ring);
+  EXPECT_FALSE(monitor.first_matching("invalid:")) << monitor.seen();
+}
+
 // A ring that starts with one port cut comes up through the other alone: every slave is on one
 // side, so position addressing (station assignment) counts as on a whole ring.
 TEST(Scenario39, RedundantRingStartsWithThePrimaryCut) {
@@ -181,12 +319,21 @@ TEST(Scenario39, RedundantRingStartsWithThePrimaryCut) {
 
 // The default ring served with two master ports and a bus on a RedundantLink, no master.
 struct RedundantBus {
+  std::unique_ptr<RawNamespace> ns;  // raw: two veth pairs
   std::unique_ptr<sim::SimServer> server;
   std::unique_ptr<sim::RedundantPorts> ports;
   link::RedundantLink* link = nullptr;
   std::unique_ptr<bus::Bus> bus;
+  std::string skip;
 
-  explicit RedundantBus(std::chrono::nanoseconds frame_timeout) {
+  explicit RedundantBus(std::chrono::nanoseconds frame_timeout, bool raw = false) {
+    if (raw) {
+      ns = std::make_unique<RawNamespace>(2);
+      if (!ns->why_not().empty()) {
+        skip = ns->why_not();
+        return;
+      }
+    }
     auto parsed = sim::parse_ring(ring_yaml(RingKind::basic));
     EXPECT_TRUE(parsed) << parsed.error().describe();
     if (!parsed) return;
@@ -202,9 +349,22 @@ struct RedundantBus {
     link::RedundantLinkOptions link_options;
     link_options.primary_mac = options.primary_mac;
     link_options.secondary_mac = options.secondary_mac;
-    auto opened =
-        link::RedundantLink::open(ports->take_link(RedundantPort::primary),
-                                  ports->take_link(RedundantPort::secondary), link_options);
+    Result<std::unique_ptr<link::RedundantLink>> opened = Error(Errc::internal, "not opened");
+    if (raw) {
+      link::RawLinkOptions a;
+      a.interface = "segment";
+      link::RawLinkOptions b;
+      b.interface = "segment2";
+      auto served_a = link::RawLink::open(a);
+      auto served_b = link::RawLink::open(b);
+      EXPECT_TRUE(served_a && served_b);
+      if (!served_a || !served_b) return;
+      EXPECT_TRUE(ports->serve(std::move(*served_a), std::move(*served_b)));
+      opened = link::RedundantLink::open_raw("master", "master2");
+    } else {
+      opened = link::RedundantLink::open(ports->take_link(RedundantPort::primary),
+                                         ports->take_link(RedundantPort::secondary), link_options);
+    }
     EXPECT_TRUE(opened);
     if (!opened) return;
     link = opened->get();
@@ -223,6 +383,10 @@ struct RedundantBus {
   ~RedundantBus() {
     if (bus) bus->stop();
     bus.reset();
+    if (ports) ports->stop();
+    ports.reset();
+    server.reset();
+    ns.reset();
   }
 };
 
@@ -233,8 +397,9 @@ bus::TransactOptions once(std::chrono::nanoseconds timeout = 1s) {
   return options;
 }
 
-TEST(Scenario38, RedundantPassthroughCopyIsNoReply) {
-  RedundantBus ring(40ms);
+void passthrough_copy_is_no_reply(bool raw) {
+  RedundantBus ring(40ms, raw);
+  if (!ring.skip.empty()) GTEST_SKIP() << ring.skip;
   ASSERT_TRUE(ring.bus);
   // Whatever leaves by the secondary (the primary's processed frame) comes 200 ms late; the
   // secondary's copy, unprocessed, reaches the primary at once.
@@ -245,6 +410,13 @@ TEST(Scenario38, RedundantPassthroughCopyIsNoReply) {
   ASSERT_FALSE(reply);
   EXPECT_EQ(reply.error().code(), Errc::timeout) << reply.error().describe();
   EXPECT_GT(ring.link->status().passthrough_copies, 0u);
+}
+
+TEST(Scenario38, RedundantPassthroughCopyIsNoReply) {
+  passthrough_copy_is_no_reply(false);
+}
+TEST(Scenario38, RedundantPassthroughCopyIsNoReplyOverTwoVethPairs) {
+  passthrough_copy_is_no_reply(true);
 }
 
 TEST(Scenario40, RedundantDelayedCopyDoesNotHoldTheReply) {
@@ -330,6 +502,81 @@ TEST(RedundantSegment, RoutesFollowTheEscForwardingRules) {
   }
   EXPECT_EQ(sim::describe(K::broken_after(2)), "break after 2");
   EXPECT_EQ(sim::describe(K::cut_at(RedundantPort::secondary)), "master break secondary");
+}
+
+TEST(RedundantSegment, RingFaultsSpeakTheFaultLanguage) {
+  const std::vector<std::string> words{"port_delay", "secondary", "0.2", "primary"};
+  auto parsed = sim::parse_fault_words(words);
+  ASSERT_TRUE(parsed) << parsed.error().describe();
+  EXPECT_EQ(parsed->effect.kind, sim::FaultKind::port_delay);
+  EXPECT_EQ(parsed->effect.master_port, RedundantPort::secondary);
+  EXPECT_EQ(parsed->effect.ns, 200'000);
+  EXPECT_EQ(parsed->effect.from, RedundantPort::primary);
+  auto round = sim::parse_fault_json(sim::to_json(*parsed));
+  ASSERT_TRUE(round) << round.error().describe();
+  EXPECT_EQ(sim::describe(*round), sim::describe(*parsed));
+  for (const auto& f : {sim::fault::ring_break(2), sim::fault::ring_cut(RedundantPort::primary),
+                        sim::fault::ring_heal()}) {
+    auto again = sim::parse_fault_json(sim::to_json(f));
+    ASSERT_TRUE(again) << again.error().describe();
+    EXPECT_EQ(sim::describe(*again), sim::describe(f));
+  }
+  const std::vector<std::string> cut{"ring_cut", "tertiary"};
+  auto refused = sim::parse_fault_words(cut);
+  ASSERT_FALSE(refused);
+  EXPECT_NE(refused.error().message().find("unknown master port 'tertiary'"), std::string::npos)
+      << refused.error().message();
+  const std::vector<std::string> zero{"ring_break", "0"};
+  EXPECT_FALSE(sim::parse_fault_words(zero));
+
+  // A segment without a second master port refuses them; with one, a break outside 1..N-1 is
+  // refused naming it, and fault.clear returns to the cabling the ports were made with.
+  auto made = sim::make_server(*sim::parse_ring(ring_yaml(RingKind::basic)));
+  ASSERT_TRUE(made);
+  auto& server = **made;
+  auto alone = server.inject(sim::fault::ring_break(1));
+  ASSERT_FALSE(alone);
+  EXPECT_NE(alone.error().message().find("no second master port"), std::string::npos);
+  sim::RedundantPortsOptions options;
+  options.topology = RedundantTopology::broken_after(1);
+  auto ports = sim::RedundantPorts::create(server, options);
+  ASSERT_TRUE(ports) << ports.error().describe();
+  auto outside = server.inject(sim::fault::ring_break(3));
+  ASSERT_FALSE(outside);
+  EXPECT_NE(outside.error().message().find("cannot break after slave 3 (1..2)"), std::string::npos)
+      << outside.error().message();
+  ASSERT_TRUE(server.inject(sim::fault::ring_cut(RedundantPort::secondary)));
+  ASSERT_TRUE(server.inject(sim::fault::port_delay(RedundantPort::primary, 1ms)));
+  EXPECT_EQ(server.fault_info().ring, "master break secondary; primary +1000 us");
+  server.clear_faults();
+  EXPECT_EQ(server.fault_info().ring, "break after 1");
+  EXPECT_FALSE(sim::RedundantPorts::create(server, {}));  // one second port per segment
+  ports->reset();
+  EXPECT_TRUE(server.fault_info().ring.empty());
+}
+
+TEST(RedundantSegment, RingFilesSetTheCabling) {
+  const std::string base = ring_yaml(RingKind::basic);
+  auto ring = sim::parse_ring(base + R"(  redundancy:
+    break_after: 2
+    delays:
+      - {port: secondary, ms: 0.5, from: secondary}
+)");
+  ASSERT_TRUE(ring) << ring.error().describe();
+  ASSERT_TRUE(ring->redundancy);
+  EXPECT_EQ(sim::describe(*ring->redundancy), "break after 2; secondary +500 us (from secondary)");
+  EXPECT_FALSE(sim::parse_ring(base)->redundancy);
+  const auto error_of = [&](const std::string& section) {
+    auto bad = sim::parse_ring(base + section);
+    return bad ? std::string("accepted") : bad.error().message();
+  };
+  EXPECT_NE(error_of("  redundancy: {break_after: 3}\n").find("break_after"), std::string::npos);
+  EXPECT_NE(error_of("  redundancy: {cut: left}\n").find("unknown master port 'left'"),
+            std::string::npos);
+  EXPECT_NE(error_of("  redundancy: {cut: primary, break_after: 1}\n").find("not both"),
+            std::string::npos);
+  EXPECT_NE(error_of("  redundancy: {delays: [{port: primary, ms: -1}]}\n").find("out of range"),
+            std::string::npos);
 }
 
 }  // namespace

@@ -97,8 +97,10 @@ enum class RingKind : std::uint8_t {
 };
 
 // redundant: the simulator's ring with its second master port (sim::RedundantPorts, in process)
-// and the master on a link::RedundantLink over both ports.
-enum class Transport : std::uint8_t { memory, udp, raw, redundant };
+// and the master on a link::RedundantLink over both ports. redundant_raw: the same over two veth
+// pairs in a private network namespace (RawNamespace with two pairs: the master on `master` and
+// `master2`, the simulator serving `segment` and `segment2`).
+enum class Transport : std::uint8_t { memory, udp, raw, redundant, redundant_raw };
 
 // The blob the segmented ring downloads to 0x2003:01 at startup (several segments).
 inline std::vector<std::uint8_t> segmented_blob() {
@@ -214,8 +216,9 @@ inline bool run_command(const std::string& command) {
 // `segment`; the destructor moves it back (the namespace goes with its last socket).
 class RawNamespace {
  public:
-  // Empty `why_not()` when it is usable; otherwise the reason to skip.
-  RawNamespace() {
+  // Empty `why_not()` when it is usable; otherwise the reason to skip. `pairs` 2: a second veth
+  // pair `master2` <-> `segment2` (a redundant ring's far end).
+  explicit RawNamespace(int pairs = 1) {
     if (!has_capability(CAP_NET_ADMIN) || !has_capability(CAP_NET_RAW) ||
         !has_capability(CAP_SYS_ADMIN)) {
       why_not_ =
@@ -243,6 +246,12 @@ class RawNamespace {
     if (!run_command("ip link add name master type veth peer name segment") ||
         !run_command("ip link set dev master up") || !run_command("ip link set dev segment up")) {
       why_not_ = "cannot create a veth pair (is the veth driver available?)";
+    }
+    if (why_not_.empty() && pairs > 1 &&
+        (!run_command("ip link add name master2 type veth peer name segment2") ||
+         !run_command("ip link set dev master2 up") ||
+         !run_command("ip link set dev segment2 up"))) {
+      why_not_ = "cannot create a second veth pair (is the veth driver available?)";
     }
   }
   ~RawNamespace() {
@@ -394,8 +403,9 @@ class ScenarioRing {
   static std::unique_ptr<ScenarioRing> create(const RingSpec& spec, std::string* skip = nullptr) {
     auto ring = std::make_unique<ScenarioRing>();
     ring->spec_ = spec;
-    if (spec.transport == Transport::raw) {
-      ring->ns_ = std::make_unique<RawNamespace>();
+    if (spec.transport == Transport::raw || spec.transport == Transport::redundant_raw) {
+      ring->ns_ =
+          std::make_unique<RawNamespace>(spec.transport == Transport::redundant_raw ? 2 : 1);
       if (!ring->ns_->why_not().empty()) {
         if (skip) *skip = ring->ns_->why_not();
         return nullptr;
@@ -455,6 +465,7 @@ class ScenarioRing {
     }
     if (master) (void)master->stop();
     master.reset();
+    if (redundant_ports) redundant_ports->stop();
     redundant_ports.reset();
     if (server) server->stop();
     server.reset();
@@ -574,8 +585,8 @@ class ScenarioRing {
 
   std::unique_ptr<sim::SimServer> server;
   std::unique_ptr<master::Master> master;
-  // Transport::redundant only: the simulator's two ports and the master's link (owned by the
-  // master's bus; valid while the master runs).
+  // Transport::redundant and redundant_raw: the simulator's two ports and the master's link
+  // (owned by the master's bus; valid while the master runs).
   std::unique_ptr<sim::RedundantPorts> redundant_ports;
   link::RedundantLink* redundant_link = nullptr;
 
@@ -595,6 +606,26 @@ class ScenarioRing {
         auto link = link::RedundantLink::open(
             redundant_ports->take_link(wire::RedundantPort::primary),
             redundant_ports->take_link(wire::RedundantPort::secondary), link_options);
+        if (!link) return link.error();
+        redundant_link = link->get();
+        return std::unique_ptr<link::Link>(std::move(*link));
+      }
+      case Transport::redundant_raw: {
+        auto ports = sim::RedundantPorts::create(*server, {});
+        if (!ports) return ports.error();
+        redundant_ports = std::move(*ports);
+        std::array<std::unique_ptr<link::RawLink>, 2> served;
+        for (std::size_t i = 0; i < 2; ++i) {
+          link::RawLinkOptions options;
+          options.interface = i == 0 ? "segment" : "segment2";
+          auto opened = link::RawLink::open(options);
+          if (!opened) return opened.error();
+          served[i] = std::move(*opened);
+        }
+        if (auto r = redundant_ports->serve(std::move(served[0]), std::move(served[1])); !r) {
+          return r.error();
+        }
+        auto link = link::RedundantLink::open_raw("master", "master2");
         if (!link) return link.error();
         redundant_link = link->get();
         return std::unique_ptr<link::Link>(std::move(*link));

@@ -37,6 +37,7 @@
 #include <unistd.h>
 
 #include <ecat/link/link.hpp>
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/sim/faults.hpp>
 #include <ecat/wire/frame.hpp>
 
@@ -375,6 +376,121 @@ TEST(Soak, RandomFaultsOnARunningRingHealAndKeepTheInvariants) {
   if (!kAddressSanitizer) {
     EXPECT_LT(end_kib, warm_kib + 64 * 1024) << "resident memory grew (seed " << seed << ")";
   }
+}
+
+// The redundant variant (issue 16): the same ring with a second master port (sim::RedundantPorts,
+// in process) and the master on a RedundantLink. The cable breaks at a random point (between two
+// slaves or at either master port) and heals, now and then together with a process-data or slave
+// fault. An output staged while the cable is broken must be applied: while it is broken when
+// nothing else is wrong (that is what redundancy is for), and after the heal in any case, with
+// the master back in `operational` each time.
+//
+//   ECAT_SOAK_REDUNDANT_SECONDS=60 ECAT_SOAK_SEED=1234 build/gcc/tests/test_scenarios
+//     --gtest_filter=Soak.Redundant*
+//
+// Default: 8 s (CI).
+TEST(Soak, RedundantRingCableBreaksAndHealsAmongOtherFaults) {
+  const auto seconds = env_or("ECAT_SOAK_REDUNDANT_SECONDS", 8);
+  const auto seed = env_or("ECAT_SOAK_SEED", std::random_device{}());
+  std::printf("redundant soak: %llu s, seed %llu (replay: ECAT_SOAK_SEED=%llu)\n",
+              static_cast<unsigned long long>(seconds), static_cast<unsigned long long>(seed),
+              static_cast<unsigned long long>(seed));
+  RecordProperty("seed", std::to_string(seed));
+  std::mt19937_64 rng(seed);
+
+  RingSpec spec;
+  spec.transport = Transport::redundant;
+  spec.domain_period = 5ms;
+  spec.health_poll = 20ms;
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  ASSERT_TRUE(ring->loopback(true));
+  ring->forget_states();
+
+  const auto reads = [&](bool value) {
+    auto a = ring->slave("inputs").read_input("channel_1");
+    auto b = ring->slave("inputs").read_input("channel_16");
+    return a && b && master::as_bool(*a) == value && master::as_bool(*b) == !value;
+  };
+  const auto stage = [&](bool value) {
+    return ring->slave("outputs").write_output("channel_1", value) &&
+           ring->slave("outputs").write_output("channel_16", !value);
+  };
+  std::uniform_int_distribution<int> where(0, 3);
+  std::uniform_int_distribution<int> other(0, 5);
+  std::uniform_int_distribution<std::uint64_t> count(4, 12);
+  std::uniform_int_distribution<int> pause_ms(50, 300);
+  bool value = true;
+  std::uint64_t breaks = 0;
+  std::uint64_t with_other = 0;
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(seconds);
+  while (std::chrono::steady_clock::now() < end) {
+    // The break: after the coupler, after the inputs terminal, or at either master port.
+    sim::Fault cable = fault::ring_heal();
+    switch (where(rng)) {
+      case 0:
+        cable = fault::ring_break(1);
+        break;
+      case 1:
+        cable = fault::ring_break(2);
+        break;
+      case 2:
+        cable = fault::ring_cut(wire::RedundantPort::primary);
+        break;
+      default:
+        cable = fault::ring_cut(wire::RedundantPort::secondary);
+        break;
+    }
+    const std::string what = sim::describe(cable);
+    ASSERT_TRUE(ring->server->inject(cable)) << what << " (seed " << seed << ")";
+    ++breaks;
+    // Now and then something else goes wrong meanwhile.
+    std::optional<sim::Fault> also;
+    switch (other(rng)) {
+      case 0:
+        also = fault::next(fault::drop_responses(), count(rng));
+        break;
+      case 1:
+        also = fault::next(fault::wkc_offset(-1), count(rng));
+        break;
+      case 2:
+        also = fault::retreat_to_safeop("outputs");
+        break;
+      default:
+        break;
+    }
+    if (also) {
+      ASSERT_TRUE(ring->server->inject(*also)) << describe(*also) << " (seed " << seed << ")";
+      ++with_other;
+    }
+    value = !value;
+    ASSERT_TRUE(stage(value));
+    if (!also) {
+      EXPECT_TRUE(eventually([&] { return reads(value); }, 5s))
+          << "an output staged through " << what << " was not applied while it lasted (seed "
+          << seed << "); " << ring->describe();
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms(rng)));
+    const auto state = ring->state();
+    ASSERT_TRUE(state == MasterState::operational || state == MasterState::recovering)
+        << "through " << what << ": " << ring->describe() << " (seed " << seed << ")";
+
+    ASSERT_TRUE(ring->server->inject(fault::ring_heal()));
+    ASSERT_TRUE(eventually([&] { return ring->state() == MasterState::operational; }, 15s))
+        << "not operational after healing " << what << ": " << ring->describe() << " (seed " << seed
+        << ")";
+    EXPECT_TRUE(eventually([&] { return reads(value); }, 10s))
+        << "an output staged through " << what << (also ? " and " + describe(*also) : "")
+        << " was lost (seed " << seed << "); " << ring->describe();
+  }
+  for (auto s : ring->states()) {
+    EXPECT_TRUE(s == MasterState::operational || s == MasterState::recovering)
+        << "the master went to " << master::to_string(s) << " (seed " << seed << ")";
+  }
+  EXPECT_EQ(ring->master->status().illegal_transitions, 0u);
+  EXPECT_EQ(ring->redundant_link->status().ring, link::RingState::whole);
+  std::printf("redundant soak: %llu cable breaks healed, %llu with another fault\n",
+              static_cast<unsigned long long>(breaks), static_cast<unsigned long long>(with_other));
 }
 
 }  // namespace
