@@ -1,9 +1,11 @@
 // `ecat sim`: runs the built tool (env ECAT_TOOL) as a simulator on UDP, talks to it as a master
 // would and through its control socket with the client subcommands, then stops it with SIGTERM.
 #include <array>
+#include <cerrno>
 #include <chrono>
 #include <csignal>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -17,9 +19,11 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <poll.h>
+#include <sched.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/wire/frame.hpp>
 #include <ecat/wire/registers.hpp>
@@ -286,6 +290,13 @@ TEST_F(SimTool, UsageErrors) {
   r = run_tool("--ring '" + ring_.string() + "'");
   EXPECT_EQ(r.status, 2);
   EXPECT_THAT(r.err, HasSubstr("give exactly one of --udp ADDR:PORT and --interface IFACE"));
+  r = run_tool("--ring '" + ring_.string() + "' --udp 127.0.0.1:0 --redundant-interface eth9");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_THAT(r.err, HasSubstr("--redundant-interface serves the ring's second master port on a "
+                               "raw interface: give the first with --interface IFACE"));
+  r = run_tool("--ring '" + ring_.string() + "' --interface eth9 --redundant-interface eth9");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_THAT(r.err, HasSubstr("--interface and --redundant-interface are both eth9"));
   r = run_tool("--ring '" + ring_.string() + "' --udp 127.0.0.1:99999");
   EXPECT_EQ(r.status, 2);
   EXPECT_THAT(
@@ -310,6 +321,89 @@ TEST_F(SimTool, ListsProfilesAndFaultKinds) {
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("mailbox_abort SLAVE INDEX:SUB CODE [STAGE]"));
   EXPECT_THAT(r.out, HasSubstr("delay_replies MS"));
+}
+
+// The test thread in a private network namespace with two veth pairs, `master` <-> `segment` and
+// `master2` <-> `segment2` (children forked from this thread live there too); back out at the end.
+class TwoVethPairs {
+ public:
+  TwoVethPairs() {
+    if (::geteuid() != 0) {
+      why_not_ = "needs root for a private network namespace with two veth pairs";
+      return;
+    }
+    original_ = ::open("/proc/thread-self/ns/net", O_RDONLY | O_CLOEXEC);
+    if (original_ < 0 || ::unshare(CLONE_NEWNET) != 0) {
+      why_not_ = fmt::format("network namespaces are not available: {}", std::strerror(errno));
+      return;
+    }
+    inside_ = true;
+    for (const char* command : {"ip link add name master type veth peer name segment",
+                                "ip link add name master2 type veth peer name segment2",
+                                "ip link set dev master up", "ip link set dev segment up",
+                                "ip link set dev master2 up", "ip link set dev segment2 up"}) {
+      const int status = std::system((std::string(command) + " >/dev/null 2>&1").c_str());
+      if (status == -1 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+        why_not_ = fmt::format("`{}` failed (iproute2 and the veth driver needed)", command);
+        return;
+      }
+    }
+  }
+  ~TwoVethPairs() {
+    if (inside_) (void)::setns(original_, CLONE_NEWNET);
+    if (original_ >= 0) ::close(original_);
+  }
+  TwoVethPairs(const TwoVethPairs&) = delete;
+  TwoVethPairs& operator=(const TwoVethPairs&) = delete;
+  const std::string& why_not() const { return why_not_; }
+
+ private:
+  int original_ = -1;
+  bool inside_ = false;
+  std::string why_not_;
+};
+
+TEST_F(SimTool, ServesARedundantRingOnTwoInterfacesAndBreaksItOnRequest) {
+  TwoVethPairs ns;
+  if (!ns.why_not().empty()) GTEST_SKIP() << ns.why_not();
+  const std::string first =
+      start_server({"--ring", ring_.string(), "--interface", "segment", "--redundant-interface",
+                    "segment2", "--control", socket_});
+  ASSERT_THAT(first, HasSubstr("ecat sim: serving 3 slaves from "));
+  EXPECT_THAT(first, HasSubstr("segment (primary) and segment2 (secondary"));
+  auto link = ecat::link::RedundantLink::open_raw("master", "master2");
+  ASSERT_TRUE(link.ok()) << link.error().describe();
+  EXPECT_EQ(brd_wkc(**link, 1), 3);
+  EXPECT_EQ((*link)->status().ring, ecat::link::RingState::whole);
+
+  auto r = run_tool("fault inject ring_break 1 --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("ring break after slave 1"));
+  // Both halves answer: the coupler by the primary, the two behind the break by the secondary.
+  EXPECT_EQ(brd_wkc(**link, 2), 3);
+  EXPECT_EQ((*link)->status().ring, ecat::link::RingState::broken);
+  EXPECT_GT((*link)->status().merged, 0u);
+  r = run_tool("status --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("redundant ring:   break after 1"));
+  r = run_tool("fault inject ring_break 3 --control '" + socket_ + "'");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_THAT(r.err, HasSubstr("cannot break after slave 3 (1..2)"));
+  r = run_tool("fault inject ring_heal --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(brd_wkc(**link, 3), 3);
+  EXPECT_EQ((*link)->status().ring, ecat::link::RingState::whole);
+
+  ::kill(child_, SIGTERM);
+  std::string last;
+  for (int i = 0; i < 5; ++i) {
+    last = read_line(10s);
+    if (last.find("stopped") != std::string::npos) break;
+  }
+  EXPECT_THAT(last, HasSubstr("stopped by SIGTERM"));
+  const int exit_status = wait_child(10s);
+  ASSERT_NE(exit_status, -1);
+  EXPECT_EQ(WEXITSTATUS(exit_status), 0);
 }
 
 }  // namespace
