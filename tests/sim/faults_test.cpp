@@ -638,6 +638,10 @@ std::vector<Fault> every_kind() {
       fault::link_up("io", 2),
       fault::master_link_down(),
       fault::master_link_up(),
+      fault::ring_break(2),
+      fault::ring_cut(wire::RedundantPort::secondary),
+      fault::ring_heal(),
+      fault::port_delay(wire::RedundantPort::primary, 250us, wire::RedundantPort::secondary),
   };
 }
 
@@ -691,6 +695,12 @@ TEST(FaultForms, JsonRoundTripsEveryKindAndForm) {
   EXPECT_EQ(to_json(fault::soe_fault("drive", SoeFaultKind::drop_fragment, 17, 2)),
             R"({"kind":"soe_fault","slave":"drive","mode":"drop_fragment","idn":17,"value":2,)"
             R"("drive":0,"write":false})");
+  EXPECT_EQ(to_json(fault::port_delay(wire::RedundantPort::primary, 250us,
+                                     wire::RedundantPort::secondary)),
+            R"({"kind":"port_delay","port":"primary","ms":0.25,"from":"secondary"})");
+  EXPECT_EQ(to_json(fault::ring_break(2)), R"({"kind":"ring_break","after":2})");
+  EXPECT_EQ(describe(fault::ring_cut(wire::RedundantPort::secondary)),
+            "ring cut at the master's secondary port");
   EXPECT_EQ(to_json(fault::voe_fault("mbx", HandlerFaultKind::garble_reply)),
             R"({"kind":"voe_fault","slave":"mbx","mode":"garble_reply"})");
   // Names are escaped (the control channel's clients parse this).

@@ -269,7 +269,7 @@ TEST(RingErrors, SyntaxAndShape) {
   EXPECT_EQ(error_of("simulator:\n  slaves: []\n"),
             "ring.yaml:2: simulator.slaves: expected a non-empty list of slaves");
   EXPECT_EQ(error_of("simulator:\n  slaves: [{name: a, profile: generic}]\n  wires: []\n"),
-            "ring.yaml:3: simulator.wires: unknown key (known: slaves, wiring, faults)");
+            "ring.yaml:3: simulator.wires: unknown key (known: slaves, wiring, faults, redundancy)");
   EXPECT_EQ(error_of("simulator: [1]\n"),
             "ring.yaml:1: simulator: expected a mapping, found a list");
 }
