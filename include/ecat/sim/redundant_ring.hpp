@@ -90,7 +90,7 @@ struct RedundantCabling {
 std::string describe(const RedundantCabling& cabling);
 
 struct RedundantPortsOptions {
-  // The Ethernet addresses of the master's two ports (the requesters): replies carry them.
+  // The master's two port addresses on in-process links (raw: each request's source) for replies.
   wire::MacAddress primary_mac{0x02, 0xEC, 0x00, 0x00, 0x00, 0x01};
   wire::MacAddress secondary_mac{0x02, 0xEC, 0x00, 0x00, 0x00, 0x02};
   RedundantTopology topology{};
