@@ -238,6 +238,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     link_name = link->name();
     max_frame = std::min(link->max_frame_size(), kLargestFrame);
     frame_timeout_ns.store(options.frame_timeout.count());
+    reliable_timeout_ns.store(options.frame_timeout.count());
     send_buffer.assign(max_frame, 0);
   }
 
@@ -248,6 +249,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   std::size_t max_frame = 0;
   std::size_t reliable_index_limit = kIndexCount;
   std::atomic<std::int64_t> frame_timeout_ns{0};
+  std::atomic<std::int64_t> reliable_timeout_ns{0};  // >= frame_timeout_ns (adaptive)
 
   // ---- lifecycle
   std::mutex lifecycle_mutex;
@@ -334,6 +336,18 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
 
   nanoseconds frame_timeout() const noexcept {
     return nanoseconds(frame_timeout_ns.load(std::memory_order_relaxed));
+  }
+  nanoseconds reliable_timeout() const noexcept {
+    return nanoseconds(reliable_timeout_ns.load(std::memory_order_relaxed));
+  }
+  // A late reply: reliable frames get twice the time, up to the ceiling (BusOptions).
+  void on_late_reply() noexcept {
+    stats.late_replies.add();
+    const std::int64_t limit = options.adaptive_frame_timeout_limit.count();
+    const std::int64_t now = reliable_timeout_ns.load(std::memory_order_relaxed);
+    if (limit <= now) return;
+    const std::int64_t raised = now > limit / 2 ? limit : 2 * now;
+    reliable_timeout_ns.store(raised, std::memory_order_relaxed);
   }
 
   bool on_bus_thread() const noexcept {
@@ -585,7 +599,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     const Clock::time_point now = Clock::now();
     if (sent) {
       consecutive_send_errors = 0;
-      frame.deadline = saturating_add(now, frame_timeout());
+      frame.deadline = saturating_add(now, frame.realtime ? frame_timeout() : reliable_timeout());
       stats.frames_sent.add();
       if (frame.realtime) stats.realtime_frames_sent.add();
       stats.datagrams_sent.add(frame.count);
@@ -882,7 +896,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       release_index(index);
       ++k;
     }
-    if (late) stats.late_replies.add();
+    if (late) on_late_reply();
     release_frame(f);
     for (std::size_t r = 0; r < n; ++r)
       resolve(runs[r], now);
@@ -896,7 +910,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     if (same_frame && s.history == History::replied) {
       stats.duplicate_replies.add();
     } else if (same_frame && s.history == History::lost) {
-      stats.late_replies.add();
+      on_late_reply();
     } else {
       stats.unmatched_replies.add();
     }
@@ -925,7 +939,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       FrameSlot& frame = frames[f];
       if (!frame.used || frame.deadline > now) continue;
       stats.frames_lost.add();
-      const nanoseconds timeout = frame_timeout();
+      const nanoseconds timeout = frame.realtime ? frame_timeout() : reliable_timeout();
       const nanoseconds quarantine = options.late_reply_quarantine > nanoseconds(0)
                                          ? options.late_reply_quarantine
                                      : timeout > nanoseconds::max() / 4 ? nanoseconds::max()
@@ -1449,6 +1463,9 @@ Result<void> Bus::start() {
                  fmt::format("reopen backoff must be positive with min <= max, got {} ns .. {} ns",
                              o.reopen_backoff_min.count(), o.reopen_backoff_max.count()));
   }
+  if (o.adaptive_frame_timeout_limit < nanoseconds(0)) {
+    return Error(Errc::invalid_argument, "adaptive_frame_timeout_limit must not be negative");
+  }
   if (o.late_reply_quarantine < nanoseconds(0)) {
     return Error(Errc::invalid_argument, "late_reply_quarantine must not be negative");
   }
@@ -1657,6 +1674,7 @@ Result<void> Bus::set_frame_timeout(nanoseconds timeout) {
                  fmt::format("frame timeout must be positive, got {} ns", timeout.count()));
   }
   impl_->frame_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
+  impl_->reliable_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
   return ok();
 }
 
@@ -1764,6 +1782,7 @@ BusInfo Bus::info() const {
   out.reopen_attempts = s.reopen_attempts.load(std::memory_order_relaxed);
   out.link_reopenable = s.link_reopenable.load(std::memory_order_relaxed);
   out.frame_timeout = s.frame_timeout();
+  out.reliable_frame_timeout = s.reliable_timeout();
   out.max_frame_size = s.max_frame;
   out.realtime_queued = s.rt_incoming_count.load() + s.pub_rt_active.load();
   out.reliable_queued = s.incoming_count.load() + s.pub_fifo.load();

@@ -162,6 +162,57 @@ TEST(BusFaults, LateReplyIsCountedAndNotDeliveredToTheNextCaller) {
   EXPECT_EQ(stats.unmatched_replies + stats.mismatched_replies, 0u);
 }
 
+// With an adaptive ceiling, a late reply doubles the time reliable frames get (never past the
+// ceiling), so a reply as slow again is waited for instead of being given up; without one the
+// timeout stays fixed. set_frame_timeout() starts over from its value.
+TEST(BusFaults, LateRepliesLetReliableFramesWaitLongerUpToTheCeiling) {
+  auto segment = segment_with_value();
+  BusOptions options;
+  options.frame_timeout = 40ms;
+  options.adaptive_frame_timeout_limit = 100ms;
+  auto bus = start_bus(segment, options);
+  TransactOptions no_retry;
+  no_retry.retries = 0;
+  segment->inject(Fault::delay, 60ms);
+  auto first = bus->transact(read_register(), no_retry);
+  ASSERT_FALSE(first);
+  EXPECT_EQ(first.error().code(), Errc::timeout);
+  ASSERT_TRUE(eventually([&] { return bus->stats().late_replies == 1; }));
+  EXPECT_EQ(bus->info().reliable_frame_timeout, 80ms);
+  EXPECT_EQ(bus->info().frame_timeout, 40ms);
+  // As slow again: now within the reliable frames' time.
+  segment->inject(Fault::delay, 60ms);
+  auto second = bus->transact(read_register(), no_retry);
+  ASSERT_TRUE(second) << second.error().describe();
+  EXPECT_EQ(bus->stats().frames_lost, 1u);
+  // Slower than that: lost, late, and raised to the ceiling only.
+  segment->inject(Fault::delay, 120ms);
+  EXPECT_FALSE(bus->transact(read_register(), no_retry));
+  ASSERT_TRUE(eventually([&] { return bus->stats().late_replies == 2; }));
+  EXPECT_EQ(bus->info().reliable_frame_timeout, 100ms);
+  ASSERT_TRUE(bus->set_frame_timeout(30ms));
+  EXPECT_EQ(bus->info().reliable_frame_timeout, 30ms);
+}
+
+TEST(BusFaults, WithoutACeilingLateRepliesLeaveTheTimeoutAlone) {
+  auto segment = segment_with_value();
+  BusOptions options;
+  options.frame_timeout = 40ms;
+  auto bus = start_bus(segment, options);
+  TransactOptions no_retry;
+  no_retry.retries = 0;
+  segment->inject(Fault::delay, 60ms);
+  EXPECT_FALSE(bus->transact(read_register(), no_retry));
+  ASSERT_TRUE(eventually([&] { return bus->stats().late_replies == 1; }));
+  EXPECT_EQ(bus->info().reliable_frame_timeout, 40ms);
+  BusOptions negative;
+  negative.adaptive_frame_timeout_limit = -1ms;
+  auto refused = std::make_unique<Bus>(FakeSegment::make_link(make_segment()), negative);
+  auto started = refused->start();
+  ASSERT_FALSE(started);
+  EXPECT_EQ(started.error().code(), Errc::invalid_argument);
+}
+
 TEST(BusFaults, DuplicateReplyIsCounted) {
   auto segment = segment_with_value();
   segment->inject(Fault::duplicate);

@@ -69,6 +69,13 @@ using Completion = std::function<void(Result<TransactionResult>)>;
 struct BusOptions {
   // Time to wait for the reply to a frame (changeable later with set_frame_timeout()).
   std::chrono::nanoseconds frame_timeout = std::chrono::milliseconds(25);
+  // Reliable frames only: a late reply (the reply to a frame already given up as lost) shows the
+  // replies take longer than the frame timeout (a simulator behind a memory link on a loaded
+  // machine, a ring longer than the timeout was sized for), and doubles the time reliable frames
+  // get, up to this ceiling, so they stop being re-sent only to be answered twice. Zero keeps
+  // the timeout fixed. set_frame_timeout() starts from its value again; realtime frames always
+  // get the frame timeout itself. BusInfo::reliable_frame_timeout tells the current value.
+  std::chrono::nanoseconds adaptive_frame_timeout_limit{0};
   // Reliable frames in flight at once. More pipelines better on long rings; fewer packs better.
   std::size_t max_reliable_frames_in_flight = 4;
   // Realtime frames in flight at once (a realtime transaction larger than one frame needs one
@@ -139,6 +146,9 @@ struct BusInfo {
   // Why the last reopen attempt failed (until the link is reopened).
   std::optional<Error> last_reopen_error;
   std::chrono::nanoseconds frame_timeout{};
+  // What reliable frames get: frame_timeout, or more after late replies
+  // (BusOptions::adaptive_frame_timeout_limit).
+  std::chrono::nanoseconds reliable_frame_timeout{};
   std::size_t max_frame_size = 0;    // largest frame the bus builds
   std::size_t realtime_queued = 0;   // realtime transactions waiting to be sent
   std::size_t reliable_queued = 0;   // reliable transactions with datagrams not yet sent
