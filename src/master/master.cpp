@@ -1,4 +1,6 @@
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <condition_variable>
 #include <map>
 #include <mutex>
@@ -34,6 +36,9 @@ namespace {
 constexpr auto kCallTimeout = 5s;
 // The quiet window of the reference's quiesce before preop_ready and before activation.
 constexpr auto kQuietWindow = 2ms;
+// The ceiling a session with the auto-tuned frame timeout lets reliable frames grow to after late
+// replies (BusOptions::adaptive_frame_timeout_limit).
+constexpr auto kAdaptiveFrameTimeoutLimit = std::chrono::milliseconds(250);
 
 std::chrono::milliseconds ms(std::chrono::nanoseconds d) {
   return std::chrono::duration_cast<std::chrono::milliseconds>(d);
@@ -72,6 +77,8 @@ std::string thread_name(std::string_view base, int instance) {
 
 struct Master::Impl : DomainObserver {
   explicit Impl(MasterConfig c) : config(std::move(c)), instance(acquire_instance()) {
+    for (auto& n : notices)
+      n.impl = this;
     loop.start_thread(thread_name("ecat-control", instance));
   }
   ~Impl() override {
@@ -84,6 +91,36 @@ struct Master::Impl : DomainObserver {
   MasterConfig config;
   const int instance;  // 1, 2, ...: numbers the threads' names (acquire_instance)
   EventHub events;     // before the loop: it outlives every task that publishes
+
+  // A domain's rare notices (degraded, recovered, stopped) go from the bus thread to the loop
+  // through a fixed pool of work items posted with EventLoop::post(Work&): nothing on the bus
+  // thread allocates (a std::function post would). A notice is taken from the pool with one
+  // compare-exchange (any thread may take one), filled, posted; the loop copies it out and frees
+  // it before acting, in posting order. Should every item be in use at once (32 notices queued
+  // and the loop not yet at the first), the notice is dropped, `notices_lost` is set and the loop
+  // then re-reads every cycling domain's health instead. Declared before the loop: a notice
+  // still queued when the loop goes is discarded while the pool still exists.
+  struct DomainNotice final : exec::EventLoop::Work {
+    enum class Kind : std::uint8_t { degraded, recovered, stopped };
+    DomainNotice() noexcept : Work(&DomainNotice::run) {}
+    static void run(Work& self, bool execute) {
+      auto& n = static_cast<DomainNotice&>(self);
+      const Domain* domain = n.domain;
+      const Kind kind = n.kind;
+      const CycleInvalid invalid = n.invalid;
+      const std::uint64_t misses = n.misses;
+      n.busy.store(false, std::memory_order_release);
+      if (execute) n.impl->on_domain_notice(domain, kind, invalid, misses);
+    }
+    Impl* impl = nullptr;
+    std::atomic<bool> busy{false};
+    const Domain* domain = nullptr;
+    Kind kind = Kind::degraded;
+    CycleInvalid invalid{};
+    std::uint64_t misses = 0;
+  };
+  std::array<DomainNotice, 32> notices;
+  std::atomic<bool> notices_lost{false};
 
   // The control endpoint (control_endpoint.hpp): from the first start() whose configuration
   // names one until the master goes (or a start() names another). Its handler calls the
@@ -1042,21 +1079,13 @@ struct Master::Impl : DomainObserver {
     format_detail(e, "{} (expected wkc {}, got {})", to_string(invalid.reason),
                   invalid.expected_wkc, invalid.actual_wkc);
     events.publish(e);
-    loop.post([this, d = &domain, invalid] {
-      if (!owns(d)) return;
-      raise_runtime_fault(
-          "domain:" + d->id(),
-          fmt::format("domain {}: {} (expected wkc {}, got {})", d->id(), to_string(invalid.reason),
-                      invalid.expected_wkc, invalid.actual_wkc));
-    });
+    post_notice(domain, DomainNotice::Kind::degraded, invalid, 0);
   }
   void on_cycle_recovered(Domain& domain) override {
     Event e = make_event(EventKind::domain_health, domain.id());
     e.to = 1;
     events.publish(e);
-    loop.post([this, d = &domain] {
-      if (owns(d)) clear_runtime_fault("domain:" + d->id());
-    });
+    post_notice(domain, DomainNotice::Kind::recovered, {}, 0);
   }
   void on_stopped(Domain& domain, const CycleInvalid& invalid, std::uint64_t misses) override {
     Event e = make_event(EventKind::domain_state, domain.id());
@@ -1064,12 +1093,59 @@ struct Master::Impl : DomainObserver {
     e.to = static_cast<std::uint8_t>(DomainState::stopped);
     format_detail(e, "after {} consecutive misses ({})", misses, to_string(invalid.reason));
     events.publish(e);
-    loop.post([this, d = &domain, reason = invalid.reason, misses] {
-      if (!owns(d)) return;
-      raise_runtime_fault("domain:" + d->id(),
-                          fmt::format("domain {} stopped after {} consecutive misses ({})", d->id(),
-                                      misses, to_string(reason)));
-    });
+    post_notice(domain, DomainNotice::Kind::stopped, invalid, misses);
+  }
+  // Bus thread (any thread): hands a notice to the loop without allocating.
+  void post_notice(const Domain& domain, DomainNotice::Kind kind, const CycleInvalid& invalid,
+                   std::uint64_t misses) noexcept {
+    for (auto& n : notices) {
+      bool free = false;
+      if (!n.busy.compare_exchange_strong(free, true, std::memory_order_acquire)) continue;
+      n.domain = &domain;
+      n.kind = kind;
+      n.invalid = invalid;
+      n.misses = misses;
+      loop.post(n);
+      return;
+    }
+    notices_lost.store(true, std::memory_order_release);
+  }
+  // Loop thread: what a notice means for the session's runtime faults.
+  void on_domain_notice(const Domain* d, DomainNotice::Kind kind, const CycleInvalid& invalid,
+                        std::uint64_t misses) {
+    if (owns(d)) {
+      switch (kind) {
+        case DomainNotice::Kind::degraded:
+          raise_runtime_fault(
+              "domain:" + d->id(),
+              fmt::format("domain {}: {} (expected wkc {}, got {})", d->id(),
+                          to_string(invalid.reason), invalid.expected_wkc, invalid.actual_wkc));
+          break;
+        case DomainNotice::Kind::recovered:
+          clear_runtime_fault("domain:" + d->id());
+          break;
+        case DomainNotice::Kind::stopped:
+          raise_runtime_fault("domain:" + d->id(),
+                              fmt::format("domain {} stopped after {} consecutive misses ({})",
+                                          d->id(), misses, to_string(invalid.reason)));
+          break;
+      }
+    }
+    if (!notices_lost.exchange(false, std::memory_order_acq_rel) || !session) return;
+    // Some notice was dropped (the pool was exhausted): judge every cycling domain as it is now.
+    for (const auto& domain : session->domains) {
+      const DomainStats st = domain->stats();
+      if (st.state != DomainState::cycling) continue;
+      if (st.health.healthy) {
+        clear_runtime_fault("domain:" + domain->id());
+      } else if (st.health.invalid) {
+        raise_runtime_fault(
+            "domain:" + domain->id(),
+            fmt::format("domain {}: {} (expected wkc {}, got {})", domain->id(),
+                        to_string(st.health.invalid->reason), st.health.invalid->expected_wkc,
+                        st.health.invalid->actual_wkc));
+      }
+    }
   }
   // Whether `d` belongs to the running session (a late event may outlive its session).
   bool owns(const Domain* d) const {
@@ -1372,7 +1448,14 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
         s->notify = [&impl](const SlaveNotice& notice) { impl.on_notice(notice); };
         s->events = &impl.events;
         bus::BusOptions options;
-        if (impl.config.frame_timeout) options.frame_timeout = *impl.config.frame_timeout;
+        if (impl.config.frame_timeout) {
+          options.frame_timeout = *impl.config.frame_timeout;
+        } else {
+          // The auto-tuned timeout (auto_frame_timeout) is a guess from the slave count: late
+          // replies let reliable frames wait longer instead of being re-sent (a simulator on a
+          // loaded machine, a ring slower than its count says). A timeout the user set is kept.
+          options.adaptive_frame_timeout_limit = kAdaptiveFrameTimeoutLimit;
+        }
         options.thread_name = thread_name("ecat-cycle", impl.instance);
         if (asks_anything(impl.config.cycle_thread)) {
           // The session outlives its bus, so the report and the holds have a home when the

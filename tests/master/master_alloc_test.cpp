@@ -6,15 +6,19 @@
 // loop (that hand-over allocates and is not part of the cycle); degradation events are rare
 // posts, kept out by generous thresholds so a loaded machine cannot produce them. The second
 // test turns health polls on.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <memory>
+#include <mutex>
 #include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 
 #include <ecat/bus/bus.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/sim/faults.hpp>
 
 #include "master/master_test_support.hpp"
 #include "support/counting_allocator.hpp"
@@ -162,6 +166,77 @@ TEST(MasterAllocations, HealthPollCompletionsAllocateNothingOnTheBusThread) {
   EXPECT_EQ(allocs::bus_thread.load(), 0u)
       << "the bus thread allocated while completing " << completed << " acyclic transactions";
   EXPECT_EQ(master.state(), MasterState::operational);
+  ASSERT_TRUE(master.stop());
+}
+
+// A domain's degraded / recovered notices reach the control loop (the session goes recovering and
+// back to operational) without the bus thread allocating: the master hands them over with work
+// items of its own (EventLoop::post(Work&)), not a std::function. A short WKC fault on the
+// outputs' share of the LRW degrades the domain at its first invalid cycle.
+TEST(MasterAllocations, DomainDegradedAndRecoveredNoticesAllocateNothingOnTheBusThread) {
+  auto server = test::make_sim_server(kRing);
+  ASSERT_TRUE(server);
+  MasterConfig config;
+  config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};
+  config.dc.reset();
+  config.frame_timeout = 1s;
+  DomainConfig main;
+  main.id = "main";
+  main.period = 1ms;
+  main.recovery_threshold = 1;
+  main.miss_threshold = 1'000'000;
+  main.realtime_budget = 50ms;
+  main.exchanges_in_flight = 16;
+  main.stale_after = 10s;
+  std::atomic<std::uint64_t> cycles{0};
+  main.on_cycle = [&cycles](Domain&, const CycleOutcome&) {
+    allocs::is_bus_thread = true;
+    cycles.fetch_add(1, std::memory_order_relaxed);
+  };
+  config.domains.push_back(main);
+  for (const char* name : {"coupler", "inputs", "outputs", "drive"}) {
+    SlaveConfig s;
+    s.name = name;
+    if (std::string(name) != "coupler") s.process_data = ProcessDataRequest::all("main");
+    s.health_poll.reset();
+    config.slaves.push_back(s);
+  }
+  Master master(config);
+  std::mutex m;
+  std::vector<MasterState> states;
+  master.on_state_change([&](MasterState, MasterState to) {
+    std::lock_guard lock(m);
+    states.push_back(to);
+  });
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  ASSERT_TRUE(master.start(std::move(*link)));
+  ASSERT_TRUE(master.await_operational(20s));
+  while (cycles.load() < 20)
+    std::this_thread::sleep_for(1ms);
+
+  allocs::bus_thread = 0;
+  allocs::count_bus_thread = true;
+  ASSERT_TRUE(server->inject(sim::fault::next(sim::fault::logical_wkc_offset("outputs", -1), 5)));
+  const auto recovering_seen = [&] {
+    std::lock_guard lock(m);
+    return std::find(states.begin(), states.end(), MasterState::recovering) != states.end();
+  };
+  const auto until = std::chrono::steady_clock::now() + 10s;
+  while (!recovering_seen() && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(1ms);
+  EXPECT_TRUE(recovering_seen()) << "the degraded notice never reached the loop";
+  auto back = master.await_operational(10s);
+  EXPECT_TRUE(back) << (back ? "" : back.error().describe());
+  const auto settled = cycles.load();
+  while (cycles.load() < settled + 20)
+    std::this_thread::sleep_for(1ms);
+  allocs::count_bus_thread = false;
+  EXPECT_EQ(allocs::bus_thread.load(), 0u)
+      << "the bus thread allocated while the domain degraded and recovered";
+  const auto stats = master.domain("main");
+  ASSERT_TRUE(stats);
+  EXPECT_TRUE((*stats)->stats().health.healthy);
   ASSERT_TRUE(master.stop());
 }
 
