@@ -79,7 +79,7 @@ class Reader {
             ctx_, node, path,
             {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us", "cycle_lock_memory",
              "base_station", "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
-             "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
+             "scan_link_check", "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
              "link_recovery_window_ms", "control", "mailbox_gateway", "mailbox_status"});
         !r) {
       return r.error();
@@ -111,6 +111,10 @@ class Reader {
         auto n = to_int(ctx_, v, p, 0, 1'000'000);
         if (!n) return n.error();
         config.cycle_thread.cpu_dma_latency_us = static_cast<std::int32_t>(*n);
+      } else if (e.key == "scan_link_check") {
+        auto b = to_bool(ctx_, v, p);
+        if (!b) return b.error();
+        config.scan.link_check = *b;
       } else if (e.key == "cycle_lock_memory") {
         auto b = to_bool(ctx_, v, p);
         if (!b) return b.error();

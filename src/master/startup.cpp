@@ -41,6 +41,42 @@ exec::Task<Result<std::uint16_t>> count_slaves(exec::EventLoop& loop, bus::Bus& 
   co_return reply->wkc(0);
 }
 
+exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(exec::EventLoop& loop,
+                                                                 bus::Bus& bus,
+                                                                 std::uint16_t count) {
+  if (count == 0 || count > kMaxAutoIncrementSlaves) co_return std::nullopt;
+  bus::Transaction tx;
+  for (std::uint32_t pos = 0; pos < count; ++pos)
+    tx.aprd(static_cast<std::uint16_t>(pos), reg::kDlStatus, 2);
+  auto reply = co_await exec::transact(loop, bus, std::move(tx));
+  if (!reply) co_return reply.error().context("reading DL status by position");
+  LinkPicture picture;
+  picture.ports.reserve(count);
+  std::uint32_t links = 0;
+  for (std::uint32_t pos = 0; pos < count; ++pos) {
+    // A position that does not answer: the ring changed under the read.
+    if (reply->wkc(pos) != 1) co_return std::nullopt;
+    const auto dl = wire::DlStatus::decode(wire::load_le16(reply->data(pos).data()));
+    std::uint16_t bits = 0;
+    for (std::uint8_t port = 1; port < 4; ++port) {
+      const auto& p = dl.ports[port];
+      // A link not (yet) carrying frames: a partner coming up, or a port held closed.
+      if (p.physical_link != p.communication || (p.physical_link && p.loop_closed)) {
+        picture.complete = false;
+      }
+      if (p.physical_link) ++links;
+      bits = static_cast<std::uint16_t>(bits | (p.physical_link ? 1u << port : 0u) |
+                                        (p.communication ? 1u << (port + 4) : 0u) |
+                                        (p.loop_closed ? 1u << (port + 8) : 0u));
+    }
+    picture.ports.push_back(bits);
+  }
+  // In a tree every slave but the first hangs from exactly one port 1-3 of another: a link more
+  // leads to a device the count does not hold (booting, or the master's second port).
+  if (links != count - 1u) picture.complete = false;
+  co_return picture;
+}
+
 exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
                                                      ScanOptions options) {
   const auto start = Clock::now();
@@ -48,6 +84,7 @@ exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus:
   Clock::time_point since{};
   unsigned samples = 0;
   std::optional<Error> last_error;
+  std::optional<LinkPicture> last_picture;
   while (true) {
     auto count =
         co_await count_slaves(loop, bus, {options.poll + std::chrono::milliseconds(50), 0});
@@ -60,15 +97,30 @@ exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus:
       last_error = count.error();
       current.reset();
       samples = 0;
+      last_picture.reset();
     } else if (!current || *current != *count) {
       current = *count;
       since = now;
       samples = 1;
+      last_picture.reset();
     } else {
       ++samples;
     }
     if (current && *current > 0 && samples >= 2 && now - since >= options.stable) {
       co_return *current;
+    }
+    if (current && *current > 0 && options.link_check) {
+      // The early end: the same count at two polls, and both times the same complete link
+      // picture (every open port leads to a counted slave, nothing half up).
+      auto picture = co_await read_link_picture(loop, bus, *current);
+      if (picture && *picture && (*picture)->complete) {
+        if (samples >= 2 && last_picture && last_picture->ports == (*picture)->ports) {
+          co_return *current;
+        }
+        last_picture = std::move(**picture);
+      } else {
+        last_picture.reset();
+      }
     }
     if (now - start >= options.timeout) {
       std::string seen = current ? fmt::format("last count {}", *current) : "no reply";

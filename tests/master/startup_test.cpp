@@ -13,6 +13,7 @@
 #include <ecat/master/al_control.hpp>
 #include <ecat/master/startup.hpp>
 #include <ecat/master/states.hpp>
+#include <ecat/sim/faults.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
@@ -89,6 +90,46 @@ TEST_F(StartupTest, CountsAssignsResetsAndReachesInit) {
     ASSERT_TRUE(status);
     EXPECT_EQ(status->status.state, AlState::init);
   }
+}
+
+// The scan's early end: a whole ring (every port with a link leads to a counted slave) is known
+// stable at the second poll, long before a 10 s window; without the link check, or when a link
+// leads to a device the count does not hold, the window is waited out (here: the timeout first).
+TEST_F(StartupTest, LinkPictureEndsTheScanEarlyOnlyWhenTheLinksAddUp) {
+  auto picture = run(read_link_picture(loop_, *bus_, 4));
+  ASSERT_TRUE(picture) << picture.error().describe();
+  ASSERT_TRUE(picture->has_value());
+  EXPECT_TRUE((*picture)->complete);
+  ASSERT_EQ((*picture)->ports.size(), 4u);
+  // Slaves 0-2 carry the next one on port 1 (link, communication, open); the last has none.
+  EXPECT_EQ((*picture)->ports[0], (1u << 1) | (1u << 5) | (1u << 10) | (1u << 11));
+  EXPECT_EQ((*picture)->ports[3], (1u << 9) | (1u << 10) | (1u << 11));
+  // A count that claims a slave less: one link too many.
+  auto short_picture = run(read_link_picture(loop_, *bus_, 3));
+  ASSERT_TRUE(short_picture);
+  ASSERT_TRUE(short_picture->has_value());
+  EXPECT_FALSE((*short_picture)->complete);
+  // More than answer: no picture.
+  auto long_picture = run(read_link_picture(loop_, *bus_, 5));
+  ASSERT_TRUE(long_picture);
+  EXPECT_FALSE(long_picture->has_value());
+
+  auto early = run(await_stable_count(
+      loop_, *bus_, {.poll = 2ms, .stable = 10s, .link_check = true, .timeout = 2s}));
+  ASSERT_TRUE(early) << early.error().describe();
+  EXPECT_EQ(*early, 4);
+  auto windowed = run(await_stable_count(
+      loop_, *bus_, {.poll = 2ms, .stable = 10s, .link_check = false, .timeout = 200ms}));
+  ASSERT_FALSE(windowed);
+  EXPECT_EQ(windowed.error().code(), Errc::timeout);
+  // The last slave cut off behind a live link (a device still coming up): the coupler count says
+  // 3, the links say 4.
+  ASSERT_TRUE(server_->inject(sim::fault::disconnect("rtd")));
+  auto cut = run(await_stable_count(
+      loop_, *bus_, {.poll = 2ms, .stable = 10s, .link_check = true, .timeout = 200ms}));
+  ASSERT_FALSE(cut);
+  EXPECT_EQ(cut.error().code(), Errc::timeout);
+  EXPECT_NE(cut.error().message().find("last count 3"), std::string::npos) << cut.error().message();
 }
 
 TEST_F(StartupTest, WrongCountsAndStationRangesAreNamed) {

@@ -49,6 +49,12 @@ struct ScanOptions {
   std::chrono::nanoseconds poll = std::chrono::milliseconds(100);
   // The count must stay the same for this long (and over at least two reads).
   std::chrono::nanoseconds stable = std::chrono::seconds(1);
+  // Ends the wait earlier: the count the same at two consecutive polls and, both times, the same
+  // complete link picture (every slave's DL status read by position; each port 1-3 with a link
+  // carries frames, and the links add up to exactly the counted slaves). A ring where they do not
+  // add up (a device still coming up, a port held closed, a redundant ring's return cable) waits
+  // out `stable` as without it. docs/ARCHITECTURE.md, "Startup".
+  bool link_check = true;
   // Give up (Errc::timeout) when no stable non-zero count was seen for this long.
   std::chrono::nanoseconds timeout = std::chrono::seconds(10);
 };

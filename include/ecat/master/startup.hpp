@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include <ecat/bus/bus.hpp>
@@ -22,7 +23,21 @@ namespace ecat::master {
 exec::Task<Result<std::uint16_t>> count_slaves(exec::EventLoop& loop, bus::Bus& bus,
                                                bus::TransactOptions options = {});
 
-// Polls count_slaves() until it is non-zero and unchanged for `stable`.
+// The ports 1-3 of every slave as its DL status (0x0110) shows them, read by position: one entry
+// per slave (bits 1-3 physical link, 5-7 communication, 9-11 loop closed, by port). `complete`
+// when every port with a link carries frames and the links add up to a tree of exactly the
+// counted slaves (count - 1 of them): no port leads to a device the count does not hold.
+struct LinkPicture {
+  std::vector<std::uint16_t> ports;
+  bool complete = true;
+};
+// Nothing (no error) when a position does not answer or `count` is 0 or beyond auto-increment.
+exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(exec::EventLoop& loop,
+                                                                 bus::Bus& bus,
+                                                                 std::uint16_t count);
+
+// Polls count_slaves() until it is non-zero and unchanged for `stable`, or (link_check) unchanged
+// at two consecutive polls with the same complete link picture at both (read_link_picture).
 exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
                                                      ScanOptions options = {});
 
