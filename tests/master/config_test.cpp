@@ -24,6 +24,7 @@ master:
   frame_timeout_us: 800
   scan_poll_ms: 5
   scan_stable_ms: 50
+  scan_link_check: false
   awaiting_preop_timeout_ms: 7000
   retry_interval_ms: 250
 domains:
@@ -63,6 +64,7 @@ dc: {cycle_us: 500, await_lock: true, lock_policy: recovering, lock_threshold_ns
   EXPECT_TRUE(config->cycle_thread.lock_memory);
   EXPECT_EQ(config->frame_timeout, std::chrono::nanoseconds(800us));
   EXPECT_EQ(config->scan.poll, std::chrono::nanoseconds(5ms));
+  EXPECT_FALSE(config->scan.link_check);
   EXPECT_EQ(config->awaiting_preop_timeout, std::chrono::nanoseconds(7s));
   ASSERT_EQ(config->domains.size(), 2u);
   EXPECT_EQ(config->domains[0].period, std::chrono::nanoseconds(250us));
