@@ -260,6 +260,9 @@ struct Domain::Counters {
   std::atomic<std::int64_t> last_latency{0}, min_latency{std::numeric_limits<std::int64_t>::max()},
       max_latency{0}, latency_sum{0};
   std::atomic<std::uint64_t> latency_count{0};
+  // When the tick in progress started (bus thread), 0 before the first: what an output write
+  // stamps while the domain cycles, instead of reading the clock on the application's hot path.
+  std::atomic<std::int64_t> tick_ns{0};
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -616,6 +619,7 @@ Result<void> Domain::start_cycling() {
     // stopped -> cycling: the bus thread resets its streaks when it sees the new generation.
     restart_generation_.fetch_add(1, std::memory_order_acq_rel);
   }
+  counters_->tick_ns.store(0, std::memory_order_relaxed);  // writes read the clock until a tick
   DomainState expected = s;
   const auto next = transition(s, DomainEvent::start_cycling);
   if (!next || !state_.compare_exchange_strong(expected, *next, std::memory_order_acq_rel)) {
@@ -811,7 +815,11 @@ Result<void> Domain::write_entry(const Entry& e, wire::Bytes data) {
                  fmt::format("cannot write {}: {} bytes given, the SM image has {}",
                              to_string(e.key), data.size(), e.size));
   }
-  const std::int64_t now = to_ns(Clock::now());
+  // While the domain cycles, an output is stamped with the start of the tick in progress (it
+  // leaves with the next one): no clock read on the hot path. Otherwise, the clock.
+  const std::int64_t tick =
+      state() == DomainState::cycling ? counters_->tick_ns.load(std::memory_order_relaxed) : 0;
+  const std::int64_t now = tick != 0 ? tick : to_ns(Clock::now());
   lock_staging();
   std::uint8_t* target = staging_.get() + e.offset;
   const bool changed = std::memcmp(target, data.data(), data.size()) != 0 ||
@@ -849,7 +857,11 @@ Result<void> Domain::write_bits_entry(const Entry& e, std::size_t bit_offset,
                              bit_offset, bit_offset + bit_length, to_string(e.key),
                              std::size_t{e.size} * 8));
   }
-  const std::int64_t now = to_ns(Clock::now());
+  // While the domain cycles, an output is stamped with the start of the tick in progress (it
+  // leaves with the next one): no clock read on the hot path. Otherwise, the clock.
+  const std::int64_t tick =
+      state() == DomainState::cycling ? counters_->tick_ns.load(std::memory_order_relaxed) : 0;
+  const std::int64_t now = tick != 0 ? tick : to_ns(Clock::now());
   lock_staging();
   std::uint8_t* image = staging_.get() + e.offset;
   bool changed = e.output_written_ns.load(std::memory_order_relaxed) == 0;
@@ -1064,6 +1076,7 @@ void Domain::on_tick(const bus::CycleTick& tick) {
   Plan& p = *plan_;  // set before the state first became cycling (acquire above)
   Counters& c = *counters_;
   const auto now = Clock::now();
+  c.tick_ns.store(to_ns(now), std::memory_order_relaxed);
 
   const std::uint32_t generation = restart_generation_.load(std::memory_order_acquire);
   if (generation != p.seen_generation) {

@@ -296,6 +296,7 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
   layout = std::move(plan->layout);
   signals = std::move(plan->signals);
   attachments = std::move(plan->attachments);
+  index_routes();
   mailbox_status = plan->mailbox_status;
   if (mailbox) {
     std::optional<MailboxStatusSource> source;
@@ -712,10 +713,37 @@ Result<void> Slave::Impl::check_mailbox() const {
 }
 
 const Signal* Slave::Impl::find_signal(std::string_view name) const noexcept {
+  if (signal_index.size() == signals.size()) {
+    const auto it = signal_index.find(name);
+    return it == signal_index.end() ? nullptr : &signals[it->second];
+  }
   for (const auto& s : signals) {
     if (s.name == name) return &s;
   }
   return nullptr;
+}
+
+const Slave::Impl::Route* Slave::Impl::route_for(std::uint8_t sm) const noexcept {
+  for (const auto& r : routes) {
+    if (r.sync_manager == sm) return &r;
+  }
+  return nullptr;
+}
+
+void Slave::Impl::index_routes() {
+  routes.clear();
+  for (const auto& a : attachments) {
+    Domain* domain = session.find_domain(a.domain);
+    if (!domain) continue;
+    auto handle = domain->find(PdoKey{self.station(), a.sync_manager});
+    if (!handle) continue;
+    routes.push_back(Route{a.sync_manager, a.size, domain, *handle});
+  }
+  signal_index.clear();
+  for (std::size_t i = 0; i < signals.size(); ++i)
+    signal_index.emplace(signals[i].name, i);
+  // Duplicate names (none expected): the walk in find_signal keeps the first one.
+  if (signal_index.size() != signals.size()) signal_index.clear();
 }
 
 const SmAttachment* Slave::Impl::attachment_for(std::uint8_t sm) const noexcept {
@@ -1166,15 +1194,17 @@ Result<Value> Slave::read_input(std::string_view name) const {
     }
     return decode_scaled(*sig, it->second);
   }
-  Domain* domain = impl_->session.find_domain(a->domain);
-  std::array<std::uint8_t, 512> small{};
+  std::array<std::uint8_t, 512> small;  // not zeroed: read_fresh fills what is used
   std::vector<std::uint8_t> large;
   wire::MutableBytes buffer(small.data(), small.size());
   if (a->size > small.size()) {
     large.resize(a->size);
     buffer = wire::MutableBytes(large.data(), large.size());
   }
-  auto got = domain->read_fresh(PdoKey{station_, sig->sync_manager}, buffer);
+  const Impl::Route* route = impl_->route_for(sig->sync_manager);
+  auto got = route ? route->domain->read_fresh(route->handle, buffer)
+                   : impl_->session.find_domain(a->domain)->read_fresh(
+                         PdoKey{station_, sig->sync_manager}, buffer);
   if (!got) {
     return got.error().context(fmt::format("input \"{}\" of slave {}", name, name_));
   }
@@ -1203,12 +1233,22 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
   if (auto encoded = encode_scaled(*sig, value, staged); !encoded) {
     return encoded.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
   }
-  for (const auto& a : impl_->attachments) {
-    if (a.sync_manager != sig->sync_manager) continue;
-    Domain* domain = impl_->session.find_domain(a.domain);
-    if (auto w = domain->write(PdoKey{station_, a.sync_manager}, staged); !w) {
-      return w.error().context(
-          fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name, name_, a.domain));
+  if (impl_->routes.size() == impl_->attachments.size()) {
+    for (const auto& r : impl_->routes) {
+      if (r.sync_manager != sig->sync_manager) continue;
+      if (auto w = r.domain->write(r.handle, staged); !w) {
+        return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,
+                                             name_, r.domain->id()));
+      }
+    }
+  } else {
+    for (const auto& a : impl_->attachments) {
+      if (a.sync_manager != sig->sync_manager) continue;
+      Domain* domain = impl_->session.find_domain(a.domain);
+      if (auto w = domain->write(PdoKey{station_, a.sync_manager}, staged); !w) {
+        return w.error().context(
+            fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name, name_, a.domain));
+      }
     }
   }
   it->second.swap(staged);

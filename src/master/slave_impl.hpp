@@ -8,6 +8,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include <ecat/config/esi.hpp>
@@ -64,6 +65,17 @@ struct Slave::Impl {
   PdoLayout layout;
   std::vector<Signal> signals;
   std::vector<SmAttachment> attachments;
+  // The hot path's way to its data (read_input / write_output), made when the attachments and
+  // signals are: each attachment's domain and registration handle (no lookup by domain name or
+  // PDO key per call), and the signals by name.
+  struct Route {
+    std::uint8_t sync_manager = 0;
+    std::uint16_t size = 0;
+    Domain* domain = nullptr;
+    PdoHandle handle{};
+  };
+  std::vector<Route> routes;
+  std::unordered_map<std::string_view, std::size_t> signal_index;  // views into `signals`
   // SM1's status mapped into a domain (mailbox status in the cyclic frame), when it is.
   std::optional<detail::MailboxStatusMapping> mailbox_status;
   // The retained output image of each output SyncManager: what write_output staged; written to
@@ -112,6 +124,9 @@ struct Slave::Impl {
   Result<void> check_mailbox() const;
   const Signal* find_signal(std::string_view name) const noexcept;
   const SmAttachment* attachment_for(std::uint8_t sm) const noexcept;
+  const Route* route_for(std::uint8_t sm) const noexcept;
+  // Rebuilds `routes` and `signal_index` from `attachments` and `signals` (under `mutex`).
+  void index_routes();
   // Engineering values of every signal: inputs from `inputs` (per SM image), outputs as staged;
   // 0 where an image is missing (mutex held).
   std::vector<Value> signal_values(

@@ -270,8 +270,10 @@ struct FreshnessInfo {
 };
 
 struct SampleInfo {
-  std::size_t size = 0;                         // bytes copied
-  std::optional<Clock::time_point> updated_at;  // inputs: last valid cycle; outputs: last write
+  std::size_t size = 0;  // bytes copied
+  // inputs: the last valid cycle; outputs: the last write (while the domain cycles, the start of
+  // the cycle tick in which it was written: the write does not read the clock)
+  std::optional<Clock::time_point> updated_at;
   std::optional<Clock::time_point> changed_at;  // last time the bytes changed
   std::optional<FreshnessInfo> freshness;       // inputs only
 };
