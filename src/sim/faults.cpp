@@ -1768,6 +1768,7 @@ struct FaultInjector::Impl {
     bool any_command_offset = false;
     std::vector<std::int64_t> logical;
     std::vector<std::uint8_t> disconnected;
+    bool any_logical = false;
     bool any_disconnected = false;
     bool queued = false;  // a `next N` fault applies
     bool reply_faults = false;
@@ -1785,8 +1786,11 @@ struct FaultInjector::Impl {
       wkc_offset = 0;
       command_offsets.fill(0);
       any_command_offset = false;
-      logical.assign(slaves, 0);
-      disconnected.assign(slaves, 0);
+      // Per slave: cleared only when the last exchange set one (an exchange without such a
+      // fault costs nothing per slave).
+      if (any_logical || logical.size() != slaves) logical.assign(slaves, 0);
+      if (any_disconnected || disconnected.size() != slaves) disconnected.assign(slaves, 0);
+      any_logical = false;
       any_disconnected = false;
       queued = false;
       reply_faults = false;
@@ -1811,6 +1815,7 @@ struct FaultInjector::Impl {
           break;
         case FaultKind::logical_wkc_offset:
           logical[slave] += e.delta;
+          any_logical = true;
           break;
         case FaultKind::disconnect:
           disconnected[slave] = 1;
@@ -1856,6 +1861,7 @@ struct FaultInjector::Impl {
       if (CoeServer* coe = coe_server_of(segment.esc(i))) {
         coe->set_step_observer([this, i](MailboxStage stage, std::uint16_t, std::uint8_t) {
           ++step_counts[i][stage_slot(stage)];
+          steps_counted = true;
         });
       }
     }
@@ -2225,14 +2231,22 @@ struct FaultInjector::Impl {
         woke = true;
       }
     }
-    std::fill(poll_counts.begin(), poll_counts.end(), 0);
-    for (auto& counts : step_counts)
-      counts.fill(0);
+    if (polls_counted) std::fill(poll_counts.begin(), poll_counts.end(), 0);
+    if (steps_counted) {
+      for (auto& counts : step_counts)
+        counts.fill(0);
+    }
+    polls_counted = steps_counted = false;
     if (woke) run_ready();
   }
 
   // Counts healthy AL status polls in a processed frame.
   void count_polls(std::span<const std::uint8_t> frame) {
+    // Only a task waiting for healthy polls reads the counts.
+    const bool wanted = std::any_of(tasks.begin(), tasks.end(), [](const Task& t) {
+      return t.wait == Wait::milestone && t.milestone.kind == Milestone::Kind::healthy_polls;
+    });
+    if (!wanted) return;
     const auto decoded = wire::decode_frame(frame);
     if (!decoded) return;
     for (const wire::DatagramView d : *decoded.frame) {
@@ -2248,6 +2262,7 @@ struct FaultInjector::Impl {
       for (std::size_t i = 0; i < segment.size(); ++i) {
         if (segment.esc(i).station_address() == d.header.adp()) {
           ++poll_counts[i];
+          polls_counted = true;
           break;
         }
       }
@@ -2264,6 +2279,8 @@ struct FaultInjector::Impl {
   ExchangeState current;
   std::vector<std::uint64_t> poll_counts;
   std::vector<std::array<std::uint64_t, kMailboxStageCount>> step_counts;
+  bool polls_counted = false;  // some count is not 0 (cleared at the end of the exchange)
+  bool steps_counted = false;
   std::vector<std::optional<std::uint16_t>> latched;
   std::vector<std::pair<std::size_t, wire::AlState>> refusals;  // refuse_state rules set
   std::vector<std::pair<std::size_t, std::uint8_t>> links_down;

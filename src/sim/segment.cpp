@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <array>
 
 #include <fmt/format.h>
 
@@ -59,18 +60,21 @@ Result<std::size_t> Segment::add_slave(std::string name, std::unique_ptr<Esc> es
   }
   nodes_.push_back(std::move(node));
   const std::size_t index = nodes_.size() - 1;
+  by_name_.emplace(nodes_[index].name, index);
   nodes_[index].esc->set_layout_observer(this, index);
   esc_layout_changed(index);
   port_control_seen_.clear();  // re-plan on the next frame
-  update_dl_status();
+  // Only the new slave and the one it attaches to see a link change: building a ring of N
+  // slaves stays O(N), not O(N^2).
+  update_dl_status(index);
+  if (nodes_[index].parent) update_dl_status(*nodes_[index].parent);
   return index;
 }
 
 std::optional<std::size_t> Segment::find(std::string_view name) const noexcept {
-  for (std::size_t i = 0; i < nodes_.size(); ++i) {
-    if (nodes_[i].name == name) return i;
-  }
-  return std::nullopt;
+  const auto it = by_name_.find(name);
+  if (it == by_name_.end()) return std::nullopt;
+  return it->second;
 }
 
 void Segment::set_link(std::size_t index, std::uint8_t port, bool up) {
@@ -155,19 +159,22 @@ std::int64_t Segment::round_trip_ns() const {
 }
 
 void Segment::update_dl_status() {
-  for (std::size_t i = 0; i < nodes_.size(); ++i) {
-    Node& node = nodes_[i];
-    wire::DlStatus dl = wire::DlStatus::decode(node.esc->read_u16(reg::kDlStatus));
-    for (std::uint8_t port = 0; port < 4; ++port) {
-      const bool connected =
-          port == 0 ? (node.parent.has_value() || i == 0) : node.children[port].has_value();
-      const bool link = connected && node.link_up[port];
-      dl.ports[port].physical_link = link;
-      dl.ports[port].communication = link;
-      dl.ports[port].loop_closed = port == 0 ? !link : !port_open(i, port);
-    }
-    node.esc->pdi_write_u16(reg::kDlStatus, dl.encode());
+  for (std::size_t i = 0; i < nodes_.size(); ++i)
+    update_dl_status(i);
+}
+
+void Segment::update_dl_status(std::size_t i) {
+  Node& node = nodes_[i];
+  wire::DlStatus dl = wire::DlStatus::decode(node.esc->read_u16(reg::kDlStatus));
+  for (std::uint8_t port = 0; port < 4; ++port) {
+    const bool connected =
+        port == 0 ? (node.parent.has_value() || i == 0) : node.children[port].has_value();
+    const bool link = connected && node.link_up[port];
+    dl.ports[port].physical_link = link;
+    dl.ports[port].communication = link;
+    dl.ports[port].loop_closed = port == 0 ? !link : !port_open(i, port);
   }
+  node.esc->pdi_write_u16(reg::kDlStatus, dl.encode());
 }
 
 void Segment::esc_layout_changed(std::size_t tag) {
@@ -240,10 +247,17 @@ void Segment::find_addressed() {
   everyone_.clear();
   hits_.clear();
   positional_.clear();
+  // Where each datagram's hits begin in hits_: every run is in route order as a rule (an LRW
+  // over a domain laid out along the ring, one station), so the runs are merged, not sorted.
+  std::array<std::size_t, kMaxDatagramsPerFrame + 1> run_begin;
+  std::size_t runs = 0;
   for (std::size_t k = 0; k < slots_.size(); ++k) {
     const Slot& slot = slots_[k];
     if (!slot.command) continue;
     valid_.push_back(k);
+    if (runs < kMaxDatagramsPerFrame && (runs == 0 || run_begin[runs - 1] != hits_.size())) {
+      run_begin[runs++] = hits_.size();
+    }
     const auto adp = static_cast<std::uint16_t>(slot.address);
     switch (*slot.command) {
       case wire::Command::nop:
@@ -289,9 +303,23 @@ void Segment::find_addressed() {
         break;
     }
   }
-  // One datagram's hits usually come in route order already (an LRW over a domain laid out along
-  // the ring).
-  if (!std::is_sorted(hits_.begin(), hits_.end())) std::sort(hits_.begin(), hits_.end());
+  if (!std::is_sorted(hits_.begin(), hits_.end())) {
+    bool runs_sorted = true;
+    for (std::size_t r = 0; r < runs && runs_sorted; ++r) {
+      const std::size_t end = r + 1 < runs ? run_begin[r + 1] : hits_.size();
+      runs_sorted = std::is_sorted(hits_.begin() + static_cast<std::ptrdiff_t>(run_begin[r]),
+                                   hits_.begin() + static_cast<std::ptrdiff_t>(end));
+    }
+    if (runs_sorted && runs <= 8) {
+      for (std::size_t r = 1; r < runs; ++r) {
+        const std::size_t end = r + 1 < runs ? run_begin[r + 1] : hits_.size();
+        std::inplace_merge(hits_.begin(), hits_.begin() + static_cast<std::ptrdiff_t>(run_begin[r]),
+                           hits_.begin() + static_cast<std::ptrdiff_t>(end));
+      }
+    } else {
+      std::sort(hits_.begin(), hits_.end());
+    }
+  }
   hits_.erase(std::unique(hits_.begin(), hits_.end()), hits_.end());
   if (!std::is_sorted(positional_.begin(), positional_.end())) {
     std::sort(positional_.begin(), positional_.end());
@@ -308,7 +336,22 @@ void Segment::advance(std::int64_t now_ns) {
 }
 
 void Segment::advance_due(std::int64_t now_ns) {
+  // A slave this frame addresses by station or logical address is advanced in dispatch() right
+  // before it processes (advance_for_frame), so it needs no check here; a frame with a
+  // broadcast addresses every reachable slave. Only the others are asked whether time-driven
+  // work is due: a cyclic LRW over the whole ring costs no per-slave check at all.
+  const bool everyone = !everyone_.empty();
+  hit_.assign(visits_.size(), 0);
+  for (const auto& [position, k] : hits_) {
+    (void)k;
+    hit_[position] = 1;
+  }
   for (std::size_t i = 0; i < nodes_.size(); ++i) {
+    const std::size_t position = i < visit_of_.size() ? visit_of_[i] : kNotVisited;
+    if (position != kNotVisited && (everyone || hit_[position] != 0) &&
+        (hooks_ == nullptr || !hooks_->slave_unreachable(i))) {
+      continue;
+    }
     if (nodes_[i].esc->advance_due(now_ns)) advance_for_frame(i, now_ns);
   }
 }
@@ -340,7 +383,6 @@ void Segment::dispatch_to_every_slave(std::span<std::uint8_t> frame, std::int64_
 }
 
 void Segment::dispatch(std::span<std::uint8_t> frame, std::int64_t now_ns) {
-  find_addressed();
   // Slave-major, as the frame travels: each reachable slave processes the datagrams that address
   // it, in frame order; a slave no datagram addresses only sees the frame pass.
   std::size_t reachable = 0;
@@ -484,20 +526,26 @@ bool Segment::process_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) 
   }
 
   ++frame_serial_;
+  const auto reindex_dirty = [this] {
+    for (const std::size_t i : index_dirty_) {
+      if (nodes_[i].index_dirty) reindex(i);
+    }
+    index_dirty_.clear();
+  };
   if (reference_dispatch_) {
     for (std::size_t i = 0; i < nodes_.size(); ++i)
       advance_for_frame(i, now_ns);
-  } else {
-    advance_due(now_ns);
-  }
-  for (const std::size_t i : index_dirty_) {
-    if (nodes_[i].index_dirty) reindex(i);
-  }
-  index_dirty_.clear();
-
-  if (reference_dispatch_) {
+    reindex_dirty();
     dispatch_to_every_slave(frame, now_ns);
   } else {
+    reindex_dirty();
+    find_addressed();
+    advance_due(now_ns);
+    if (!index_dirty_.empty()) {
+      // Time-driven work changed a slave's addresses or FMMUs: address the frame again.
+      reindex_dirty();
+      find_addressed();
+    }
     dispatch(frame, now_ns);
   }
   if (hooks_ != nullptr) hooks_->after_frame(frame, now_ns);

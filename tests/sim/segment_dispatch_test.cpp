@@ -6,6 +6,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -334,6 +335,62 @@ TEST(SegmentDispatch, AFrameAdvancesOnlyAddressedSlavesAndThoseWithWorkDue) {
       {Command::aprd, 0, wire::physical_address(wire::position_adp(5), reg::kAlStatus), 2}, {});
   ASSERT_TRUE(segment->process_frame(read5, 52'000'000));
   EXPECT_GE(idle.now_ns(), 52'000'000);
+}
+
+// A slave being written by station is advanced by the frame that addresses it (no separate check
+// for it), and its time-driven work (the EEPROM write) completes before it processes the
+// datagram, as when every due slave was advanced first.
+TEST(SegmentDispatch, AnAddressedSlaveWithWorkDueFinishesItBeforeProcessing) {
+  auto segment = make_segment(false);
+  const auto frame_of = [](wire::DatagramHeader header, std::vector<std::uint8_t> data) {
+    std::array<std::uint8_t, wire::kMaxFrameSize> buffer{};
+    wire::FrameBuilder builder(buffer);
+    (void)builder.add(header, wire::Bytes(data));
+    const auto built = builder.finish();
+    return std::vector<std::uint8_t>(built.begin(), built.end());
+  };
+  const auto order = segment->processing_order();
+  Esc& writing = segment->esc(order[0]);
+  // Station 0x1001 for the first slave, then an EEPROM write on it.
+  auto assign = frame_of(
+      {Command::apwr, 0, wire::physical_address(wire::position_adp(0), reg::kStationAddress), 2},
+      {0x01, 0x10});
+  ASSERT_TRUE(segment->process_frame(assign, 1'000'000));
+  auto start_write =
+      frame_of({Command::fpwr, 0, wire::physical_address(0x1001, reg::kSiiControl), 10},
+               {0x01, 0x02, 0x40, 0x00, 0x00, 0x00, 0x34, 0x12, 0x00, 0x00});
+  ASSERT_TRUE(segment->process_frame(start_write, 2'000'000));
+  ASSERT_NE(writing.read_u16(reg::kSiiControl) & 0x8000, 0) << "the write is running";
+  // 50 ms later its SII status, read by station: the write has completed when it is read.
+  auto read = frame_of({Command::fprd, 0, wire::physical_address(0x1001, reg::kSiiControl), 2}, {});
+  ASSERT_TRUE(segment->process_frame(read, 52'000'000));
+  const auto view = wire::decode_frame(read);
+  ASSERT_TRUE(view);
+  const wire::DatagramView d = *view.frame->begin();
+  EXPECT_EQ(d.wkc, 1);
+  EXPECT_EQ(wire::load_le16(d.data.data()) & 0x8000, 0) << "read while still busy";
+}
+
+// add_slave updates the DL status of the new slave and its parent only; the result is what a
+// recomputation over every slave gives (set_link recomputes all).
+TEST(SegmentDispatch, DlStatusBuiltSlaveBySlaveMatchesAFullRecomputation) {
+  auto segment = make_segment(false);
+  std::vector<std::uint16_t> built;
+  for (std::size_t i = 0; i < segment->size(); ++i)
+    built.push_back(segment->esc(i).read_u16(reg::kDlStatus));
+  segment->set_link(0, 0, true);  // no change; recomputes every slave's DL status
+  for (std::size_t i = 0; i < segment->size(); ++i) {
+    EXPECT_EQ(segment->esc(i).read_u16(reg::kDlStatus), built[i]) << "slave " << i;
+  }
+  // The branch parents show their extra ports linked.
+  EXPECT_NE(built[1] & (1u << (4 + 2)), 0u) << "port 2 of s1 carries s4";
+  EXPECT_NE(built[6] & (1u << (4 + 3)), 0u) << "port 3 of s6 carries s9";
+  EXPECT_EQ(segment->find("s9"), std::optional<std::size_t>(9));
+  EXPECT_FALSE(segment->find("s12").has_value());
+  DeviceConfig config;
+  auto esc = make_device(config);
+  ASSERT_TRUE(esc.ok());
+  EXPECT_FALSE(segment->add_slave("s3", std::move(*esc)).ok()) << "a second s3";
 }
 
 }  // namespace

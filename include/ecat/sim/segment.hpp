@@ -3,10 +3,11 @@
 // them (depth first, ports in ESC forwarding order 0 -> 3 -> 1 -> 2), and returns to the master.
 // Every hop costs time, so DC receive-time latches see realistic, topology-dependent times.
 //
-// What a frame costs: the ESCs with time-driven work due (Esc::advance_due: a running SII
-// operation, a watchdog running out, DC SYNC, a device model) advance and note the frame passing
-// (its time, for DC); an ESC a datagram addresses advances just before its first datagram and
-// processes the datagrams that address it; the others are not touched. Indexes kept
+// What a frame costs: an ESC a datagram addresses advances just before its first datagram and
+// processes the datagrams that address it; of the others, those with time-driven work due
+// (Esc::advance_due: a running SII operation, a watchdog running out, DC SYNC, a device model)
+// advance and note the frame passing (its time, for DC), and the rest are not touched (a frame
+// addressing every slave, an LRW over the ring or a broadcast, checks none). Indexes kept
 // as registers change (EscLayoutObserver) find them: configured addresses and aliases for FP*,
 // the FMMUs' logical ranges for LRD/LWR/LRW, the position for AP* (whose ADP the slaves passed
 // increment is computed); broadcasts reach every ESC. An ESC whose addressing or FMMUs change while
@@ -166,6 +167,7 @@ class Segment : private EscLayoutObserver {
   void plan(std::vector<Visit>& visits, std::int64_t& round_trip) const;
   std::int64_t visit(std::size_t index, std::int64_t arrival, std::vector<Visit>& visits) const;
   void update_dl_status();
+  void update_dl_status(std::size_t index);  // one slave's
   void esc_layout_changed(std::size_t tag) override;
   void reindex(std::size_t index);
   void rebuild_logical_index();
@@ -183,6 +185,14 @@ class Segment : private EscLayoutObserver {
   void dispatch_to_every_slave(std::span<std::uint8_t> frame, std::int64_t now_ns);
 
   std::vector<Node> nodes_;
+  // Name -> index (find() and add_slave's duplicate check without a walk over every slave).
+  struct NameHash {
+    using is_transparent = void;
+    std::size_t operator()(std::string_view name) const noexcept {
+      return std::hash<std::string_view>{}(name);
+    }
+  };
+  std::unordered_map<std::string, std::size_t, NameHash, std::equal_to<>> by_name_;
   std::vector<Visit> visits_;  // reused per frame; no allocation in steady state
   std::int64_t round_trip_ = 0;
   bool master_link_ = true;
@@ -213,6 +223,7 @@ class Segment : private EscLayoutObserver {
   std::vector<std::size_t> valid_;
   std::vector<std::size_t> everyone_;
   std::vector<std::pair<std::size_t, std::size_t>> hits_;
+  std::vector<std::uint8_t> hit_;  // by route position: some datagram of this frame hits it
   std::vector<std::pair<std::size_t, std::size_t>> positional_;
 };
 
