@@ -16,10 +16,11 @@
 //   5. heap allocations per cycle on the cycle (bus) thread in steady OP (must be 0), with global
 //      operator new replaced by the tests' counting allocator.
 //
-// Run: ./build/DIR/bench/master_bench [--quick | --full] [--startup [--terminals N]]
+// Run: ./build/DIR/bench/master_bench [--quick | --full] [--startup [--terminals N] [--runs N]]
 //                                     [--fifo PRIORITY]
 //   --quick (default) keeps the whole run under about a minute; --full takes longer samples.
-//   --startup runs section 3 alone (--terminals N: at that size only).
+//   --startup runs section 3 alone, five runs per size (--terminals N: at that size only;
+//   --runs N: N runs per size).
 //   --fifo runs the jitter section's cycle thread with SCHED_FIFO at PRIORITY.
 // The veth section needs root (a veth pair in a private network namespace); without it, it
 // prints "skipped: <reason>". docs/BENCHMARKS.md explains every figure.
@@ -75,6 +76,7 @@ struct Mode {
   bool full = false;
   bool startup_only = false;
   std::optional<std::size_t> terminals;  // section 3 at this size only
+  std::optional<std::size_t> runs;       // section 3's runs per size
   std::optional<int> fifo;
   std::optional<int> jitter_seconds;  // section 2's length per rate
   std::optional<int> alloc_seconds;   // section 5's window
@@ -156,7 +158,7 @@ MasterConfig master_config(std::size_t terminals, std::chrono::nanoseconds perio
 bool write_ring_file(const std::string& path, std::size_t terminals) {
   std::string yaml = ring_yaml(terminals);
   yaml +=
-      "master: {scan_poll_ms: 10, scan_stable_ms: 50, scan_timeout_ms: 10000, "
+      "master: {scan_poll_ms: 10, scan_timeout_ms: 10000, "
       "awaiting_preop_timeout_ms: 120000}\n"
       "dc: false\n"
       "domains:\n  - {id: main, period_us: 1000}\n"
@@ -626,7 +628,7 @@ void section_jitter(const Mode& mode) {
 
 void section_startup(const Mode& mode) {
   heading("3. Master::start to operational (ms), in-process simulator, 1 ms domain");
-  const std::size_t runs = mode.full ? 5 : 1;
+  const std::size_t runs = mode.runs ? *mode.runs : mode.full || mode.startup_only ? 5 : 1;
   struct Run {
     double total = 0, discovery = 0, preop = 0, op = 0;
     std::uint64_t events_missed = 0;
@@ -710,8 +712,9 @@ void section_startup(const Mode& mode) {
   fmt::print(
       "Ring: a ring file (simulator and master sections) of EK1100 + N terminals (EL1809/EL2809 "
       "alternating), every terminal's process data in one domain, no DC. discovery: start -> "
-      "awaiting_preop (slave count polled every 10 ms until stable for 50 ms: "
-      "scan_stable_ms, default 1 s; station addresses, reset block, INIT); ->preop: until the "
+      "awaiting_preop (slave count polled every 10 ms until two polls agree on the count and a "
+      "complete link picture, else until stable for 1 s, the default scan_stable_ms; station "
+      "addresses, reset block, INIT); ->preop: until the "
       "last slave entered PREOP (SII read, mailbox set-up, PREOP writes: the slaves' bring-up); "
       "->op: from there until the master was operational (quiesce, the domain starting to cycle, "
       "the SAFEOP and OP walks). Phases from the master's slave.state events (time_ns). "
@@ -875,10 +878,11 @@ void section_allocations(const Mode& mode, Session& session, const char* what) {
 }
 
 int usage(const char* self) {
-  std::fprintf(stderr,
-               "usage: %s [--quick | --full] [--startup [--terminals N]] [--fifo PRIORITY]\n"
-               "          [--only jitter|hot|alloc] [--jitter-seconds S] [--alloc-seconds S]\n",
-               self);
+  std::fprintf(
+      stderr,
+      "usage: %s [--quick | --full] [--startup [--terminals N] [--runs N]] [--fifo PRIORITY]\n"
+      "          [--only jitter|hot|alloc] [--jitter-seconds S] [--alloc-seconds S]\n",
+      self);
   return 2;
 }
 
@@ -895,6 +899,8 @@ int main(int argc, char** argv) {
       mode.startup_only = true;
     } else if (std::strcmp(argv[i], "--terminals") == 0 && i + 1 < argc) {
       mode.terminals = static_cast<std::size_t>(std::atoi(argv[++i]));
+    } else if (std::strcmp(argv[i], "--runs") == 0 && i + 1 < argc) {
+      mode.runs = static_cast<std::size_t>(std::max(1, std::atoi(argv[++i])));
     } else if (std::strcmp(argv[i], "--fifo") == 0 && i + 1 < argc) {
       mode.fifo = std::atoi(argv[++i]);
     } else if (std::strcmp(argv[i], "--jitter-seconds") == 0 && i + 1 < argc) {
