@@ -15,6 +15,10 @@
 //      (bench/domain_bench.cpp covers the domain's cycle cost by image size; not repeated here.)
 //   5. heap allocations per cycle on the cycle (bus) thread in steady OP (must be 0), with global
 //      operator new replaced by the tests' counting allocator.
+//   6. cable redundancy: cycles lost at a cable break and at its heal, the master on a
+//      link::RedundantLink over sim::RedundantPorts (in process) with a 1 ms domain, the break at
+//      a random point each time (between two random slaves, or a master port's cable); target:
+//      none beyond the one in flight at the moment of the change.
 //
 // Run: ./build/DIR/bench/master_bench [--quick | --full] [--startup [--terminals N] [--runs N]]
 //                                     [--fifo PRIORITY]
@@ -22,6 +26,7 @@
 //   --startup runs section 3 alone, five runs per size (--terminals N: at that size only;
 //   --runs N: N runs per size).
 //   --fifo runs the jitter section's cycle thread with SCHED_FIFO at PRIORITY.
+//   --only jitter|hot|alloc|redundancy runs one section (--breaks N: section 6's breaks).
 // The veth section needs root (a veth pair in a private network namespace); without it, it
 // prints "skipped: <reason>". docs/BENCHMARKS.md explains every figure.
 
@@ -47,12 +52,14 @@
 #include <unistd.h>
 
 #include <ecat/bus/bus.hpp>
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/cycler.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/signal.hpp>
 #include <ecat/master/slave.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 #include <ecat/wire/frame.hpp>
@@ -80,7 +87,8 @@ struct Mode {
   std::optional<int> fifo;
   std::optional<int> jitter_seconds;  // section 2's length per rate
   std::optional<int> alloc_seconds;   // section 5's window
-  std::string only;                   // run one section: jitter, hot, alloc
+  std::string only;                   // run one section: jitter, hot, alloc, redundancy
+  std::optional<int> breaks;          // section 6's breaks
 };
 
 double ms_since(Clock::time_point from, Clock::time_point to) {
@@ -877,11 +885,132 @@ void section_allocations(const Mode& mode, Session& session, const char* what) {
       session.master->status().slave_count);
 }
 
+// ---- 6. cable redundancy: cycles lost at a break ----------------------------------------------
+
+// Cycles that did not come back valid.
+std::uint64_t invalid_cycles(const ecat::master::DomainStats& s) {
+  return s.wkc_mismatch_count + s.timeout_count + s.expired_count + s.overrun_count +
+         s.link_error_count;
+}
+
+void section_redundancy(const Mode& mode) {
+  using ecat::sim::RedundantTopology;
+  using ecat::wire::RedundantPort;
+  heading("6. cable redundancy: cycles lost at a cable break and at its heal (in process)");
+  constexpr std::size_t kTerminals = 16;
+  auto made = make_server(kTerminals);
+  if (!made) {
+    fmt::print("error: {}\n", made.error().describe());
+    return;
+  }
+  Session session;
+  session.server = std::move(*made);
+  ecat::sim::RedundantPortsOptions port_options;
+  auto ports = ecat::sim::RedundantPorts::create(*session.server, port_options);
+  if (!ports) {
+    fmt::print("error: {}\n", ports.error().describe());
+    return;
+  }
+  ecat::link::RedundantLinkOptions link_options;
+  link_options.primary_mac = port_options.primary_mac;
+  link_options.secondary_mac = port_options.secondary_mac;
+  auto link =
+      ecat::link::RedundantLink::open((*ports)->take_link(RedundantPort::primary),
+                                      (*ports)->take_link(RedundantPort::secondary), link_options);
+  if (!link) {
+    fmt::print("error: {}\n", link.error().describe());
+    return;
+  }
+  ecat::link::RedundantLink* redundant = link->get();
+  if (!session.run(std::move(*link), master_config(kTerminals, 1ms))) {
+    fmt::print("error: cannot bring up the redundant session: {}\n", session.error);
+    return;
+  }
+  Domain* domain = session.domain();
+  if (domain == nullptr) {
+    fmt::print("error: no domain\n");
+    return;
+  }
+  const std::size_t slaves = kTerminals + 1;
+  const int breaks = mode.breaks ? *mode.breaks : mode.full ? 500 : 60;
+  // After each change: this many cycles must pass before the next (the change's losses have
+  // shown by then: a frame is lost or late within its own cycle and the next).
+  constexpr std::uint64_t kSettleCycles = 30;
+  std::uint64_t seed = 0x9E3779B97F4A7C15ull;
+  const auto next_random = [&seed] {
+    seed ^= seed << 13;
+    seed ^= seed >> 7;
+    seed ^= seed << 17;
+    return seed;
+  };
+  struct Tally {
+    std::uint64_t events = 0, lost = 0, worst = 0, none = 0, one = 0, more = 0, stuck = 0;
+    void add(std::uint64_t n) {
+      ++events;
+      lost += n;
+      worst = std::max(worst, n);
+      (n == 0 ? none : n == 1 ? one : more) += 1;
+    }
+  };
+  Tally at_break, at_heal, at_cut;
+  const auto change = [&](const RedundantTopology& topology, Tally& tally) {
+    const auto before = domain->stats();
+    if (auto r = (*ports)->set_topology(topology); !r) {
+      fmt::print("error: {}\n", r.error().describe());
+      return false;
+    }
+    const bool settled = wait_for(
+        [&] { return domain->stats().cycle_count >= before.cycle_count + kSettleCycles; }, 5s);
+    const auto after = domain->stats();
+    if (!settled) ++tally.stuck;
+    tally.add(invalid_cycles(after) - invalid_cycles(before));
+    return true;
+  };
+  const auto started = Clock::now();
+  for (int i = 0; i < breaks; ++i) {
+    // One in eight a master port's cable, else between two slaves.
+    const std::uint64_t r = next_random();
+    const bool cut = r % 8 == 0;
+    const RedundantTopology topology =
+        cut ? RedundantTopology::cut_at((r >> 3) % 2 == 0 ? RedundantPort::primary
+                                                          : RedundantPort::secondary)
+            : RedundantTopology::broken_after(1 + (r >> 3) % (slaves - 1));
+    if (!change(topology, cut ? at_cut : at_break)) return;
+    if (!change(RedundantTopology::whole_ring(), at_heal)) return;
+  }
+  const double seconds = ms_since(started, Clock::now()) / 1e3;
+  const auto link_status = redundant->status();
+  fmt::print("{:<28} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}   {}\n", "change", "events", "lost", "max",
+             "0 lost", "1 lost", ">1 lost", "target");
+  const auto row = [](const char* what, const Tally& t) {
+    fmt::print("{:<28} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}   {}\n", what, t.events, t.lost, t.worst,
+               t.none, t.one, t.more, "<= 1 per change (the one in flight)");
+  };
+  row("break between two slaves", at_break);
+  row("master port cable cut", at_cut);
+  row("heal (ring whole again)", at_heal);
+  const std::uint64_t stuck = at_break.stuck + at_cut.stuck + at_heal.stuck;
+  fmt::print(
+      "{} slaves, 1 ms domain, {} changes in {:.1f} s, each followed by {} cycles; lost: cycles "
+      "that did not come back valid (working counter, timeout, expiry, overrun, link error) from "
+      "the change to {} cycles after it{}. link: {} breaks, {} heals seen, {} merged replies, {} "
+      "lone bounces, {} merge-window timeouts. master: {}\n",
+      slaves, at_break.events + at_cut.events + at_heal.events, seconds, kSettleCycles,
+      kSettleCycles,
+      stuck > 0 ? fmt::format(" ({} changes saw fewer cycles within 5 s)", stuck) : std::string(),
+      link_status.ring_breaks, link_status.ring_heals, link_status.merged, link_status.lone_bounces,
+      link_status.merge_timeouts, ecat::master::to_string(session.master->state()));
+  (void)session.master->stop();
+  session.master.reset();
+  ports->reset();
+}
+
 int usage(const char* self) {
   std::fprintf(
       stderr,
       "usage: %s [--quick | --full] [--startup [--terminals N] [--runs N]] [--fifo PRIORITY]\n"
-      "          [--only jitter|hot|alloc] [--jitter-seconds S] [--alloc-seconds S]\n",
+      "          [--only jitter|hot|alloc|redundancy] [--jitter-seconds S] [--alloc-seconds S]\n"
+      "          [--breaks N]\n",
       self);
   return 2;
 }
@@ -907,9 +1036,12 @@ int main(int argc, char** argv) {
       mode.jitter_seconds = std::max(1, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--alloc-seconds") == 0 && i + 1 < argc) {
       mode.alloc_seconds = std::max(1, std::atoi(argv[++i]));
+    } else if (std::strcmp(argv[i], "--breaks") == 0 && i + 1 < argc) {
+      mode.breaks = std::max(1, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc) {
       mode.only = argv[++i];
-      if (mode.only != "jitter" && mode.only != "hot" && mode.only != "alloc") {
+      if (mode.only != "jitter" && mode.only != "hot" && mode.only != "alloc" &&
+          mode.only != "redundancy") {
         return usage(argv[0]);
       }
     } else {
@@ -954,6 +1086,7 @@ int main(int argc, char** argv) {
       fmt::print("error: {}\n", session.error);
     }
   }
+  if (runs("redundancy")) section_redundancy(mode);
   fmt::print("\n(total {:.1f} s)\n", ms_since(t0, Clock::now()) / 1e3);
   return 0;
 }

@@ -90,6 +90,33 @@ std::string_view to_string(RingState state) noexcept {
   return "unknown";
 }
 
+std::string_view to_string(RingBreak::Where where) noexcept {
+  switch (where) {
+    case RingBreak::Where::primary_cable:
+      return "primary_cable";
+    case RingBreak::Where::secondary_cable:
+      return "secondary_cable";
+    case RingBreak::Where::between_slaves:
+      break;
+  }
+  return "between_slaves";
+}
+
+std::string describe(const RingBreak& b) {
+  switch (b.where) {
+    case RingBreak::Where::primary_cable:
+      return fmt::format("at the primary port's cable (slave {}, station 0x{:04X}, port 0)",
+                         b.before_position, b.before_station);
+    case RingBreak::Where::secondary_cable:
+      return fmt::format("at the secondary port's cable (slave {}, station 0x{:04X}, port 1)",
+                         b.before_position, b.before_station);
+    case RingBreak::Where::between_slaves:
+      break;
+  }
+  return fmt::format("between slave {} (station 0x{:04X}) and slave {} (station 0x{:04X})",
+                     b.before_position, b.before_station, b.after_position, b.after_station);
+}
+
 struct RedundantLink::Impl {
   RedundantLinkOptions options;
   std::array<Leg, 2> legs;

@@ -116,8 +116,15 @@ Result<DcPlan> plan_dc(std::span<const DcSlaveSnapshot> slaves, std::int64_t mas
                              "on (more slaves than open ports; DL status of slave 0 is 0x{:04X})",
                              who(k, slaves[k].station), slaves[0].dl_status));
   }
-  for (auto& o : stack) {
+  for (std::size_t k = 0; k < stack.size(); ++k) {
+    Open& o = stack[k];
     if (auto port = next_port(o)) {
+      // The ring's way back to the master's second port leaves the deepest slave, once.
+      if (options.ring_returns_to_master && k + 1 == stack.size()) {
+        ++o.next;
+        if (!next_port(o)) continue;
+        port = next_port(o);
+      }
       return Error(Errc::malformed,
                    fmt::format("DC topology: {} has port {} open (DL status 0x{:04X}) but no "
                                "slave follows behind it",

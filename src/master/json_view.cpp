@@ -161,6 +161,35 @@ Json counters_json(const MasterCounters& c) {
   return out;
 }
 
+Json redundancy_json(const link::RedundancyStatus& r) {
+  const auto port = [](const link::RedundantPortStatus& p) {
+    return Json{{"name", p.name},
+                {"healthy", p.healthy},
+                {"frames_sent", p.frames_sent},
+                {"frames_received", p.frames_received},
+                {"reopens", p.reopens}};
+  };
+  Json out{{"topology", std::string(link::to_string(r.topology))},
+           {"ring", std::string(link::to_string(r.ring))},
+           {"primary", port(r.primary)},
+           {"secondary", port(r.secondary)},
+           {"ring_breaks", r.ring_breaks},
+           {"ring_heals", r.ring_heals},
+           {"merged", r.merged},
+           {"lone_bounces", r.lone_bounces},
+           {"merge_timeouts", r.merge_timeouts}};
+  if (r.break_location) {
+    const auto& b = *r.break_location;
+    out["break"] = {{"where", std::string(link::to_string(b.where))},
+                    {"before", {{"position", b.before_position}, {"station", b.before_station}}},
+                    {"after", {{"position", b.after_position}, {"station", b.after_station}}},
+                    {"text", link::describe(b)}};
+  } else {
+    out["break"] = nullptr;
+  }
+  return out;
+}
+
 Json status_json(Master& master) {
   const MasterStatus st = master.status();
   Json out{{"state", std::string(to_string(st.state))},
@@ -201,6 +230,7 @@ Json status_json(Master& master) {
                                 {"domains", st.illegal_domain_transitions}};
   out["dc"] = dc_json(master);
   if (!st.cycle_thread.empty()) out["cycle_thread"] = st.cycle_thread;
+  if (st.redundancy) out["redundancy"] = redundancy_json(*st.redundancy);
   return out;
 }
 

@@ -21,8 +21,11 @@ Json domain_json(const DomainSummary& summary);
 // Error when DC does not run: {"error": why}.
 Json dc_json(Master& master);
 Json counters_json(const MasterCounters& counters);
+// A redundant link's ports and ring, and where the ring is open ("break": null when whole or not
+// located).
+Json redundancy_json(const link::RedundancyStatus& redundancy);
 // state, desired target, link, slaves (summaries), domains, activation failures, runtime faults,
-// last failure, illegal transition counts.
+// last failure, illegal transition counts; "redundancy" on a redundant link.
 Json status_json(Master& master);
 
 }  // namespace ecat::master::detail

@@ -19,6 +19,7 @@
 #include <ecat/master/control_endpoint.hpp>
 #include <ecat/master/mailbox_gateway.hpp>
 #include <ecat/master/master.hpp>
+#include <ecat/master/ring_break.hpp>
 #include <ecat/master/startup.hpp>
 
 #include "cycle_thread.hpp"
@@ -527,6 +528,8 @@ struct Master::Impl : DomainObserver {
       stations.push_back(static_cast<std::uint16_t>(s->config.base_station + pos));
     DcInitOptions options;
     options.threshold = s->config.dc->lock_threshold;
+    // Two master ports: the last slave's open port leads back to the second one.
+    options.plan.ring_returns_to_master = s->bus->info().redundancy.has_value();
     auto result = co_await initialize_dc(loop, *s->bus, std::move(stations), options);
     std::lock_guard lock(mutex);
     if (result) {
@@ -858,8 +861,15 @@ struct Master::Impl : DomainObserver {
     std::optional<exec::Clock::time_point> down_since;
     // A redundant link's topology and ring as last reported (link.redundancy events).
     std::optional<std::pair<link::RedundancyTopology, link::RingState>> redundancy;
+    // While the ring is broken, the slaves' DL status is read again every kLocatePeriod (the
+    // break may move without the ring's state changing): one locate_break at a time.
+    bool locating = false;
+    std::optional<exec::Clock::time_point> located_at;
+    std::optional<link::RingBreak> reported;  // the break the last event named
   };
-  LinkWatch link_watch;  // loop thread; the current session's
+  static constexpr std::chrono::milliseconds kLocatePeriod{200};
+  std::optional<link::RingBreak> ring_break;  // guarded by `mutex`; for status()
+  LinkWatch link_watch;                       // loop thread; the current session's
 
   // The link as the bus reports it. A failed link is reopened by the bus with a bounded backoff:
   // meanwhile the session is recovering (runtime fault "link"), and it heals by itself once the
@@ -907,9 +917,27 @@ struct Master::Impl : DomainObserver {
       const auto seen = std::make_pair(info.redundancy->topology, info.redundancy->ring);
       if (seen != w.redundancy && seen.second != link::RingState::unknown) {
         w.redundancy = seen;
-        events.publish(make_event(
-            EventKind::link_redundancy, {},
-            fmt::format("{}, ring {}", link::to_string(seen.first), link::to_string(seen.second))));
+        if (seen.second == link::RingState::broken) {
+          // The event waits for the slaves' word on where the ring is open.
+          w.reported.reset();
+          if (!w.locating) {
+            w.locating = true;
+            exec::spawn(loop, locate_break(s, true));
+          }
+        } else {
+          {
+            std::lock_guard lock(mutex);
+            ring_break.reset();
+          }
+          w.reported.reset();
+          events.publish(make_event(EventKind::link_redundancy, {},
+                                    fmt::format("{}, ring {}", link::to_string(seen.first),
+                                                link::to_string(seen.second))));
+        }
+      } else if (w.redundancy && w.redundancy->second == link::RingState::broken && !w.locating &&
+                 (!w.located_at || now - *w.located_at >= kLocatePeriod)) {
+        w.locating = true;
+        exec::spawn(loop, locate_break(s, false));
       }
     }
     if (info.link_reopens != w.reopens) {
@@ -939,6 +967,55 @@ struct Master::Impl : DomainObserver {
     return true;
   }
   static constexpr const char* kLinkFaultKey = "link";
+
+  // Where the broken redundant ring is open: every slave's DL status (0x0110), one frame through
+  // both ports (locate_ring_break). Publishes link.redundancy naming the break when `announce`
+  // (the ring was just seen broken) or when the break moved; the ring healed meanwhile: nothing.
+  exec::Task<void> locate_break(std::shared_ptr<Session> s, bool announce) {
+    std::vector<RingPortReading> readings(s->slave_count);
+    bus::Transaction tx;
+    for (std::uint16_t pos = 0; pos < s->slave_count; ++pos) {
+      readings[pos].station = static_cast<std::uint16_t>(s->config.base_station + pos);
+      tx.fprd(readings[pos].station, wire::reg::kDlStatus, 2);
+    }
+    std::optional<Error> failed;
+    if (s->slave_count > 0) {
+      auto reply = co_await exec::transact(loop, *s->bus, std::move(tx));
+      if (reply) {
+        for (std::uint16_t pos = 0; pos < s->slave_count; ++pos) {
+          if (reply->wkc(pos) == 1) {
+            readings[pos].dl_status =
+                wire::DlStatus::decode(wire::load_le16(reply->data(pos).data()));
+          }
+        }
+      } else {
+        failed = reply.error();
+      }
+    }
+    LinkWatch& w = link_watch;
+    if (session != s || s->stopping) co_return;
+    w.locating = false;
+    w.located_at = exec::Clock::now();
+    if (!w.redundancy || w.redundancy->second != link::RingState::broken) co_return;
+    const auto found = failed ? std::nullopt : locate_ring_break(readings);
+    {
+      std::lock_guard lock(mutex);
+      ring_break = found;
+    }
+    if (!announce && found == w.reported) co_return;
+    w.reported = found;
+    std::string where;
+    if (found) {
+      where = " " + link::describe(*found);
+    } else if (failed) {
+      where = " (not located: " + failed->describe() + ")";
+    } else {
+      where = " (not located: every slave that answered reports its links up)";
+    }
+    events.publish(
+        make_event(EventKind::link_redundancy, {},
+                   fmt::format("{}, ring broken{}", link::to_string(w.redundancy->first), where)));
+  }
 
   // A fatal subsystem exit: the session ends and the master goes idle with last_failure saying
   // why. With the link still up the slaves are walked to INIT first (a failure after the ring
@@ -1474,6 +1551,10 @@ Result<void> Master::start(std::unique_ptr<link::Link> link) {
           });
         };
         impl.link_watch = {};
+        {
+          std::lock_guard lock(impl.mutex);
+          impl.ring_break.reset();
+        }
         s->bus = std::make_unique<bus::Bus>(std::move(l), options);
         if (auto r = s->bus->start(); !r) co_return r.error().context("starting the bus");
         {
@@ -1795,6 +1876,8 @@ MasterStatus Master::status() const {
     if (impl_->session) {
       out.link = impl_->session->bus ? impl_->session->bus->link_name() : "";
       if (impl_->session->bus) out.redundancy = impl_->session->bus->info().redundancy;
+      if (out.redundancy && out.redundancy->ring == link::RingState::broken)
+        out.redundancy->break_location = impl_->ring_break;
       out.slave_count = impl_->session->slave_count;
       for (const auto& slave : impl_->session->slaves)
         out.illegal_slave_transitions += SlaveAccess::refused_transitions(*slave);

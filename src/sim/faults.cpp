@@ -1851,6 +1851,32 @@ struct FaultInjector::Impl {
     }
   };
 
+  // The DL status the slaves report for the cabling (Segment::set_reported_link), set at every
+  // cabling change: the last slave's port 1 has a link while the secondary's cable is in; a break
+  // after slave n-1 takes the link of slave n-1's port 1 and slave n's port 0 (both close their
+  // loops); a cut master cable that of slave 0's port 0 or the last slave's port 1. Without a
+  // second master port the segment's cables speak for themselves again.
+  void report_links() {
+    const std::size_t n = segment.size();
+    for (std::size_t i = 0; i < n; ++i) {
+      segment.set_reported_link(i, 0, std::nullopt);
+      segment.set_reported_link(i, 1, std::nullopt);
+    }
+    if (!cabling || n == 0) return;
+    const RedundantTopology& topology = cabling->topology;
+    const bool cut = topology.kind == RedundantTopology::Kind::master_break;
+    if (cut && topology.master_break == wire::RedundantPort::primary) {
+      segment.set_reported_link(0, 0, false);
+    }
+    segment.set_reported_link(n - 1, 1,
+                              !(cut && topology.master_break == wire::RedundantPort::secondary));
+    if (topology.kind == RedundantTopology::Kind::break_after && topology.break_after >= 1 &&
+        topology.break_after < n) {
+      segment.set_reported_link(topology.break_after - 1, 1, false);
+      segment.set_reported_link(topology.break_after, 0, false);
+    }
+  }
+
   explicit Impl(Segment& s) : segment(s) {
     const std::size_t n = segment.size();
     current.reset(n);
@@ -2064,12 +2090,15 @@ struct FaultInjector::Impl {
       // Checked at injection; a detached ring (the ports gone meanwhile) ignores them.
       case FaultKind::ring_break:
         if (cabling) cabling->topology = RedundantTopology::broken_after(e.after);
+        report_links();
         break;
       case FaultKind::ring_cut:
         if (cabling) cabling->topology = RedundantTopology::cut_at(e.master_port);
+        report_links();
         break;
       case FaultKind::ring_heal:
         if (cabling) cabling->topology = RedundantTopology::whole_ring();
+        report_links();
         break;
       case FaultKind::port_delay:
         if (cabling) {
@@ -2311,11 +2340,13 @@ Result<void> FaultInjector::attach_redundant_ring(const RedundantCabling& base) 
   }
   s.cabling = base;
   s.cabling_base = base;
+  s.report_links();
   return ok();
 }
 
 void FaultInjector::detach_redundant_ring() {
   impl_->cabling.reset();
+  impl_->report_links();
 }
 
 const std::optional<RedundantCabling>& FaultInjector::redundant_cabling() const noexcept {
@@ -2329,6 +2360,7 @@ Result<void> FaultInjector::set_redundant_topology(const RedundantTopology& topo
     return std::move(r).error();
   }
   s.cabling->topology = topology;
+  s.report_links();
   return ok();
 }
 
@@ -2377,7 +2409,10 @@ void FaultInjector::clear() {
   for (const auto& [slave, state] : s.refusals)
     s.segment.esc(slave).set_al_refusal(state, std::nullopt);
   s.refusals.clear();
-  if (s.cabling) s.cabling = s.cabling_base;
+  if (s.cabling) {
+    s.cabling = s.cabling_base;
+    s.report_links();
+  }
   for (const auto& [slave, port] : s.links_down)
     s.segment.set_link(slave, port, true);
   s.links_down.clear();

@@ -158,6 +158,17 @@ std::int64_t Segment::round_trip_ns() const {
   return round_trip;
 }
 
+void Segment::set_reported_link(std::size_t index, std::uint8_t port, std::optional<bool> up) {
+  if (index >= nodes_.size() || port > 3) return;
+  nodes_[index].reported_link[port] = up;
+  update_dl_status(index);  // only this ESC's status changes
+}
+
+// DL status 0x0110, per port p: bit 4+p physical link, bit 8+2p loop closed, bit 9+2p
+// communication established (the ESC datasheet's register description as public masters read it:
+// IgH's fsm_slave_scan.c link_up / loop_closed / signal_detected, ethercrab's DlStatus). A port
+// without link closes its loop (auto mode); one with link opens it unless DL control 0x0101
+// forces it closed.
 void Segment::update_dl_status() {
   for (std::size_t i = 0; i < nodes_.size(); ++i)
     update_dl_status(i);
@@ -169,10 +180,16 @@ void Segment::update_dl_status(std::size_t i) {
   for (std::uint8_t port = 0; port < 4; ++port) {
     const bool connected =
         port == 0 ? (node.parent.has_value() || i == 0) : node.children[port].has_value();
-    const bool link = connected && node.link_up[port];
+    bool link = connected && node.link_up[port];
+    bool loop_closed = port == 0 ? !link : !port_open(i, port);
+    if (node.reported_link[port]) {
+      link = *node.reported_link[port];
+      const std::uint8_t control = (node.esc->read_u8(reg::kDlPortControl) >> (2 * port)) & 0x3;
+      loop_closed = !link || control == 3;
+    }
     dl.ports[port].physical_link = link;
     dl.ports[port].communication = link;
-    dl.ports[port].loop_closed = port == 0 ? !link : !port_open(i, port);
+    dl.ports[port].loop_closed = loop_closed;
   }
   node.esc->pdi_write_u16(reg::kDlStatus, dl.encode());
 }

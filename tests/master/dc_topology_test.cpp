@@ -223,6 +223,40 @@ TEST(DcPlan, OpenPortWithNothingBehindIt) {
       << plan.error().message();
 }
 
+// A redundant ring: the last slave's port 1 is cabled back to the master's second port. The
+// plan accepts that one open port (and only on the last slave) when told so, with the delays of
+// the line.
+TEST(DcPlan, RedundantRingReturnsToTheMaster) {
+  Model model({line_node(), line_node(), line_node()});
+  auto built = model.build();
+  auto line = plan_dc(built.snapshots, kMasterTime);
+  ASSERT_TRUE(line) << line.error().describe();
+  built.snapshots[2].dl_status = dl_status({true, true, false, false});
+  auto plain = plan_dc(built.snapshots, kMasterTime);
+  ASSERT_FALSE(plain);
+  EXPECT_NE(plain.error().message().find("slave 2 (station 0x1003) has port 1 open"),
+            std::string::npos)
+      << plain.error().message();
+  DcPlanOptions options;
+  options.ring_returns_to_master = true;
+  auto ring = plan_dc(built.snapshots, kMasterTime, options);
+  ASSERT_TRUE(ring) << ring.error().describe();
+  for (std::size_t i = 0; i < 3; ++i)
+    EXPECT_EQ(ring->slaves[i].delay_ns, line->slaves[i].delay_ns) << i;
+  // A second open port with nothing behind it is still one too many.
+  built.snapshots[2].dl_status = dl_status({true, true, true, false});
+  auto two = plan_dc(built.snapshots, kMasterTime, options);
+  ASSERT_FALSE(two);
+  EXPECT_NE(two.error().message().find("slave 2 (station 0x1003) has port 2 open"),
+            std::string::npos)
+      << two.error().message();
+  // And an open port on an earlier slave is never the way back.
+  built.snapshots[2].dl_status = dl_status({true, false, false, false});
+  built.snapshots[0].dl_status = dl_status({true, true, true, false});
+  auto early = plan_dc(built.snapshots, kMasterTime, options);
+  ASSERT_FALSE(early);
+}
+
 TEST(DcPlan, NonMonotonicReceiveTime) {
   Model model({line_node(), line_node()});
   auto built = model.build();

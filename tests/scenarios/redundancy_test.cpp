@@ -9,8 +9,10 @@
 #include <unistd.h>
 
 #include <ecat/link/redundant_link.hpp>
+#include <ecat/master/ring_break.hpp>
 #include <ecat/sim/control.hpp>
 #include <ecat/sim/redundant_ring.hpp>
+#include <ecat/sim/segment.hpp>
 
 #include "scenarios/scenario_support.hpp"
 
@@ -111,18 +113,37 @@ TEST(Scenario00, RedundantRingThroughABreakAndBack) {
   // back untouched and the secondary's bounce is the reply.
   EXPECT_GT(status.lone_bounces, 0u);
   EXPECT_EQ(status.ring_breaks, 1u);
-  // The master reports it, in its status and in the event stream.
-  const auto master_status = ring->master->status();
+  // The master reports it, in its status and in the event stream, naming the break from the
+  // slaves' DL status: between the coupler (slave 0) and the inputs terminal (slave 1).
+  const auto slaves = ring->master->status().slaves;
+  ASSERT_EQ(slaves.size(), 3u);
+  const auto between = [&](std::size_t before) {
+    return fmt::format(
+        "redundancy:redundant, ring broken between slave {} (station 0x{:04X}) and "
+        "slave {} (station 0x{:04X})",
+        before, slaves[before].station, before + 1, slaves[before + 1].station);
+  };
+  EXPECT_TRUE(eventually([&] { return monitor.saw(between(0)); })) << monitor.seen();
+  auto master_status = ring->master->status();
   ASSERT_TRUE(master_status.redundancy);
   EXPECT_EQ(master_status.redundancy->ring, RingState::broken);
-  EXPECT_TRUE(eventually([&] { return monitor.saw("redundancy:redundant, ring broken"); }))
-      << monitor.seen();
+  ASSERT_TRUE(master_status.redundancy->break_location);
+  link::RingBreak expected{link::RingBreak::Where::between_slaves, 0, slaves[0].station, 1,
+                           slaves[1].station};
+  EXPECT_EQ(*master_status.redundancy->break_location, expected);
 
   // The break moves: between the inputs and the outputs terminal. Both halves carry process
   // data now and are merged.
   const auto merged_before = ring->redundant_link->status().merged;
   expect_flows_through(*ring, RedundantTopology::broken_after(2));
   EXPECT_GT(ring->redundant_link->status().merged, merged_before + 20);
+  // The ring stayed broken, so the link says nothing new: the master finds the moved break by
+  // reading the DL status again while the ring is broken.
+  EXPECT_TRUE(eventually([&] { return monitor.saw(between(1)); })) << monitor.seen();
+  master_status = ring->master->status();
+  ASSERT_TRUE(master_status.redundancy && master_status.redundancy->break_location);
+  EXPECT_EQ(master_status.redundancy->break_location->before_position, 1u);
+  EXPECT_EQ(master_status.redundancy->break_location->after_station, slaves[2].station);
   expect_flows_through(*ring, RedundantTopology::whole_ring());
   status = ring->redundant_link->status();
   EXPECT_EQ(status.ring, RingState::whole);
@@ -130,6 +151,7 @@ TEST(Scenario00, RedundantRingThroughABreakAndBack) {
   EXPECT_EQ(status.merge_timeouts, 0u);  // both halves always came back
   EXPECT_TRUE(eventually([&] { return monitor.saw("redundancy:redundant, ring whole"); }))
       << monitor.seen();
+  EXPECT_FALSE(ring->master->status().redundancy->break_location);
   expect_never_recovered(*ring);
   const auto sim = ring->redundant_ports->stats();
   EXPECT_GT(sim.crosses, 0u);
@@ -141,7 +163,19 @@ TEST(Scenario00, RedundantRingThroughABreakAndBack) {
 TEST(Scenario39, RedundantPrimaryCutKeepsOperational) {
   auto ring = ScenarioRing::operational(redundant_spec());
   ASSERT_TRUE(ring);
+  Monitor monitor(*ring->master);
   expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary));
+  // Slave 0's port 0 lost its link: the primary's cable.
+  const auto station0 = ring->master->status().slaves.at(0).station;
+  EXPECT_TRUE(eventually([&] {
+    return monitor.saw(
+        fmt::format("redundancy:redundant, ring broken at the primary port's cable "
+                    "(slave 0, station 0x{:04X}, port 0)",
+                    station0));
+  })) << monitor.seen();
+  const auto located = ring->master->status().redundancy->break_location;
+  ASSERT_TRUE(located);
+  EXPECT_EQ(located->where, link::RingBreak::Where::primary_cable);
   auto status = ring->redundant_link->status();
   EXPECT_EQ(status.ring, RingState::broken);
   EXPECT_GT(status.lone_bounces, 0u);
@@ -159,6 +193,10 @@ void secondary_cut(std::chrono::nanoseconds period) {
   ASSERT_TRUE(ring);
   expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::secondary));
   EXPECT_GT(ring->redundant_link->status().lone_bounces, 0u);
+  EXPECT_TRUE(eventually([&] {
+    const auto b = ring->master->status().redundancy->break_location;
+    return b && b->where == link::RingBreak::Where::secondary_cable && b->before_position == 2;
+  })) << ring->describe();
   expect_flows_through(*ring, RedundantTopology::whole_ring());
   expect_never_recovered(*ring);
 }
@@ -473,6 +511,64 @@ TEST(Scenario41, RedundantResetBlockCountsEverySlave) {
   const auto status = ring.link->status();
   EXPECT_GE(status.passthrough_copies, 12u);  // every copy came round and was dropped
   EXPECT_EQ(status.stale, 0u);
+}
+
+// DL status 0x0110 of each slave of the default three-slave ring served by RedundantPorts:
+// (port 0 link, port 0 loop closed, port 1 link, port 1 loop closed).
+std::vector<std::array<bool, 4>> ports_of(sim::SimServer& server) {
+  return server.with_segment([](sim::Segment& segment, sim::FaultInjector&) {
+    std::vector<std::array<bool, 4>> out;
+    for (std::size_t i = 0; i < segment.size(); ++i) {
+      const auto dl = wire::DlStatus::decode(segment.esc(i).read_u16(wire::reg::kDlStatus));
+      // Communication follows the link on every port.
+      EXPECT_EQ(dl.ports[0].communication, dl.ports[0].physical_link);
+      EXPECT_EQ(dl.ports[1].communication, dl.ports[1].physical_link);
+      out.push_back({dl.ports[0].physical_link, dl.ports[0].loop_closed, dl.ports[1].physical_link,
+                     dl.ports[1].loop_closed});
+    }
+    return out;
+  });
+}
+
+TEST(RedundantSegment, DlStatusShowsTheBreak) {
+  RedundantBus ring(40ms);
+  ASSERT_TRUE(ring.ports);
+  using P = std::array<bool, 4>;
+  const P through{true, false, true, false};  // link on both sides, both loops open
+  // Whole: the last slave's port 1 is cabled to the secondary port.
+  EXPECT_EQ(ports_of(*ring.server), (std::vector<P>{through, through, through}));
+  ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::broken_after(2)));
+  EXPECT_EQ(ports_of(*ring.server),
+            (std::vector<P>{through, P{true, false, false, true}, P{false, true, true, false}}));
+  ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::cut_at(RedundantPort::primary)));
+  EXPECT_EQ(ports_of(*ring.server),
+            (std::vector<P>{P{false, true, true, false}, through, through}));
+  ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::cut_at(RedundantPort::secondary)));
+  EXPECT_EQ(ports_of(*ring.server),
+            (std::vector<P>{through, through, P{true, false, false, true}}));
+  ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::whole_ring()));
+  EXPECT_EQ(ports_of(*ring.server), (std::vector<P>{through, through, through}));
+  // The master reads the same through the ports (the broken ring's two halves merged).
+  ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::broken_after(1)));
+  bus::Transaction tx;
+  for (std::uint16_t i = 0; i < 3; ++i)
+    tx.fprd(static_cast<std::uint16_t>(0x1000 + i), wire::reg::kDlStatus, 2);
+  auto reply = ring.bus->transact(std::move(tx), once());
+  ASSERT_TRUE(reply) << reply.error().describe();
+  std::vector<master::RingPortReading> readings;
+  for (std::uint16_t i = 0; i < 3; ++i) {
+    ASSERT_EQ(reply->wkc(i), 1) << i;
+    readings.push_back({static_cast<std::uint16_t>(0x1000 + i),
+                        wire::DlStatus::decode(wire::load_le16(reply->data(i).data()))});
+  }
+  const auto found = master::locate_ring_break(readings);
+  ASSERT_TRUE(found);
+  EXPECT_EQ(link::describe(*found),
+            "between slave 0 (station 0x1000) and slave 1 (station 0x1001)");
+  // Gone, the ports leave the segment's own cables to speak: the last slave's port 1 is free.
+  ring.bus->stop();
+  ring.ports.reset();
+  EXPECT_EQ(ports_of(*ring.server).back(), (P{true, false, false, true}));
 }
 
 TEST(RedundantSegment, RoutesFollowTheEscForwardingRules) {

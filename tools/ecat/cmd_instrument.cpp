@@ -591,6 +591,18 @@ int cmd_master(const Common& o) {
         k.value("frames_sent", 0), k.value("frames_received", 0), k.value("frames_lost", 0),
         k.value("transaction_timeouts", 0), k.value("retries", 0),
         k.value("cycle_deadlines_missed", 0));
+    if (j.contains("redundancy") && j["redundancy"].is_object()) {
+      const auto& r = j["redundancy"];
+      const auto port = [](const Json& p) {
+        return fmt::format("{} {}", p.value("name", ""),
+                           p.value("healthy", false) ? "healthy" : "failing");
+      };
+      std::string where;
+      if (r["break"].is_object()) where = " " + r["break"].value("text", "");
+      fmt::print("redundancy: {}, ring {}{} (primary {}, secondary {}; {} breaks, {} heals)\n",
+                 r.value("topology", ""), r.value("ring", ""), where, port(r["primary"]),
+                 port(r["secondary"]), r.value("ring_breaks", 0), r.value("ring_heals", 0));
+    }
     for (const auto& f : j["activation_failures"])
       fmt::print("activation failure: {}: {}\n", f.value("slave", ""), f.value("error", ""));
     for (const auto& f : j["runtime_faults"])

@@ -77,6 +77,30 @@ struct RedundantPortStatus {
   std::uint64_t reopens = 0;
 };
 
+// Where a redundant ring is open, as the slaves' DL status (0x0110) shows it: which link was
+// lost. Plain data; the master fills it (master/ring_break.hpp), a link alone cannot know it.
+struct RingBreak {
+  enum class Where : std::uint8_t {
+    between_slaves,   // the cable from `before`'s port 1 to `after`'s port 0
+    primary_cable,    // the primary port's cable: slave 0's port 0 has no link
+    secondary_cable,  // the secondary port's cable: the last slave's port 1 has no link
+  };
+  Where where = Where::between_slaves;
+  // between_slaves: the last slave on the primary's side and the first on the secondary's
+  // (positions in ring order from the primary, station addresses); a cut master cable: the slave
+  // whose port lost the link, in both.
+  std::size_t before_position = 0;
+  std::uint16_t before_station = 0;
+  std::size_t after_position = 0;
+  std::uint16_t after_station = 0;
+
+  bool operator==(const RingBreak&) const = default;
+};
+std::string_view to_string(RingBreak::Where where) noexcept;
+// "between slave 1 (station 0x1001) and slave 2 (station 0x1002)", "at the primary port's cable
+// (slave 0, station 0x1001, port 0)".
+std::string describe(const RingBreak& ring_break);
+
 struct RedundancyStatus {
   RedundancyTopology topology = RedundancyTopology::redundant;
   RingState ring = RingState::unknown;
@@ -92,6 +116,9 @@ struct RedundancyStatus {
   std::uint64_t stale = 0;               // arrivals for no frame in flight, dropped
   std::uint64_t ring_breaks = 0;         // whole -> broken changes seen
   std::uint64_t ring_heals = 0;          // broken -> whole changes seen
+  // Where the ring is open, once the master has read the slaves' DL status after the ring was
+  // seen broken (none from a link, none while whole or not yet located).
+  std::optional<RingBreak> break_location;
 };
 
 class Link {

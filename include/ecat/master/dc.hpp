@@ -75,6 +75,9 @@ struct DcTimingModel {
 
 struct DcPlanOptions {
   DcTimingModel timing{};
+  // A redundant ring (cable redundancy): the last slave in frame order has one port open with no
+  // slave behind it, the cable back to the master's second port. Without it that is an error.
+  bool ring_returns_to_master = false;
 };
 
 struct DcPlannedSlave {

@@ -119,6 +119,11 @@ class Segment : private EscLayoutObserver {
   bool link(std::size_t index, std::uint8_t port) const;
   // The master's own link to the first slave.
   void set_master_link(bool up) noexcept { master_link_ = up; }
+  // The link slave `index`'s `port` reports in its DL status (0x0110) when it differs from what
+  // the segment's own cables say, without changing where the segment's frames go: a master port
+  // cabled to a free port (a redundant ring's far end), or a cable broken while another part of
+  // the simulator (RedundantPorts) routes the frames round the break. nullopt: the cables' word.
+  void set_reported_link(std::size_t index, std::uint8_t port, std::optional<bool> up);
 
   // The slaves the frame visits, in processing order (reachable ones only).
   std::vector<std::size_t> processing_order() const;
@@ -143,6 +148,7 @@ class Segment : private EscLayoutObserver {
     std::uint8_t parent_port = 1;
     std::array<std::optional<std::size_t>, 4> children{};  // by port; [0] unused
     std::array<bool, 4> link_up{true, true, true, true};
+    std::array<std::optional<bool>, 4> reported_link{};  // set_reported_link
     std::int64_t cable_delay_ns = 5;
     HopTiming timing;
     // Dispatch indexes (see esc_layout_changed): what they hold for this node.
