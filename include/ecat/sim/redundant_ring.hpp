@@ -25,8 +25,14 @@
 // channel and set_topology/set_delay all change it under the server's lock, and fault.clear
 // returns it to the one the ports were created with.
 //
-// Not yet modelled: the DL status of the ports at the break (every ESC still reports the links of
-// the whole ring) and a link on the last slave's port 1.
+// The ESCs' DL status (0x0110) follows the cabling (the injector sets Segment::set_reported_link
+// at every change): the last slave's port 1 has a link while the secondary's cable is in; a break
+// after slave n-1 takes the link of slave n-1's port 1 and slave n's port 0; a cut master cable
+// that of slave 0's port 0 or the last slave's port 1. Ports without link report their loop
+// closed.
+//
+// Not yet modelled: the DC receive-time latches of the break's paths (the secondary's frame
+// latches the times a whole ring's frame would, at the moment the secondary sends it).
 #pragma once
 
 #include <array>
