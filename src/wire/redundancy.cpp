@@ -120,7 +120,14 @@ Result<Bytes> merge_bounces(Bytes request, Bytes primary, Bytes secondary, Mutab
     ++local.datagrams;
     const std::size_t at = header_offset(request, r);
     std::uint8_t* const dst = out.data() + at;
-    const bool primary_leads = a.wkc >= b.wkc;
+    bool primary_leads = a.wkc >= b.wkc;
+    if (r.header.command == Command::frmw || r.header.command == Command::armw) {
+      // One slave reads, the others write what it read: its side carries the read, the other
+      // side's copy carries the request's data (written into its slaves) whatever its WKC.
+      const bool a_read = !std::equal(a.data.begin(), a.data.end(), r.data.begin());
+      const bool b_read = !std::equal(b.data.begin(), b.data.end(), r.data.begin());
+      if (a_read != b_read) primary_leads = a_read;
+    }
     const DatagramView& lead = primary_leads ? a : b;
     const Bytes lead_frame = primary_leads ? primary : secondary;
     // Header as the leading side returned it (its address carries the ADP it counted), with the

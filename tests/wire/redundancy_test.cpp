@@ -170,6 +170,32 @@ TEST(RedundancyMerge, PhysicalReadTakesTheSideThatAnswered) {
   EXPECT_EQ(d[1].header.address, 0x01300002u);
 }
 
+TEST(RedundancyMerge, ReadMultipleWriteTakesTheReadersSide) {
+  // FRMW of the reference clock (station 0x1000, before the break): the primary's side reads it
+  // (WKC 1 + one writer), the secondary's three slaves write the master's value (WKC 3).
+  const ByteVector sent{1, 2, 3, 4};
+  const ByteVector read{9, 8, 7, 6};
+  const auto request = build({{Command::frmw, 5, 0x09101000, sent}});
+  const auto reader = build({{Command::frmw, 5, 0x09101000, read, 2}});
+  const auto writers = build({{Command::frmw, 5, 0x09101000, sent, 3}});
+  const auto data_of = [&](const ByteVector& primary, const ByteVector& secondary) {
+    ByteVector out(request.size());
+    const auto merged = merge_bounces(request, primary, secondary, out);
+    EXPECT_TRUE(merged);
+    if (!merged) return std::make_pair(ByteVector{}, 0);
+    const ByteVector frame(merged->begin(), merged->end());
+    const auto d = datagrams_of(frame);
+    EXPECT_EQ(d.size(), 1u);
+    return std::make_pair(ByteVector(d.at(0).data.begin(), d.at(0).data.end()),
+                          static_cast<int>(d.at(0).wkc));
+  };
+  EXPECT_EQ(data_of(reader, writers), std::make_pair(read, 5));
+  // Mirrored: the reader behind the break.
+  EXPECT_EQ(data_of(writers, reader), std::make_pair(read, 5));
+  // Nobody read (the reference gone): the request's data.
+  EXPECT_EQ(data_of(writers, writers), std::make_pair(sent, 6));
+}
+
 TEST(RedundancyMerge, WorkingCounterSaturates) {
   const auto request = build({{Command::brd, 1, 0, {0}}});
   const auto a = build({{Command::brd, 1, 0, {0}, 0xFFF0}});

@@ -75,6 +75,10 @@ struct MergeStats {
 //  - LRD, LWR, LRW (whose bytes each slave fills only where its FMMUs map): byte by byte, a byte
 //    changed from the request on one side only takes that side's value; changed on both sides,
 //    the value of the side with the higher working counter (the primary's on a tie);
+//  - FRMW and ARMW (one slave reads, every other writes what it read): the data and address of
+//    the side whose data changed from the request (the reader's), whatever the working counters
+//    say (the writers behind a break may outnumber the reader's side); when neither or both
+//    changed, as for every other command;
 //  - every other command: the data and address of the side with the higher working counter (the
 //    primary's on a tie), since a physical read is answered by one slave, which is on one side.
 // Returns the merged frame (a view into `out`). Never allocates.
