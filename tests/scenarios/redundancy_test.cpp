@@ -273,6 +273,17 @@ TEST(Scenario00, RedundantRingOverTwoVethPairsBreaksAndHealsByTheControlChannel)
   const auto master_status = ring->master->status();
   ASSERT_TRUE(master_status.redundancy);
   EXPECT_EQ(master_status.redundancy->ring, RingState::broken);
+  // The control channel's break shows in the slaves' DL status: the master names it.
+  const auto slaves = master_status.slaves;
+  ASSERT_EQ(slaves.size(), 3u);
+  const auto located = [&]() -> std::optional<link::RingBreak> {
+    const auto r = ring->master->status().redundancy;
+    return r ? r->break_location : std::nullopt;
+  };
+  const link::RingBreak between{link::RingBreak::Where::between_slaves, 1, slaves[1].station, 2,
+                                slaves[2].station};
+  EXPECT_TRUE(eventually([&] { return located() == between; }))
+      << (located() ? link::describe(*located()) : std::string("none"));
 
   // Healed: redundant again, the primary's frames cross the whole ring.
   expect_flows_through(*ring, RedundantTopology::whole_ring(), [&] {
@@ -281,6 +292,7 @@ TEST(Scenario00, RedundantRingOverTwoVethPairsBreaksAndHealsByTheControlChannel)
   status = ring->redundant_link->status();
   EXPECT_EQ(status.ring, RingState::whole);
   EXPECT_EQ(status.ring_heals, 1u);
+  EXPECT_TRUE(eventually([&] { return !located(); }));
 
   // The same as a fault (what `ecat sim fault inject ring_cut primary` sends), and back.
   expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary), [&] {
@@ -288,9 +300,14 @@ TEST(Scenario00, RedundantRingOverTwoVethPairsBreaksAndHealsByTheControlChannel)
         control.call(R"({"op":"fault.inject","fault":{"kind":"ring_cut","port":"primary"}})");
     EXPECT_TRUE(reply.value("ok", false)) << reply.dump();
   });
+  const link::RingBreak primary{link::RingBreak::Where::primary_cable, 0, slaves[0].station, 0,
+                                slaves[0].station};
+  EXPECT_TRUE(eventually([&] { return located() == primary; }))
+      << (located() ? link::describe(*located()) : std::string("none"));
   expect_flows_through(*ring, RedundantTopology::whole_ring(), [&] {
     EXPECT_TRUE(control.call(R"({"op":"fault.clear"})").value("ok", false));
   });
+  EXPECT_TRUE(eventually([&] { return !located(); }));
 
   // Bad values are named.
   auto refused = control.call(R"({"op":"ring","break_after":3})");
@@ -547,6 +564,15 @@ TEST(RedundantSegment, DlStatusShowsTheBreak) {
   EXPECT_EQ(ports_of(*ring.server),
             (std::vector<P>{through, through, P{true, false, false, true}}));
   ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::whole_ring()));
+  EXPECT_EQ(ports_of(*ring.server), (std::vector<P>{through, through, through}));
+  // The ring faults change it too, and fault.clear returns to the start cabling's.
+  ASSERT_TRUE(ring.server->inject(sim::fault::ring_break(1)));
+  EXPECT_EQ(ports_of(*ring.server),
+            (std::vector<P>{P{true, false, false, true}, P{false, true, true, false}, through}));
+  ASSERT_TRUE(ring.server->inject(sim::fault::ring_cut(RedundantPort::secondary)));
+  EXPECT_EQ(ports_of(*ring.server),
+            (std::vector<P>{through, through, P{true, false, false, true}}));
+  ring.server->clear_faults();
   EXPECT_EQ(ports_of(*ring.server), (std::vector<P>{through, through, through}));
   // The master reads the same through the ports (the broken ring's two halves merged).
   ASSERT_TRUE(ring.ports->set_topology(RedundantTopology::broken_after(1)));
