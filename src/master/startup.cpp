@@ -72,7 +72,9 @@ exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(exec::EventLoop
     picture.ports.push_back(bits);
   }
   // In a tree every slave but the first hangs from exactly one port 1-3 of another: a link more
-  // leads to a device the count does not hold (booting, or the master's second port).
+  // leads to a device the count does not hold (booting, or the master's second port). On a
+  // redundant link the last slave's port 1 is the cable back to the second port: not a slave.
+  if (bus.info().redundancy && (picture.ports.back() & (1u << 1)) != 0) --links;
   if (links != count - 1u) picture.complete = false;
   co_return picture;
 }

@@ -10,10 +10,12 @@
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/exec/transact.hpp>
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/master/al_control.hpp>
 #include <ecat/master/startup.hpp>
 #include <ecat/master/states.hpp>
 #include <ecat/sim/faults.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/server.hpp>
 
@@ -130,6 +132,44 @@ TEST_F(StartupTest, LinkPictureEndsTheScanEarlyOnlyWhenTheLinksAddUp) {
   ASSERT_FALSE(cut);
   EXPECT_EQ(cut.error().code(), Errc::timeout);
   EXPECT_NE(cut.error().message().find("last count 3"), std::string::npos) << cut.error().message();
+}
+
+// On a redundant ring the last slave's port 1 is cabled back to the master's second port: that
+// link leads to no slave, and the scan still ends early (it used to wait out the window).
+TEST(RedundantStartup, TheCableBackToTheSecondPortIsNoMissingSlave) {
+  auto server = test::make_sim_server(kRing);
+  ASSERT_TRUE(server);
+  sim::RedundantPortsOptions options;
+  auto ports = sim::RedundantPorts::create(*server, options);
+  ASSERT_TRUE(ports) << ports.error().describe();
+  link::RedundantLinkOptions link_options;
+  link_options.primary_mac = options.primary_mac;
+  link_options.secondary_mac = options.secondary_mac;
+  auto link =
+      link::RedundantLink::open((*ports)->take_link(wire::RedundantPort::primary),
+                                (*ports)->take_link(wire::RedundantPort::secondary), link_options);
+  ASSERT_TRUE(link) << link.error().describe();
+  bus::Bus bus(std::move(*link));
+  ASSERT_TRUE(bus.start());
+  exec::EventLoop loop;
+  loop.start_thread("test-control");
+  auto picture = exec::run_blocking(loop, read_link_picture(loop, bus, 4), 10s);
+  ASSERT_TRUE(picture.has_value());
+  ASSERT_TRUE(*picture) << picture->error().describe();
+  ASSERT_TRUE(picture->value().has_value());
+  EXPECT_TRUE((*picture)->value().complete);
+  EXPECT_NE((*picture)->value().ports[3] & (1u << 1), 0u);  // the cable back: link on port 1
+  auto early = exec::run_blocking(
+      loop,
+      await_stable_count(loop, bus,
+                         {.poll = 2ms, .stable = 10s, .link_check = true, .timeout = 2s}),
+      10s);
+  ASSERT_TRUE(early.has_value());
+  ASSERT_TRUE(*early) << early->error().describe();
+  EXPECT_EQ(**early, 4);
+  loop.stop();
+  loop.join();
+  bus.stop();
 }
 
 TEST_F(StartupTest, WrongCountsAndStationRangesAreNamed) {
