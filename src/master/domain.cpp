@@ -82,6 +82,32 @@ void load_bytes(const std::atomic<std::uint64_t>* words, std::size_t offset, std
   }
 }
 
+// The seqlocked copy of `n` published input bytes at `offset` (retried while the bus thread
+// publishes); returns the last valid cycle's time (0: none yet) and, when asked, `changed_src`
+// read in the same section.
+std::int64_t copy_published(const std::atomic<std::uint64_t>& seq,
+                            const std::atomic<std::int64_t>& refreshed_ns,
+                            const std::atomic<std::atomic<std::uint64_t>*>& words,
+                            std::size_t offset, std::uint8_t* out, std::size_t n,
+                            const std::atomic<std::int64_t>* changed_src = nullptr,
+                            std::int64_t* changed = nullptr) noexcept {
+  for (int spins = 0;; ++spins) {
+    const std::uint64_t s1 = seq.load(std::memory_order_acquire);
+    if ((s1 & 1u) == 0) {
+      const std::int64_t refreshed = refreshed_ns.load(std::memory_order_relaxed);
+      if (changed != nullptr) *changed = changed_src->load(std::memory_order_relaxed);
+      load_bytes(words.load(std::memory_order_acquire), offset, out, n);
+      std::atomic_thread_fence(std::memory_order_acquire);
+      if (seq.load(std::memory_order_relaxed) == s1) return refreshed;
+    }
+    if (spins < 64) {
+      cpu_relax();
+    } else {
+      std::this_thread::yield();
+    }
+  }
+}
+
 // The last invalid cycle and the health fit one atomic word each, so a reader never sees the
 // reason of one cycle with the counters of another.
 constexpr std::uint64_t kPresentBit = std::uint64_t{1} << 63;
@@ -930,23 +956,9 @@ Result<SampleInfo> Domain::sample_entry(const Entry& e, wire::MutableBytes out,
     info.changed_at = from_ns(changed);
     return info;
   }
-  std::int64_t refreshed = 0;
   std::int64_t changed = 0;
-  for (int spins = 0;; ++spins) {
-    const std::uint64_t s1 = input_seq_.load(std::memory_order_acquire);
-    if ((s1 & 1u) == 0) {
-      refreshed = refreshed_ns_.load(std::memory_order_relaxed);
-      changed = e.input_changed_ns.load(std::memory_order_relaxed);
-      load_bytes(input_words_.load(std::memory_order_acquire), e.offset, out.data(), e.size);
-      std::atomic_thread_fence(std::memory_order_acquire);
-      if (input_seq_.load(std::memory_order_relaxed) == s1) break;
-    }
-    if (spins < 64) {
-      cpu_relax();
-    } else {
-      std::this_thread::yield();
-    }
-  }
+  const std::int64_t refreshed = copy_published(input_seq_, refreshed_ns_, input_words_, e.offset,
+                                                out.data(), e.size, &e.input_changed_ns, &changed);
   if (refreshed == 0) {
     return error(Errc::not_ready,
                  fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
@@ -971,19 +983,26 @@ Result<SampleInfo> Domain::sample_entry(const Entry& e, wire::MutableBytes out,
 }
 
 Result<std::size_t> Domain::read(PdoHandle handle, wire::MutableBytes out) const {
-  auto e = lookup(handle);
-  if (!e) return std::move(e).error();
-  auto s = sample_entry(**e, out, false);
-  if (!s) return std::move(s).error();
-  return s->size;
+  auto found = lookup(handle);
+  if (!found) return std::move(found).error();
+  const Entry& e = **found;
+  if (e.direction == PdoDirection::output || out.size() < e.size) {
+    auto s = sample_entry(e, out, false);
+    if (!s) return std::move(s).error();
+    return s->size;
+  }
+  // An input: sample_entry's copy and readiness check without its timestamps (no clock read).
+  if (copy_published(input_seq_, refreshed_ns_, input_words_, e.offset, out.data(), e.size) == 0) {
+    return error(Errc::not_ready,
+                 fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
+  }
+  return std::size_t{e.size};
 }
 
 Result<std::size_t> Domain::read(PdoKey key, wire::MutableBytes out) const {
-  auto e = lookup(key);
-  if (!e) return std::move(e).error();
-  auto s = sample_entry(**e, out, false);
-  if (!s) return std::move(s).error();
-  return s->size;
+  auto h = find(key);
+  if (!h) return std::move(h).error();
+  return read(*h, out);
 }
 
 Result<std::vector<std::uint8_t>> Domain::read(PdoKey key) const {
@@ -996,15 +1015,35 @@ Result<std::vector<std::uint8_t>> Domain::read(PdoKey key) const {
 }
 
 Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out) const {
-  auto e = lookup(handle);
-  if (!e) return std::move(e).error();
-  if ((*e)->direction != PdoDirection::input) {
+  auto found = lookup(handle);
+  if (!found) return std::move(found).error();
+  const Entry& e = **found;
+  if (e.direction != PdoDirection::input) {
     return error(Errc::invalid_argument,
-                 fmt::format("read_fresh({}): outputs have no freshness", to_string((*e)->key)));
+                 fmt::format("read_fresh({}): outputs have no freshness", to_string(e.key)));
   }
-  auto s = sample_entry(**e, out, true);
-  if (!s) return std::move(s).error();
-  return s->size;
+  if (out.size() < e.size) {
+    auto s = sample_entry(e, out, true);  // its error names the buffer's and the image's sizes
+    if (!s) return std::move(s).error();
+    return s->size;
+  }
+  // sample_entry's checks (a valid cycle, not stale) in nanoseconds, without building its
+  // SampleInfo: one clock read against stale_after().
+  const std::int64_t refreshed =
+      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset, out.data(), e.size);
+  if (refreshed == 0) {
+    return error(Errc::not_ready,
+                 fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
+  }
+  const std::int64_t age = std::max<std::int64_t>(0, to_ns(Clock::now()) - refreshed);
+  const nanoseconds limit = stale_after();
+  if (age > limit.count()) {
+    return error(Errc::stale,
+                 fmt::format("{} (input) is stale: last valid cycle {} us ago, stale after {} us",
+                             to_string(e.key), age / 1000,
+                             std::chrono::duration_cast<std::chrono::microseconds>(limit).count()));
+  }
+  return std::size_t{e.size};
 }
 
 Result<std::size_t> Domain::read_fresh(PdoKey key, wire::MutableBytes out) const {
