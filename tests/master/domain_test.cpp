@@ -396,6 +396,16 @@ TEST(DomainCycleTest, FreshnessNotReadyFreshStale) {
   auto s = domain->sample(PdoKey{kInputs, 0}, buffer);
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code(), Errc::not_ready);
+  // read / read_fresh (their own paths, without a SampleInfo) give the same answers.
+  const auto handle = domain->find(PdoKey{kInputs, 0});
+  ASSERT_TRUE(handle.ok());
+  EXPECT_EQ(domain->read(*handle, buffer).error().code(), Errc::not_ready);
+  EXPECT_EQ(domain->read(PdoKey{kInputs, 0}, buffer).error().code(), Errc::not_ready);
+  EXPECT_EQ(domain->read_fresh(*handle, buffer).error().code(), Errc::not_ready);
+  std::array<std::uint8_t, 1> small{};
+  EXPECT_EQ(domain->read(*handle, small).error().code(), Errc::invalid_argument);
+  EXPECT_EQ(domain->read_fresh(*handle, small).error().code(), Errc::invalid_argument);
+  EXPECT_EQ(domain->read(PdoHandle{99}, buffer).error().code(), Errc::not_found);
 
   ASSERT_TRUE(domain->start_cycling().ok());
   rig->all_to(wire::AlState::safeop);
@@ -405,6 +415,10 @@ TEST(DomainCycleTest, FreshnessNotReadyFreshStale) {
   EXPECT_EQ(s->freshness->state, Freshness::fresh);
   EXPECT_EQ(domain->stats().last_wkc, 1u);
   ASSERT_TRUE(domain->read_fresh(PdoKey{kInputs, 0}, buffer).ok());
+  auto got = domain->read_fresh(*handle, buffer);
+  ASSERT_TRUE(got.ok());
+  EXPECT_EQ(*got, 2u);
+  EXPECT_EQ(domain->read(*handle, buffer).value(), 2u);
 
   ASSERT_TRUE(domain->stop_cycling().ok());
   std::this_thread::sleep_for(10 * kPeriod);  // > 3 periods
