@@ -412,8 +412,9 @@ Esc::AccessResult Esc::access(std::uint32_t address, std::span<std::uint8_t> dat
   AccessResult result;
   if (data.empty()) return result;
   // Read-write commands read the old contents and write what the master sent, so keep a copy of
-  // the incoming data before the read overwrites it.
-  std::array<std::uint8_t, kMaxDatagram> incoming{};
+  // the incoming data before the read overwrites it (only its first n bytes are ever used: not
+  // zeroed, as a datagram of a few bytes would otherwise clear a frame's worth per slave).
+  std::array<std::uint8_t, kMaxDatagram> incoming;
   const std::size_t n = std::min(data.size(), incoming.size());
   if (do_write && do_read) std::memcpy(incoming.data(), data.data(), n);
   if (do_read) result.read = physical_read(address, data.first(n), nullptr, or_into_data).read;
@@ -459,7 +460,8 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
     if (aligned) {
       auto window = d.data.subspan(d_offset, p_bytes);
       if (reading && writing) {
-        std::array<std::uint8_t, kMaxDatagram> incoming{};
+        // Only the window's p_bytes are copied and used.
+        std::array<std::uint8_t, kMaxDatagram> incoming;
         std::memcpy(incoming.data(), window.data(), p_bytes);
         result.read |= physical_read(p_byte, window, nullptr, false).read;
         result.written |=
@@ -474,11 +476,19 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
       continue;
     }
 
-    // Bit-granular mapping: gather the physical bytes, move single bits, scatter back.
-    std::array<std::uint8_t, kMaxDatagram> phys{};
-    std::array<std::uint8_t, kMaxDatagram> mask{};
-    std::array<std::uint8_t, kMaxDatagram> incoming{};
-    std::memcpy(incoming.data(), d.data.data(), d.data.size());
+    // Bit-granular mapping: gather the physical bytes, move single bits, scatter back. Only the
+    // p_bytes physical bytes and the datagram bytes holding logical bits lo..hi are touched, so
+    // only those are cleared or copied (a slave's share, not the whole datagram).
+    std::array<std::uint8_t, kMaxDatagram> phys;
+    std::array<std::uint8_t, kMaxDatagram> mask;
+    std::array<std::uint8_t, kMaxDatagram> incoming;
+    std::memset(phys.data(), 0, p_bytes);
+    std::memset(mask.data(), 0, p_bytes);
+    {
+      const auto d_first = static_cast<std::size_t>((lo - first_bit) / 8);
+      const auto d_end = static_cast<std::size_t>((hi - first_bit + 7) / 8);
+      std::memcpy(incoming.data() + d_first, d.data.data() + d_first, d_end - d_first);
+    }
     auto bit_of = [](const std::uint8_t* bytes, std::uint64_t bit) {
       return (bytes[bit / 8] >> (bit % 8)) & 1;
     };
