@@ -69,22 +69,7 @@ Result<void> validate(const MasterConfig& config) {
       return bad(fmt::format("domain {}: recovery_threshold must be > 0", d.id));
     }
   }
-  std::set<std::string> names;
-  std::set<std::uint16_t> positions;
-  std::int64_t previous = -1;
-  for (std::size_t i = 0; i < config.slaves.size(); ++i) {
-    const auto& s = config.slaves[i];
-    if (s.name.empty()) return bad(fmt::format("slaves[{}]: the name is empty", i));
-    if (!names.insert(s.name).second) {
-      return bad(fmt::format("slaves[{}]: the name \"{}\" is used twice", i, s.name));
-    }
-    const std::int64_t next = s.position ? *s.position : previous + 1;
-    if (next > 0xFFFF) return bad(fmt::format("slave {}: position {} is past 65535", s.name, next));
-    const auto pos = static_cast<std::uint16_t>(next);
-    previous = next;
-    if (!positions.insert(pos).second) {
-      return bad(fmt::format("slave {}: position {} is taken by another slave", s.name, pos));
-    }
+  auto check_slave = [&](const SlaveConfig& s) -> Result<void> {
     if (s.process_data.kind == ProcessDataRequest::Kind::all &&
         !domain_ids.count(s.process_data.domain)) {
       return bad(fmt::format("slave {}: process_data goes to unknown domain \"{}\"", s.name,
@@ -107,7 +92,90 @@ Result<void> validate(const MasterConfig& config) {
       return bad(fmt::format("slave {}: sync mode {} needs distributed clocks (dc is disabled)",
                              s.name, to_string(s.sync->mode)));
     }
+    return ok();
+  };
+  std::set<std::string> names;
+  std::set<std::uint16_t> positions;
+  std::int64_t previous = -1;
+  for (std::size_t i = 0; i < config.slaves.size(); ++i) {
+    const auto& s = config.slaves[i];
+    if (s.name.empty()) return bad(fmt::format("slaves[{}]: the name is empty", i));
+    if (!names.insert(s.name).second) {
+      return bad(fmt::format("slaves[{}]: the name \"{}\" is used twice", i, s.name));
+    }
+    const std::int64_t next = s.position ? *s.position : previous + 1;
+    if (next > 0xFFFF) return bad(fmt::format("slave {}: position {} is past 65535", s.name, next));
+    const auto pos = static_cast<std::uint16_t>(next);
+    previous = next;
+    if (!positions.insert(pos).second) {
+      return bad(fmt::format("slave {}: position {} is taken by another slave", s.name, pos));
+    }
+    if (auto r = check_slave(s); !r) return r;
   }
+  if (!config.hot_connect.empty() && config.slaves.empty()) {
+    return bad("hot_connect: needs the fixed slaves listed in slaves (a dynamic session has none)");
+  }
+  if (config.hot_connect.size() > kMaxHotConnectGroups) {
+    return bad(fmt::format("hot_connect: {} groups, at most {}", config.hot_connect.size(),
+                           kMaxHotConnectGroups));
+  }
+  std::set<std::string> groups;
+  std::size_t group_slaves = 0;
+  for (std::size_t g = 0; g < config.hot_connect.size(); ++g) {
+    const auto& group = config.hot_connect[g];
+    if (group.name.empty()) return bad(fmt::format("hot_connect[{}]: the name is empty", g));
+    if (!groups.insert(group.name).second) {
+      return bad(fmt::format("hot_connect[{}]: the name \"{}\" is used twice", g, group.name));
+    }
+    const auto who = fmt::format("hot_connect group {}", group.name);
+    if (group.slaves.empty()) return bad(fmt::format("{}: lists no slaves", who));
+    const auto& first = group.slaves.front();
+    const bool by_identity =
+        (group.vendor_id || first.vendor_id) && (group.product_code || first.product_code);
+    if (!group.alias && !by_identity) {
+      return bad(
+          fmt::format("{}: cannot be recognised: give an alias, or a vendor_id and "
+                      "product_code (of the group or of its first slave {})",
+                      who, first.name));
+    }
+    if (group.reserve_bytes > 0xFFFF) {
+      return bad(fmt::format("{}: reserve_bytes {} is past 65535", who, group.reserve_bytes));
+    }
+    for (const auto& s : group.slaves) {
+      if (s.name.empty()) return bad(fmt::format("{}: a slave's name is empty", who));
+      if (!names.insert(s.name).second) {
+        return bad(fmt::format("{}: the slave name \"{}\" is used twice", who, s.name));
+      }
+      if (s.position) {
+        return bad(
+            fmt::format("{}: slave {} has a position (a group's slaves sit where the "
+                        "group is found)",
+                        who, s.name));
+      }
+      if (s.alias) {
+        return bad(fmt::format("{}: slave {} has an alias (the group's alias identifies it)", who,
+                               s.name));
+      }
+      if (s.sync && s.sync->mode != SyncMode::free_run) {
+        return bad(
+            fmt::format("{}: slave {} asks for sync mode {}: distributed clocks are not "
+                        "configured for hot-connect slaves",
+                        who, s.name, to_string(s.sync->mode)));
+      }
+      if (auto r = check_slave(s); !r) return r;
+      ++group_slaves;
+    }
+  }
+  // One more station: the scratch address a newly found slave is identified at.
+  if (group_slaves > 0 &&
+      static_cast<std::uint32_t>(config.base_station) + config.slaves.size() + group_slaves >
+          0xFFFF) {
+    return bad(
+        fmt::format("hot_connect: stations 0x{:04x} + {} fixed and {} group slaves (and "
+                    "one to identify them at) run past 0xffff",
+                    config.base_station, config.slaves.size(), group_slaves));
+  }
+  if (config.hot_connect_poll.count() <= 0) return bad("hot_connect_poll must be positive");
   if (config.dc && config.dc->cycle.count() <= 0) return bad("dc.cycle must be positive");
   if (config.dc && config.dc->frame_lead &&
       (config.dc->frame_lead->count() < 0 || *config.dc->frame_lead * 2 >= config.dc->cycle)) {

@@ -45,6 +45,9 @@ class Reader {
     if (const auto* dc = root.find("dc")) {
       if (auto r = distributed_clocks(*dc, config); !r) return r.error();
     }
+    if (const auto* h = root.find("hot_connect")) {
+      if (auto r = hot_connect(*h, config); !r) return r.error();
+    }
     if (auto valid = validate(config); !valid) {
       return valid.error().context(Errc::invalid_argument, ctx_.source);
     }
@@ -75,12 +78,13 @@ class Reader {
   Result<void> master(const SpecNode& node, MasterConfig& config) {
     const std::string path = "master";
     if (!node.is_mapping()) return spec_error(ctx_, node, path, "must be a mapping");
-    if (auto r = check_keys(
-            ctx_, node, path,
-            {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us", "cycle_lock_memory",
-             "base_station", "frame_timeout_us", "scan_poll_ms", "scan_stable_ms",
-             "scan_link_check", "scan_timeout_ms", "awaiting_preop_timeout_ms", "retry_interval_ms",
-             "link_recovery_window_ms", "control", "mailbox_gateway", "mailbox_status"});
+    if (auto r =
+            check_keys(ctx_, node, path,
+                       {"backend", "cycle_priority", "cycle_cpu", "cycle_dma_latency_us",
+                        "cycle_lock_memory", "base_station", "frame_timeout_us", "scan_poll_ms",
+                        "scan_stable_ms", "scan_link_check", "scan_timeout_ms",
+                        "awaiting_preop_timeout_ms", "retry_interval_ms", "link_recovery_window_ms",
+                        "control", "mailbox_gateway", "mailbox_status", "hot_connect_poll_ms"});
         !r) {
       return r.error();
     }
@@ -136,6 +140,7 @@ class Reader {
         if (e.key == "awaiting_preop_timeout_ms") config.awaiting_preop_timeout = *d;
         if (e.key == "retry_interval_ms") config.retry_interval = *d;
         if (e.key == "link_recovery_window_ms") config.link_recovery_window = *d;
+        if (e.key == "hot_connect_poll_ms") config.hot_connect_poll = *d;
       }
     }
     return ok();
@@ -366,8 +371,80 @@ class Reader {
   Result<void> slaves(const SpecNode& node, MasterConfig& config) {
     if (!node.is_sequence()) return spec_error(ctx_, node, "slaves", "must be a list");
     for (std::size_t i = 0; i < node.items.size(); ++i) {
+      auto s = slave(node.items[i], index_path("slaves", i));
+      if (!s) return s.error();
+      config.slaves.push_back(std::move(*s));
+    }
+    return ok();
+  }
+
+  // hot_connect: [{group, alias | vendor_id + product_code, reserve_bytes, slaves: [...]}]
+  Result<void> hot_connect(const SpecNode& node, MasterConfig& config) {
+    if (!node.is_sequence()) return spec_error(ctx_, node, "hot_connect", "must be a list");
+    for (std::size_t i = 0; i < node.items.size(); ++i) {
       const auto& item = node.items[i];
-      const auto path = index_path("slaves", i);
+      const auto path = index_path("hot_connect", i);
+      if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
+      if (auto r = check_keys(
+              ctx_, item, path,
+              {"group", "alias", "vendor_id", "product_code", "reserve_bytes", "slaves"});
+          !r) {
+        return r.error();
+      }
+      HotConnectGroup g;
+      const auto* name = item.find("group");
+      if (!name) return spec_error(ctx_, item, path, "needs a group name (group: NAME)");
+      auto n = to_text(ctx_, *name, join_path(path, "group"));
+      if (!n) return n.error();
+      if (n->empty()) return spec_error(ctx_, *name, join_path(path, "group"), "is empty");
+      g.name = *n;
+      const auto* list = item.find("slaves");
+      if (!list) return spec_error(ctx_, item, path, "needs its slaves (slaves: [...])");
+      for (const auto& e : item.entries) {
+        const auto p = join_path(path, e.key);
+        const SpecNode& v = e.value;
+        if (e.key == "alias") {
+          auto x = to_int(ctx_, v, p, 1, 0xFFFF);
+          if (!x) return x.error();
+          g.alias = static_cast<std::uint16_t>(*x);
+        } else if (e.key == "vendor_id") {
+          auto x = to_int(ctx_, v, p, 0, 0xFFFFFFFF);
+          if (!x) return x.error();
+          g.vendor_id = static_cast<std::uint32_t>(*x);
+        } else if (e.key == "product_code") {
+          auto x = to_int(ctx_, v, p, 0, 0xFFFFFFFF);
+          if (!x) return x.error();
+          g.product_code = static_cast<std::uint32_t>(*x);
+        } else if (e.key == "reserve_bytes") {
+          auto x = to_int(ctx_, v, p, 1, 0xFFFF);
+          if (!x) return x.error();
+          g.reserve_bytes = static_cast<std::size_t>(*x);
+        } else if (e.key == "slaves") {
+          if (!v.is_sequence() || v.items.empty()) {
+            return spec_error(ctx_, v, p, "must be a non-empty list");
+          }
+          for (std::size_t k = 0; k < v.items.size(); ++k) {
+            const auto sp = index_path(p, k);
+            for (const char* key : {"position", "alias"}) {
+              if (v.items[k].is_mapping() && v.items[k].find(key) != nullptr) {
+                return spec_error(ctx_, *v.items[k].find(key), join_path(sp, key),
+                                  "is not for a hot-connect group's slave (the group is found "
+                                  "where it sits, by its alias or identity)");
+              }
+            }
+            auto s = slave(v.items[k], sp);
+            if (!s) return s.error();
+            g.slaves.push_back(std::move(*s));
+          }
+        }
+      }
+      config.hot_connect.push_back(std::move(g));
+    }
+    return ok();
+  }
+
+  Result<SlaveConfig> slave(const SpecNode& item, const std::string& path) {
+    {
       if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
       if (auto r = check_keys(ctx_, item, path,
                               {"name", "position", "alias", "vendor_id", "product_code", "driver",
@@ -498,9 +575,8 @@ class Reader {
           s.sync = std::move(*x);
         }
       }
-      config.slaves.push_back(std::move(s));
+      return s;
     }
-    return ok();
   }
 
   // [{name, unit: 0|1, edge: rising|falling}, ...]

@@ -190,6 +190,8 @@ std::string_view to_string(RegistrationKind kind) noexcept {
   switch (kind) {
     case RegistrationKind::process_data:
       return "process_data";
+    case RegistrationKind::reserved:
+      return "reserved";
     case RegistrationKind::sm_status:
       return "sm_status";
   }
@@ -225,6 +227,8 @@ std::string_view to_string(Freshness freshness) noexcept {
 // ---------------------------------------------------------------------------------------------
 // Internal types
 
+constexpr std::uint8_t kNoReservation = 0xFF;
+
 struct Domain::Entry {
   PdoKey key;
   std::uint32_t index = 0;
@@ -232,11 +236,31 @@ struct Domain::Entry {
   std::uint16_t size = 0;
   PdoDirection direction = PdoDirection::input;
   bool contributes_wkc = true;
+  std::uint8_t reservation = kNoReservation;  // the hot-connect reservation it lies in
   // Outputs: written under the staging lock; atomics so stats-like readers need no lock.
   mutable std::atomic<std::int64_t> output_written_ns{0};
   mutable std::atomic<std::int64_t> output_changed_ns{0};
   // Inputs: written by the bus thread inside the seqlock's write section.
   mutable std::atomic<std::int64_t> input_changed_ns{0};
+};
+
+struct Domain::Reservation {
+  std::string name;
+  std::vector<std::uint16_t> stations;
+  std::uint32_t index = 0;
+  std::uint32_t offset = 0;  // in the image
+  std::uint32_t size = 0;
+  std::uint32_t used = 0;  // control thread
+  std::atomic<ReservationState> state{ReservationState::absent};
+  // Per datagram of the plan: the reservation's registrations' share of the working counter.
+  std::unique_ptr<std::atomic<std::uint16_t>[]> shares;
+  std::size_t datagrams = 0;
+  // Its input registrations (process data, SyncManager status), published by count: at most one
+  // per byte reserved.
+  std::unique_ptr<std::atomic<std::uint32_t>[]> inputs;
+  std::atomic<std::uint32_t> input_count{0};
+  std::unique_ptr<std::atomic<std::uint32_t>[]> statuses;
+  std::atomic<std::uint32_t> status_count{0};
 };
 
 struct Domain::Exchange {
@@ -469,6 +493,9 @@ Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDir
                                            bool contributes_wkc) {
   if (bus_.on_bus_thread()) return refuse_on_bus_thread("register_pdo");
   std::lock_guard lock(control_mutex_);
+  if (Reservation* r = reservation_of_locked(key.slave)) {
+    return register_reserved_locked(*r, key, bytes, direction, contributes_wkc);
+  }
   const DomainState s = state();
   if (s != DomainState::open) {
     return error(Errc::wrong_state,
@@ -527,6 +554,215 @@ Result<std::uint32_t> Domain::register_sm_status(std::uint16_t slave, std::uint8
                       PdoDirection::input);
 }
 
+// ---- Reservations (hot connect) --------------------------------------------------------------
+
+Domain::Reservation* Domain::reservation_of_locked(std::uint16_t station) const noexcept {
+  const std::uint32_t n = reservation_count_.load(std::memory_order_relaxed);
+  for (std::uint32_t k = 0; k < n; ++k) {
+    const auto& st = reservations_[k]->stations;
+    if (std::find(st.begin(), st.end(), station) != st.end()) return reservations_[k].get();
+  }
+  return nullptr;
+}
+
+Result<std::uint32_t> Domain::reserve(std::string_view name, std::size_t bytes,
+                                      std::vector<std::uint16_t> stations) {
+  if (bus_.on_bus_thread()) return refuse_on_bus_thread("reserve");
+  std::lock_guard lock(control_mutex_);
+  const DomainState s = state();
+  if (s != DomainState::open) {
+    return error(Errc::wrong_state,
+                 fmt::format("cannot reserve room for {}: the domain is {} (reservations are made "
+                             "before it first cycles)",
+                             name, to_string(s)));
+  }
+  if (bytes == 0 || bytes > 0xFFFF) {
+    return error(
+        Errc::invalid_argument,
+        fmt::format("cannot reserve room for {}: size {} bytes is outside 1..65535", name, bytes));
+  }
+  const std::uint32_t index = reservation_count_.load(std::memory_order_relaxed);
+  if (index >= kMaxReservations) {
+    return error(Errc::out_of_range, fmt::format("cannot reserve room for {}: all {} reservations "
+                                                 "used",
+                                                 name, kMaxReservations));
+  }
+  for (const auto station : stations) {
+    if (station == 0) {
+      return error(Errc::invalid_argument,
+                   fmt::format("cannot reserve room for {}: station 0 is no slave's", name));
+    }
+    if (const Reservation* other = reservation_of_locked(station)) {
+      return error(Errc::invalid_argument,
+                   fmt::format("cannot reserve room for {}: station 0x{:04x} already belongs to "
+                               "{}",
+                               name, station, other->name));
+    }
+    const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
+    for (std::uint32_t i = 0; i < count; ++i) {
+      if (entry(i).key.slave == station) {
+        return error(Errc::invalid_argument,
+                     fmt::format("cannot reserve room for {}: station 0x{:04x} has registrations "
+                                 "outside it already",
+                                 name, station));
+      }
+    }
+  }
+  const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
+  if (count >= registration_limit_) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot reserve room for {}: all {} registrations ({}) used", name,
+                             registration_limit_, registration_limit_name()));
+  }
+  if (image_size_ + bytes > image_limit_) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot reserve {} bytes for {}: image_too_large: {} + {} bytes "
+                             "exceeds the {} byte maximum ({})",
+                             bytes, name, image_size_, bytes, image_limit_, image_limit_name()));
+  }
+  auto r = std::make_unique<Reservation>();
+  r->name = std::string(name);
+  r->stations = std::move(stations);
+  r->index = index;
+  r->offset = image_size_;
+  r->size = static_cast<std::uint32_t>(bytes);
+  r->inputs = std::make_unique<std::atomic<std::uint32_t>[]>(bytes);
+  r->statuses = std::make_unique<std::atomic<std::uint32_t>[]>(bytes);
+  reserve_entry_locked(count);
+  reserve_image_locked(image_size_ + bytes);
+  Entry& e = entry(count);
+  e.key = PdoKey{0, static_cast<std::uint8_t>(index), RegistrationKind::reserved};
+  e.index = count;
+  e.offset = image_size_;
+  e.size = static_cast<std::uint16_t>(bytes);
+  e.direction = PdoDirection::output;
+  e.contributes_wkc = false;
+  e.reservation = static_cast<std::uint8_t>(index);
+  image_size_ += static_cast<std::uint32_t>(bytes);
+  reservations_[index] = std::move(r);
+  reservation_count_.store(index + 1, std::memory_order_release);
+  entry_count_.store(count + 1, std::memory_order_release);
+  return index;
+}
+
+Result<std::uint32_t> Domain::register_reserved_locked(Reservation& r, PdoKey key,
+                                                       std::size_t bytes, PdoDirection direction,
+                                                       bool contributes_wkc) {
+  if (r.state.load(std::memory_order_acquire) == ReservationState::present) {
+    return error(Errc::wrong_state,
+                 fmt::format("cannot register {}: reservation {} is present (registrations are "
+                             "made while it is absent or joining)",
+                             to_string(key), r.name));
+  }
+  if (bytes == 0 || bytes > 0xFFFF) {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot register {}: size {} bytes is outside 1..65535",
+                             to_string(key), bytes));
+  }
+  if (key.kind == RegistrationKind::sm_status && (bytes != 1 || direction != PdoDirection::input)) {
+    return error(
+        Errc::invalid_argument,
+        fmt::format("cannot register {}: a SyncManager status is one input byte", to_string(key)));
+  }
+  const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (entry(i).key == key) {
+      return error(
+          Errc::invalid_argument,
+          fmt::format("{} is already registered (at logical 0x{:08x}, {} bytes)", to_string(key),
+                      config_.logical_base + entry(i).offset, entry(i).size));
+    }
+  }
+  if (r.used + bytes > r.size) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot register {}: {} + {} bytes exceed the {} bytes reserved for "
+                             "{} (hot_connect reserve_bytes)",
+                             to_string(key), r.used, bytes, r.size, r.name));
+  }
+  if (count >= registration_limit_) {
+    return error(Errc::out_of_range,
+                 fmt::format("cannot register {}: all {} registrations ({}) used", to_string(key),
+                             registration_limit_, registration_limit_name()));
+  }
+  reserve_entry_locked(count);
+  Entry& e = entry(count);
+  e.key = key;
+  e.index = count;
+  e.offset = r.offset + r.used;
+  e.size = static_cast<std::uint16_t>(bytes);
+  e.direction = direction;
+  e.contributes_wkc = contributes_wkc;
+  e.reservation = static_cast<std::uint8_t>(r.index);
+  r.used += static_cast<std::uint32_t>(bytes);
+  entry_count_.store(count + 1, std::memory_order_release);
+  if (direction == PdoDirection::input) {
+    auto& list = key.kind == RegistrationKind::sm_status ? r.statuses : r.inputs;
+    auto& n = key.kind == RegistrationKind::sm_status ? r.status_count : r.input_count;
+    const std::uint32_t at = n.load(std::memory_order_relaxed);
+    list[at].store(count, std::memory_order_relaxed);
+    n.store(at + 1, std::memory_order_release);
+  }
+  compute_shares_locked(r);
+  return config_.logical_base + e.offset;
+}
+
+void Domain::compute_shares_locked(Reservation& r) {
+  if (!plan_ || !r.shares) return;
+  const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
+  for (std::size_t slot = 0; slot < r.datagrams; ++slot) {
+    const auto& d = plan_->datagrams[slot];
+    const std::uint32_t end = d.offset + d.length;
+    // Per slave of the reservation: 1 when it has an input and 2 when it has an output here.
+    std::uint32_t wkc = 0;
+    for (const auto station : r.stations) {
+      bool reads = false;
+      bool writes = false;
+      for (std::uint32_t i = 0; i < count; ++i) {
+        const Entry& e = entry(i);
+        if (e.reservation != r.index || e.key.slave != station || !e.contributes_wkc) continue;
+        if (e.offset >= end || e.offset + e.size <= d.offset) continue;
+        (e.direction == PdoDirection::input ? reads : writes) = true;
+      }
+      wkc += (reads ? 1u : 0u) + (writes ? 2u : 0u);
+    }
+    r.shares[slot].store(static_cast<std::uint16_t>(std::min<std::uint32_t>(wkc, 0xFFFF)),
+                         std::memory_order_relaxed);
+  }
+}
+
+Result<void> Domain::set_reservation_state(std::uint32_t reservation, ReservationState state) {
+  if (bus_.on_bus_thread()) return refuse_on_bus_thread("set_reservation_state");
+  std::lock_guard lock(control_mutex_);
+  if (reservation >= reservation_count_.load(std::memory_order_relaxed)) {
+    return error(Errc::not_found, fmt::format("no reservation {}", reservation));
+  }
+  reservations_[reservation]->state.store(state, std::memory_order_release);
+  return ok();
+}
+
+Domain::ReservationState Domain::reservation_state(std::uint32_t reservation) const noexcept {
+  if (reservation >= reservation_count_.load(std::memory_order_acquire)) {
+    return ReservationState::absent;
+  }
+  return reservations_[reservation]->state.load(std::memory_order_acquire);
+}
+
+std::size_t Domain::reservation_used(std::uint32_t reservation) const {
+  std::lock_guard lock(control_mutex_);
+  if (reservation >= reservation_count_.load(std::memory_order_relaxed)) return 0;
+  return reservations_[reservation]->used;
+}
+
+std::uint64_t Domain::reservations_lost() const noexcept {
+  return reservations_lost_.load(std::memory_order_relaxed);
+}
+
+bool Domain::reservation_absent(const Entry& e) const noexcept {
+  return e.reservation != kNoReservation && e.key.kind != RegistrationKind::reserved &&
+         reservations_[e.reservation]->state.load(std::memory_order_acquire) !=
+             ReservationState::present;
+}
+
 std::vector<DomainDatagram> Domain::plan_locked() const {
   std::vector<DomainDatagram> out;
   const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
@@ -560,7 +796,7 @@ std::vector<DomainDatagram> Domain::plan_locked() const {
     std::vector<SlaveShare> shares;
     for (std::uint32_t i = first; i < count && entry(i).offset < end; ++i) {
       const Entry& e = entry(i);
-      if (!e.contributes_wkc) continue;
+      if (!e.contributes_wkc || e.reservation != kNoReservation) continue;
       auto it = std::find_if(shares.begin(), shares.end(),
                              [&](const SlaveShare& s) { return s.slave == e.key.slave; });
       if (it == shares.end()) {
@@ -596,8 +832,12 @@ Result<void> Domain::build_exchanges_locked() {
   plan->entry_count = entry_count_.load(std::memory_order_relaxed);
   for (const auto& d : plan->datagrams)
     plan->expected_total += d.expected_wkc;
+  std::size_t reserved_inputs = 0;
+  for (std::uint32_t k = 0; k < reservation_count_.load(std::memory_order_relaxed); ++k)
+    reserved_inputs += reservations_[k]->size;
   for (std::uint32_t i = 0; i < plan->entry_count; ++i) {
     if (entry(i).direction != PdoDirection::input) continue;
+    if (entry(i).reservation != kNoReservation) continue;  // published by their reservation
     if (entry(i).key.kind == RegistrationKind::sm_status) {
       plan->status_entries.push_back(i);
     } else {
@@ -607,7 +847,7 @@ Result<void> Domain::build_exchanges_locked() {
   plan->tx_image.assign(image_size_, 0);
   plan->rx_image.assign(image_size_, 0);
   plan->last_inputs.assign(image_size_, 0);
-  plan->changed.resize(plan->input_entries.size());
+  plan->changed.resize(plan->input_entries.size() + reserved_inputs);
   plan->seen_generation = restart_generation_.load(std::memory_order_relaxed);
   for (std::size_t k = 0; k < config_.exchanges_in_flight; ++k) {
     bus::Transaction tx;
@@ -625,6 +865,12 @@ Result<void> Domain::build_exchanges_locked() {
     plan->exchanges.push_back(std::move(x));
   }
   plan_ = std::move(plan);
+  for (std::uint32_t k = 0; k < reservation_count_.load(std::memory_order_relaxed); ++k) {
+    Reservation& r = *reservations_[k];
+    r.datagrams = plan_->datagrams.size();
+    r.shares = std::make_unique<std::atomic<std::uint16_t>[]>(r.datagrams);
+    compute_shares_locked(r);
+  }
   return ok();
 }
 
@@ -968,6 +1214,16 @@ Result<SampleInfo> Domain::sample_entry(const Entry& e, wire::MutableBytes out,
   f.refreshed_at = from_ns(refreshed);
   f.age = std::max(nanoseconds(0), Clock::now() - *f.refreshed_at);
   f.state = *f.age <= f.stale_after ? Freshness::fresh : Freshness::stale;
+  if (reservation_absent(e)) {
+    // A hot-connect group's input while the group is absent or still joining: what it holds is
+    // from its last presence, if any.
+    f.state = Freshness::stale;
+    if (fail_stale) {
+      return error(Errc::stale,
+                   fmt::format("{} (input) is stale: it belongs to {}, which is not present",
+                               to_string(e.key), reservations_[e.reservation]->name));
+    }
+  }
   if (fail_stale && f.state == Freshness::stale) {
     return error(
         Errc::stale,
@@ -1197,14 +1453,70 @@ void Domain::on_exchange_done(Exchange& x) noexcept {
     record_latency((now - x.submitted_at).count());
     std::uint32_t actual = 0;
     std::optional<std::uint16_t> first_bad;
+    const std::uint32_t reservations = reservation_count_.load(std::memory_order_acquire);
+    // Reservations (hot connect): present ones' shares are expected, joining ones' may be there
+    // or not (their FMMUs are being switched on). Read once per cycle.
+    std::uint32_t present = 0;
+    std::uint32_t joining = 0;
+    for (std::uint32_t k = 0; k < reservations; ++k) {
+      const auto st = reservations_[k]->state.load(std::memory_order_acquire);
+      if (st == ReservationState::present) present |= 1u << k;
+      if (st == ReservationState::joining) joining |= 1u << k;
+    }
+    auto share = [&](std::uint32_t mask, std::size_t slot) {
+      std::uint32_t sum = 0;
+      for (std::uint32_t k = 0; k < reservations; ++k) {
+        if ((mask & (1u << k)) != 0 && reservations_[k]->shares &&
+            slot < reservations_[k]->datagrams)
+          sum += reservations_[k]->shares[slot].load(std::memory_order_relaxed);
+      }
+      return sum;
+    };
     for (std::size_t slot = 0; slot < p.datagrams.size(); ++slot) {
       const std::uint16_t wkc = x.rt->wkc(slot);
       actual += wkc;
-      if (!first_bad && wkc != p.datagrams[slot].expected_wkc) {
-        first_bad = static_cast<std::uint16_t>(slot);
-      }
+      if (first_bad) continue;
+      std::uint32_t lo = p.datagrams[slot].expected_wkc;
+      if (present != 0) lo += share(present, slot);
+      const std::uint32_t hi = joining != 0 ? lo + share(joining, slot) : lo;
+      if (wkc != lo && wkc != hi) first_bad = static_cast<std::uint16_t>(slot);
     }
     c.last_wkc.store(actual, std::memory_order_relaxed);
+    if (first_bad && present != 0 && actual > 0) {
+      // A present reservation gone (a hot-connect group unplugged)? Its share, or every present
+      // one's (a group cut off the ones behind it), missing from every datagram and nothing
+      // else: the others' cycle is whole.
+      auto gone_explains = [&](std::uint32_t gone) {
+        for (std::size_t slot = 0; slot < p.datagrams.size(); ++slot) {
+          const std::uint32_t missing = share(gone, slot);
+          const std::uint32_t lo = p.datagrams[slot].expected_wkc + share(present, slot) - missing;
+          const std::uint32_t hi = joining != 0 ? lo + share(joining, slot) : lo;
+          const std::uint16_t wkc = x.rt->wkc(slot);
+          if (wkc != lo && wkc != hi) return false;
+        }
+        return true;
+      };
+      std::uint32_t gone = 0;
+      for (std::uint32_t k = 0; k < reservations && gone == 0; ++k) {
+        if ((present & (1u << k)) != 0 && gone_explains(1u << k)) gone = 1u << k;
+      }
+      if (gone == 0 && gone_explains(present)) gone = present;
+      bool counted = false;
+      for (std::uint32_t k = 0; k < reservations; ++k) {
+        if ((gone & (1u << k)) == 0) continue;
+        ReservationState expected = ReservationState::present;
+        if (!reservations_[k]->state.compare_exchange_strong(expected, ReservationState::absent,
+                                                             std::memory_order_acq_rel)) {
+          continue;
+        }
+        counted = true;
+        reservations_lost_.fetch_add(1, std::memory_order_relaxed);
+        if (DomainObserver* o = observer_.load(std::memory_order_acquire)) {
+          o->on_reservation_lost(*this, k);
+        }
+      }
+      if (counted || gone != 0) first_bad.reset();
+    }
     if (!first_bad && actual > 0) {
       classify_valid(x, now);
       return;
@@ -1307,7 +1619,15 @@ void Domain::classify_invalid(std::uint64_t cycle, CycleInvalid invalid,
 void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept {
   Plan& p = *plan_;
   std::size_t changed = 0;
-  for (const std::uint32_t index : p.input_entries) {
+  // The present reservations' inputs (hot connect) after the fixed ones'.
+  const std::uint32_t reservations = reservation_count_.load(std::memory_order_acquire);
+  std::uint32_t present = 0;
+  for (std::uint32_t k = 0; k < reservations; ++k) {
+    if (reservations_[k]->state.load(std::memory_order_acquire) == ReservationState::present) {
+      present |= 1u << k;
+    }
+  }
+  auto detect = [&](std::uint32_t index) {
     const Entry& e = entry(index);
     const std::uint8_t* fresh = p.rx_image.data() + e.offset;
     const std::uint8_t* old = p.last_inputs.data() + e.offset;
@@ -1315,16 +1635,26 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
     if (p.published) {
       while (first < e.size && fresh[first] == old[first])
         ++first;
-      if (first == e.size) continue;
+      if (first == e.size) return;
     }
     std::size_t last = e.size - 1;
     if (p.published) {
       while (last > first && fresh[last] == old[last])
         --last;
     }
+    if (changed >= p.changed.size()) return;
     p.changed[changed++] = {index, static_cast<std::uint16_t>(first),
                             static_cast<std::uint16_t>(last)};
+  };
+  for (std::uint32_t k = 0; k < reservations; ++k) {
+    if ((present & (1u << k)) == 0) continue;
+    const Reservation& r = *reservations_[k];
+    const std::uint32_t n = r.input_count.load(std::memory_order_acquire);
+    for (std::uint32_t i = 0; i < n; ++i)
+      detect(r.inputs[i].load(std::memory_order_relaxed));
   }
+  for (const std::uint32_t index : p.input_entries)
+    detect(index);
 
   const std::int64_t now_ns = to_ns(now);
   const std::uint64_t seq = input_seq_.load(std::memory_order_relaxed);
@@ -1338,14 +1668,23 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
   }
   // SyncManager status bytes (a mailbox's "full" bit) are read by the master itself: published
   // with the cycle, but not change records (they are nobody's signal).
-  for (const std::uint32_t index : p.status_entries) {
+  auto status = [&](std::uint32_t index) {
     Entry& e = entry(index);
     const std::uint8_t* fresh = p.rx_image.data() + e.offset;
     std::uint8_t* old = p.last_inputs.data() + e.offset;
-    if (p.published && std::memcmp(fresh, old, e.size) == 0) continue;
+    if (p.published && std::memcmp(fresh, old, e.size) == 0) return;
     store_bytes(input_words_.load(std::memory_order_relaxed), e.offset, fresh, e.size);
     e.input_changed_ns.store(now_ns, std::memory_order_relaxed);
     std::memcpy(old, fresh, e.size);
+  };
+  for (const std::uint32_t index : p.status_entries)
+    status(index);
+  for (std::uint32_t k = 0; k < reservations; ++k) {
+    if ((present & (1u << k)) == 0) continue;
+    const Reservation& r = *reservations_[k];
+    const std::uint32_t n = r.status_count.load(std::memory_order_acquire);
+    for (std::uint32_t i = 0; i < n; ++i)
+      status(r.statuses[i].load(std::memory_order_relaxed));
   }
   refreshed_ns_.store(now_ns, std::memory_order_relaxed);
   input_seq_.store(seq + 2, std::memory_order_release);

@@ -44,7 +44,12 @@ LogLevel log_level_of(const Event& e) noexcept {
     case EventKind::link_reopened:
       return LogLevel::info;
     case EventKind::link_redundancy:
+    case EventKind::hotconnect_lost:
+    case EventKind::hotconnect_refused:
       return LogLevel::warn;
+    case EventKind::hotconnect_appeared:
+    case EventKind::hotconnect_ready:
+      return LogLevel::info;
     case EventKind::link_down:
       return LogLevel::error;
     case EventKind::frames_lost:

@@ -14,10 +14,17 @@ namespace ecat::master {
 namespace {
 
 constexpr std::array<std::string_view, kEventKindCount> kNames{
-    "master.state",  "slave.state",   "domain.state",      "domain.health",  "fault.raised",
-    "fault.cleared", "recovery.step", "activation.failed", "dc.locked",      "dc.lost",
-    "link.down",     "link.up",       "sdo.failed",        "mailbox.failed", "bus.frames_lost",
-    "bus.timeouts",  "link.reopened", "link.redundancy",
+    "master.state",        "slave.state",
+    "domain.state",        "domain.health",
+    "fault.raised",        "fault.cleared",
+    "recovery.step",       "activation.failed",
+    "dc.locked",           "dc.lost",
+    "link.down",           "link.up",
+    "sdo.failed",          "mailbox.failed",
+    "bus.frames_lost",     "bus.timeouts",
+    "link.reopened",       "link.redundancy",
+    "hotconnect.appeared", "hotconnect.ready",
+    "hotconnect.lost",     "hotconnect.refused",
 };
 
 template <std::size_t N>
@@ -73,6 +80,11 @@ std::string_view subject_key(EventKind kind) noexcept {
     case EventKind::frames_lost:
     case EventKind::timeouts:
       return "";
+    case EventKind::hotconnect_appeared:
+    case EventKind::hotconnect_ready:
+    case EventKind::hotconnect_lost:
+    case EventKind::hotconnect_refused:
+      return "group";
     default:
       return "slave";
   }
@@ -93,6 +105,8 @@ std::string_view value_key(EventKind kind) noexcept {
       return "total";
     case EventKind::link_reopened:
       return "attempts";
+    case EventKind::hotconnect_ready:
+      return "join_ns";
     default:
       return "";
   }

@@ -219,6 +219,22 @@ Json status_json(Master& master) {
     out["activation_failures"].push_back(std::move(j));
   }
   out["runtime_faults"] = st.runtime_faults;
+  if (!st.hot_connect.empty()) {
+    Json groups = Json::array();
+    for (const auto& g : st.hot_connect) {
+      Json j{{"group", g.group},
+             {"state", std::string(to_string(g.state))},
+             {"slaves", g.slaves},
+             {"appearances", g.appearances},
+             {"losses", g.losses}};
+      j["position"] = g.position ? Json(*g.position) : Json(nullptr);
+      if (!g.detail.empty()) j["detail"] = g.detail;
+      if (g.last_join) j["last_join_us"] = g.last_join->count() / 1000;
+      groups.push_back(std::move(j));
+    }
+    out["hot_connect"] = std::move(groups);
+    if (!st.hot_connect_refused.empty()) out["hot_connect_refused"] = st.hot_connect_refused;
+  }
   if (st.last_failure) {
     out["last_failure"] = {{"kind", st.last_failure->kind},
                            {"error", st.last_failure->error.describe()}};

@@ -20,6 +20,7 @@
 #include <ecat/master/mailbox_gateway.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/ring_break.hpp>
+#include <ecat/master/sii_reader.hpp>
 #include <ecat/master/startup.hpp>
 
 #include "cycle_thread.hpp"
@@ -44,6 +45,24 @@ constexpr auto kAdaptiveFrameTimeoutLimit = std::chrono::milliseconds(250);
 std::chrono::milliseconds ms(std::chrono::nanoseconds d) {
   return std::chrono::duration_cast<std::chrono::milliseconds>(d);
 }
+
+}  // namespace
+
+std::string_view to_string(HotConnectState state) noexcept {
+  switch (state) {
+    case HotConnectState::absent:
+      return "absent";
+    case HotConnectState::joining:
+      return "joining";
+    case HotConnectState::present:
+      return "present";
+    case HotConnectState::failed:
+      return "failed";
+  }
+  return "unknown";
+}
+
+namespace {
 
 wire::AlState min_target(TargetState session_target, TargetState slave_target) {
   return al_state_of(std::min(session_target, slave_target));
@@ -429,6 +448,14 @@ struct Master::Impl : DomainObserver {
     auto effective = effective_slaves(*count, aliases);
     if (!effective) co_return effective.error();
     auto configs = std::move(*effective);
+    s->fixed_end = *count;
+    if (!s->config.hot_connect.empty()) {
+      // Hot-connect groups sit behind the last fixed slave: whatever is found there is theirs to
+      // claim once the session runs (hot_connect_scan), never part of the startup.
+      s->fixed_end = 0;
+      for (const auto& c : configs)
+        s->fixed_end = std::max<std::uint16_t>(s->fixed_end, *c.position + 1);
+    }
     auto dl = co_await read_dl_status(loop, bus, *count, s->config.base_station);
     if (!dl) co_return dl.error();
     s->dl_status = std::move(*dl);
@@ -479,8 +506,10 @@ struct Master::Impl : DomainObserver {
       std::lock_guard lock(mutex);  // Master::slave() reads the list from other threads
       s->slaves.push_back(std::move(slave));
     }
+    if (auto r = make_hot_connect_groups(*s); !r) co_return r.error();
     bool any_active = false;
     for (const auto& slave : s->slaves) {
+      if (SlaveAccess::absent(*slave)) continue;
       if (SlaveAccess::target(*slave) != TargetState::preop) any_active = true;
     }
     // Held in PREOP from the start: no health polls until activation (the reference hands its
@@ -489,8 +518,10 @@ struct Master::Impl : DomainObserver {
     transition(MasterState::awaiting_preop);
     const auto deadline = exec::Clock::now() + s->config.awaiting_preop_timeout;
     std::vector<exec::Task<Result<void>>> ups;
-    for (auto& slave : s->slaves)
+    for (auto& slave : s->slaves) {
+      if (SlaveAccess::absent(*slave)) continue;  // a hot-connect group's: joins later
       ups.push_back(bring_up_with_retry(s, *slave, deadline));
+    }
     auto results = co_await exec::when_all(loop, std::move(ups));
     if (s->stopping) co_return Error(Errc::closed, "stopped");
     for (auto& r : results) {
@@ -508,6 +539,7 @@ struct Master::Impl : DomainObserver {
         desired = TargetState::preop;
       }
       transition(MasterState::preop_ready);
+      start_hot_connect(s);
       co_return ok();
     }
     {
@@ -515,7 +547,329 @@ struct Master::Impl : DomainObserver {
       desired = TargetState::op;
     }
     co_await run_activation(s);
+    start_hot_connect(s);
     co_return ok();
+  }
+
+  // ---- hot connect ---------------------------------------------------------------------------
+  // Groups of slaves behind the fixed ones that come and go (MasterConfig::hot_connect; docs:
+  // ARCHITECTURE.md "Hot connect"). Their Slave objects exist from the start, absent; every domain
+  // they map into reserves room for them. A task on the loop polls the slave count (one BRD per
+  // hot_connect_poll); slaves found behind the last present group are identified (alias, or the
+  // SII identity of the first one, read at a scratch station), given their stations and brought to
+  // the session's target while the domains accept their share of the working counter or not; the
+  // group is lost when the count shrinks past it, when a domain finds its share gone, or when one
+  // of its slaves stops answering its health poll.
+
+  Result<void> make_hot_connect_groups(Session& s) {
+    const auto& groups = s.config.hot_connect;
+    auto station = static_cast<std::uint16_t>(s.config.base_station + s.config.slaves.size());
+    for (std::size_t gi = 0; gi < groups.size(); ++gi) {
+      const auto& group = groups[gi];
+      HotConnectRuntime rt;
+      rt.index = gi;
+      rt.name = group.name;
+      std::vector<std::uint16_t> stations;
+      std::vector<std::string> used;
+      auto use = [&](const std::string& id) {
+        if (std::find(used.begin(), used.end(), id) == used.end()) used.push_back(id);
+      };
+      for (const auto& c : group.slaves) {
+        auto slave = std::make_unique<Slave>(s, c, s.fixed_end, station);
+        SlaveAccess::set_absent(*slave, true);
+        stations.push_back(station++);
+        if (c.process_data.kind == ProcessDataRequest::Kind::all) use(c.process_data.domain);
+        for (const auto& route : c.process_data.routes)
+          use(route.domain);
+        rt.slaves.push_back(slave.get());
+        std::lock_guard lock(mutex);
+        s.slaves.push_back(std::move(slave));
+      }
+      const std::size_t bytes = group.reserve_bytes != 0
+                                    ? group.reserve_bytes
+                                    : std::min<std::size_t>(64 * group.slaves.size(), 0xFFFF);
+      for (const auto& id : used) {
+        Domain* d = s.find_domain(id);
+        if (!d) continue;
+        auto r = d->reserve(group.name, bytes, stations);
+        if (!r) {
+          return r.error().context(fmt::format(
+              "hot_connect group {}: reserving {} bytes in domain {}", group.name, bytes, id));
+        }
+        rt.reservations.emplace_back(d, *r);
+      }
+      std::lock_guard lock(mutex);
+      s.hot_connect.push_back(std::move(rt));
+    }
+    s.hot_connect_scratch = station;
+    return ok();
+  }
+
+  static HotConnectRuntime* group_of(Session& s, const Slave& slave) {
+    for (auto& g : s.hot_connect) {
+      if (std::find(g.slaves.begin(), g.slaves.end(), &slave) != g.slaves.end()) return &g;
+    }
+    return nullptr;
+  }
+
+  // The session's walks (activation, the slave retry loop) take a group's slaves only while the
+  // group is present: joining ones are walked by their join.
+  static bool hot_connect_walkable(Session& s, const Slave& slave) {
+    if (SlaveAccess::absent(slave)) return false;
+    const HotConnectRuntime* g = group_of(s, slave);
+    return g == nullptr || g->state == HotConnectState::present;
+  }
+
+  void start_hot_connect(const std::shared_ptr<Session>& s) {
+    if (s->hot_connect.empty() || s->stopping || session != s) return;
+    exec::spawn(loop, hot_connect_watch(s));
+  }
+
+  exec::Task<void> hot_connect_watch(std::shared_ptr<Session> s) {
+    while (!s->stopping && session == s) {
+      co_await hot_connect_scan(s);
+      if (s->stopping || session != s) break;
+      co_await exec::sleep_for(loop, s->config.hot_connect_poll);
+    }
+  }
+
+  void set_group(HotConnectRuntime& g, HotConnectState to, std::string detail) {
+    std::lock_guard lock(mutex);
+    g.state = to;
+    g.detail = std::move(detail);
+  }
+
+  static std::array<std::uint8_t, 2> le16(std::uint16_t v) {
+    std::array<std::uint8_t, 2> out{};
+    wire::store_le16(out.data(), v);
+    return out;
+  }
+
+  exec::Task<void> hot_connect_scan(std::shared_ptr<Session> s) {
+    auto& bus = *s->bus;
+    auto count = co_await count_slaves(loop, bus, {50ms, 0});
+    if (!count || s->stopping || session != s) co_return;  // a lost frame says nothing
+    const std::uint16_t n = *count;
+    // Groups reaching past the end of the ring are gone (and everything behind them with them).
+    for (auto& g : s->hot_connect) {
+      if (g.position && *g.position + g.slaves.size() > n && g.state != HotConnectState::absent) {
+        group_lost(s, g, fmt::format("the ring has {} slaves", n));
+      }
+    }
+    if (n < s->fixed_end) co_return;  // fixed slaves missing: the session's own recovery
+    std::uint16_t end = s->fixed_end;
+    for (const auto& g : s->hot_connect) {
+      if (g.position && g.state != HotConnectState::absent)
+        end =
+            std::max<std::uint16_t>(end, static_cast<std::uint16_t>(*g.position + g.slaves.size()));
+    }
+    if (n <= end) co_return;
+    if (n == s->hot_connect_refused_count && !s->hot_connect_refused.empty()) co_return;
+    {
+      std::lock_guard lock(mutex);
+      s->hot_connect_refused.clear();
+      s->hot_connect_refused_count = 0;
+    }
+    // The first slave behind the known part: at the scratch station, its alias and identity.
+    const std::uint16_t at = end;
+    const std::uint16_t scratch = s->hot_connect_scratch;
+    const bus::TransactOptions quick{50ms, 1};
+    bus::Transaction assign;
+    assign.apwr(at, wire::reg::kStationAddress, le16(scratch));
+    auto assigned = co_await exec::transact(loop, bus, std::move(assign), quick);
+    if (!assigned || assigned->wkc(0) != 1 || s->stopping || session != s) co_return;
+    bus::Transaction alias_tx;
+    alias_tx.fprd(scratch, wire::reg::kStationAlias, 2);
+    auto alias_reply = co_await exec::transact(loop, bus, std::move(alias_tx), quick);
+    if (!alias_reply || alias_reply->wkc(0) != 1) co_return;
+    const std::uint16_t alias = wire::load_le16(alias_reply->data(0).data());
+    auto words = co_await read_sii_words(loop, bus, scratch, 0x0008, 4);
+    if (s->stopping || session != s) co_return;
+    if (!words || words->size() < 8) co_return;  // tried again at the next poll
+    const std::uint32_t vendor = wire::load_le32(words->data());
+    const std::uint32_t product = wire::load_le32(words->data() + 4);
+
+    HotConnectRuntime* match = nullptr;
+    std::string how;
+    for (auto& g : s->hot_connect) {
+      if (g.state == HotConnectState::present || g.state == HotConnectState::joining) continue;
+      const auto& cfg = s->config.hot_connect[g.index];
+      const auto& first = cfg.slaves.front();
+      if (cfg.alias) {
+        if (alias != *cfg.alias) continue;
+        how = fmt::format("alias 0x{:04x} at position {}", alias, at);
+      } else {
+        const auto v = cfg.vendor_id ? cfg.vendor_id : first.vendor_id;
+        const auto p = cfg.product_code ? cfg.product_code : first.product_code;
+        if (vendor != v.value_or(~0u) || product != p.value_or(~0u)) continue;
+        how = fmt::format("vendor 0x{:08x} product 0x{:08x} at position {}", vendor, product, at);
+      }
+      match = &g;
+      break;
+    }
+    if (!match) {
+      const auto why = fmt::format(
+          "position {}: alias 0x{:04x}, vendor 0x{:08x} product "
+          "0x{:08x}: matches no absent hot-connect group; not configured",
+          at, alias, vendor, product);
+      {
+        std::lock_guard lock(mutex);
+        s->hot_connect_refused = why;
+        s->hot_connect_refused_count = n;
+      }
+      Event e = make_event(EventKind::hotconnect_refused, {}, why);
+      e.subject = at;
+      events.publish(e);
+      co_return;
+    }
+    if (exec::Clock::now() < match->retry_after) co_return;
+    if (n - at < static_cast<int>(match->slaves.size())) {
+      set_group(*match, HotConnectState::absent,
+                fmt::format("{}: {} of its {} slaves in the ring so far", how, n - at,
+                            match->slaves.size()));
+      co_return;
+    }
+    co_await join_group(s, *match, at, std::move(how));
+  }
+
+  exec::Task<void> join_group(std::shared_ptr<Session> s, HotConnectRuntime& g, std::uint16_t at,
+                              std::string how) {
+    auto& bus = *s->bus;
+    const auto noticed = exec::Clock::now();
+    {
+      std::lock_guard lock(mutex);
+      g.state = HotConnectState::joining;
+      g.position = at;
+      g.detail = how;
+      ++g.appearances;
+    }
+    {
+      Event e = make_event(EventKind::hotconnect_appeared, g.name, how);
+      e.subject = at;
+      events.publish(e);
+    }
+    bus::Transaction assign;
+    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
+      assign.apwr(static_cast<std::uint16_t>(at + k), wire::reg::kStationAddress,
+                  le16(g.slaves[k]->station()));
+    }
+    auto assigned = co_await exec::transact(loop, bus, std::move(assign));
+    if (s->stopping || session != s) co_return;
+    if (!assigned) {
+      co_await fail_group(s, g, assigned.error().context("assigning the group's stations"));
+      co_return;
+    }
+    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
+      if (assigned->wkc(k) != 1) {
+        co_await fail_group(s, g,
+                            Error(Errc::wkc_mismatch,
+                                  fmt::format("assigning station 0x{:04x} to position {}: "
+                                              "working counter {}",
+                                              g.slaves[k]->station(), at + k, assigned->wkc(k))));
+        co_return;
+      }
+      SlaveAccess::place(*g.slaves[k], static_cast<std::uint16_t>(at + k));
+    }
+    // From here the group's FMMUs may answer at any cycle: the domains take either count.
+    for (const auto& [d, r] : g.reservations)
+      (void)d->set_reservation_state(r, Domain::ReservationState::joining);
+    std::vector<exec::Task<Result<void>>> ups;
+    for (Slave* slave : g.slaves)
+      ups.push_back(SlaveAccess::bring_up(*slave, s));
+    auto brought = co_await exec::when_all(loop, std::move(ups));
+    if (s->stopping || session != s) co_return;
+    for (auto& r : brought) {
+      if (!r) {
+        co_await fail_group(s, g, r.error());
+        co_return;
+      }
+    }
+    if (g.state != HotConnectState::joining) co_return;  // lost meanwhile
+    TargetState want;
+    {
+      std::lock_guard lock(mutex);
+      want = desired;
+    }
+    if (current() == MasterState::preop_ready || current() == MasterState::awaiting_preop)
+      want = TargetState::preop;
+    for (Slave* slave : g.slaves) {
+      SlaveAccess::set_absent(*slave, false);
+      SlaveAccess::start_health(*slave, s);
+    }
+    std::vector<exec::Task<Result<void>>> walks;
+    for (Slave* slave : g.slaves)
+      walks.push_back(SlaveAccess::go_to(*slave, min_target(want, SlaveAccess::target(*slave)), s));
+    auto walked = co_await exec::when_all(loop, std::move(walks));
+    if (s->stopping || session != s) co_return;
+    for (std::size_t k = 0; k < walked.size(); ++k) {
+      if (!walked[k]) {
+        co_await fail_group(s, g, walked[k].error());
+        co_return;
+      }
+    }
+    if (g.state != HotConnectState::joining) co_return;
+    for (const auto& [d, r] : g.reservations)
+      (void)d->set_reservation_state(r, Domain::ReservationState::present);
+    const auto took = exec::Clock::now() - noticed;
+    {
+      std::lock_guard lock(mutex);
+      g.state = HotConnectState::present;
+      g.last_join = took;
+    }
+    for (Slave* slave : g.slaves)
+      SlaveAccess::clear_fault(*slave);
+    Event e = make_event(EventKind::hotconnect_ready, g.name, how);
+    e.subject = at;
+    e.value = static_cast<std::uint64_t>(took.count());
+    events.publish(e);
+  }
+
+  // A group that was recognised but could not be brought up: its slaves back to INIT with their
+  // FMMUs off (so they touch no domain), the group failed, tried again after retry_interval.
+  exec::Task<void> fail_group(std::shared_ptr<Session> s, HotConnectRuntime& g, Error error) {
+    for (const auto& [d, r] : g.reservations)
+      (void)d->set_reservation_state(r, Domain::ReservationState::absent);
+    auto& bus = *s->bus;
+    bus::Transaction off;
+    const std::vector<std::uint8_t> fmmus(8 * wire::reg::kFmmuSize, 0);
+    for (Slave* slave : g.slaves) {
+      SlaveAccess::lose(*slave, fmt::format("hot-connect group {} failed", g.name));
+      off.fpwr(slave->station(), wire::reg::kFmmuBase, fmmus);
+      off.fpwr(slave->station(), wire::reg::kAlControl,
+               le16(wire::encode_al_control(wire::AlState::init, true)));
+    }
+    (void)co_await exec::transact(loop, bus, std::move(off), {50ms, 0});
+    const auto why = error.describe();
+    {
+      std::lock_guard lock(mutex);
+      g.state = HotConnectState::failed;
+      g.detail = why;
+      g.position.reset();
+      g.retry_after = exec::Clock::now() + s->config.retry_interval;
+    }
+    events.publish(make_event(EventKind::hotconnect_refused, g.name, why));
+  }
+
+  void group_lost(const std::shared_ptr<Session>& s, HotConnectRuntime& g, std::string how) {
+    if (g.state == HotConnectState::absent) return;
+    for (const auto& [d, r] : g.reservations)
+      (void)d->set_reservation_state(r, Domain::ReservationState::absent);
+    for (Slave* slave : g.slaves) {
+      SlaveAccess::lose(*slave, fmt::format("hot-connect group {} left the ring", g.name));
+      clear_runtime_fault("slave:" + slave->name());
+    }
+    const auto at = g.position;
+    {
+      std::lock_guard lock(mutex);
+      g.state = HotConnectState::absent;
+      g.position.reset();
+      g.detail = how;
+      ++g.losses;
+    }
+    Event e = make_event(EventKind::hotconnect_lost, g.name, how);
+    if (at) e.subject = *at;
+    events.publish(e);
+    (void)s;
   }
 
   // ---- distributed clocks --------------------------------------------------------------------
@@ -524,7 +878,7 @@ struct Master::Impl : DomainObserver {
   // without a DC-capable slave, or a failed initialisation, runs without DC: dc_status() says why.
   exec::Task<void> init_dc(std::shared_ptr<Session> s) {
     std::vector<std::uint16_t> stations;
-    for (std::uint16_t pos = 0; pos < s->slave_count; ++pos)
+    for (std::uint16_t pos = 0; pos < s->fixed_end; ++pos)
       stations.push_back(static_cast<std::uint16_t>(s->config.base_station + pos));
     DcInitOptions options;
     options.threshold = s->config.dc->lock_threshold;
@@ -740,6 +1094,7 @@ struct Master::Impl : DomainObserver {
     for (auto& slave : s->slaves) {
       const auto target = min_target(want, SlaveAccess::target(*slave));
       if (SlaveAccess::awaiting_rebuild(*slave)) continue;
+      if (!hot_connect_walkable(*s, *slave)) continue;  // a group not (yet) present
       // While recovering, a retained PREOP failure of a slave without process data is a
       // slave-local fault its own retry loop heals: it does not hold the session in recovering.
       if (recovering && retained_slave_local(*slave)) continue;
@@ -814,8 +1169,10 @@ struct Master::Impl : DomainObserver {
     // target), the highest of those (a session whose slaves are all held in PREOP stays
     // preop_ready even when OP is desired).
     TargetState reached = TargetState::preop;
-    for (auto& slave : s->slaves)
+    for (auto& slave : s->slaves) {
+      if (SlaveAccess::absent(*slave)) continue;
       reached = std::max(reached, std::min(want, SlaveAccess::target(*slave)));
+    }
     transition(state_for(reached));
   }
 
@@ -1224,6 +1581,21 @@ struct Master::Impl : DomainObserver {
       }
     }
   }
+  void on_reservation_lost(Domain& domain, std::uint32_t reservation) override {
+    loop.post([this, d = &domain, reservation] {
+      if (!owns(d)) return;
+      auto s = session;
+      for (auto& g : s->hot_connect) {
+        for (const auto& [gd, r] : g.reservations) {
+          if (gd == d && r == reservation) {
+            group_lost(s, g,
+                       fmt::format("its share of domain {}'s working counter vanished", d->id()));
+            return;
+          }
+        }
+      }
+    });
+  }
   // Whether `d` belongs to the running session (a late event may outlive its session).
   bool owns(const Domain* d) const {
     if (!session || session->stopping) return false;
@@ -1291,6 +1663,12 @@ struct Master::Impl : DomainObserver {
     if (!s || s->stopping) return;
     Slave* slave = s->find_slave(notice.slave);
     if (!slave) return;
+    if (HotConnectRuntime* g = group_of(*s, *slave); g && notice.kind == SlaveNotice::Kind::down) {
+      // A group's slave lost: the group left the ring (or part of it did); it joins again when
+      // it is found again. Not a fault of the session.
+      group_lost(s, *g, fmt::format("slave {} stopped answering", notice.slave));
+      return;
+    }
     const std::string key = "slave:" + notice.slave;
     switch (notice.kind) {
       case SlaveNotice::Kind::down:
@@ -1369,6 +1747,7 @@ struct Master::Impl : DomainObserver {
         const auto target = min_target(want, SlaveAccess::target(*slave));
         const auto st = slave->state();
         if (SlaveAccess::awaiting_rebuild(*slave)) continue;
+        if (!hot_connect_walkable(*s, *slave)) continue;
         if (al_state_of(st) != target) {
           exec::spawn(loop, restore_slave(s, slave.get(), "slave:" + slave->name(), true));
         }
@@ -1879,6 +2258,20 @@ MasterStatus Master::status() const {
       if (out.redundancy && out.redundancy->ring == link::RingState::broken)
         out.redundancy->break_location = impl_->ring_break;
       out.slave_count = impl_->session->slave_count;
+      for (const auto& g : impl_->session->hot_connect) {
+        HotConnectStatus h;
+        h.group = g.name;
+        h.state = g.state;
+        h.position = g.position;
+        for (const Slave* slave : g.slaves)
+          h.slaves.push_back(slave->name());
+        h.detail = g.detail;
+        h.appearances = g.appearances;
+        h.losses = g.losses;
+        h.last_join = g.last_join;
+        out.hot_connect.push_back(std::move(h));
+      }
+      out.hot_connect_refused = impl_->session->hot_connect_refused;
       for (const auto& slave : impl_->session->slaves)
         out.illegal_slave_transitions += SlaveAccess::refused_transitions(*slave);
       for (const auto& d : impl_->session->domains)

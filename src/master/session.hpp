@@ -20,6 +20,7 @@
 #include <ecat/master/dc.hpp>
 #include <ecat/master/domain.hpp>
 #include <ecat/master/driver.hpp>
+#include <ecat/master/master.hpp>
 #include <ecat/master/slave.hpp>
 #include <ecat/wire/registers.hpp>
 
@@ -34,6 +35,22 @@ struct SlaveNotice {
   Kind kind = Kind::down;
   std::string slave;
   std::string detail;
+};
+
+// A hot-connect group of the session (MasterConfig::hot_connect[index]). The loop writes; the
+// fields a status reads are written under the master's mutex.
+struct HotConnectRuntime {
+  std::size_t index = 0;
+  std::string name;
+  std::vector<Slave*> slaves;
+  std::vector<std::pair<Domain*, std::uint32_t>> reservations;  // domain, reservation
+  HotConnectState state = HotConnectState::absent;
+  std::optional<std::uint16_t> position;
+  std::string detail;
+  std::uint64_t appearances = 0;
+  std::uint64_t losses = 0;
+  std::optional<std::chrono::nanoseconds> last_join;
+  exec::Clock::time_point retry_after{};  // a failed join is tried again from then on
 };
 
 struct Session : std::enable_shared_from_this<Session> {
@@ -56,6 +73,12 @@ struct Session : std::enable_shared_from_this<Session> {
   DriverRegistry drivers = config.drivers;
   std::uint16_t slave_count = 0;
   std::vector<wire::DlStatus> dl_status;
+  // Hot connect: the fixed slaves end before this position; the groups follow it.
+  std::uint16_t fixed_end = 0;
+  std::vector<HotConnectRuntime> hot_connect;
+  std::uint16_t hot_connect_scratch = 0;        // the station a candidate is read at
+  std::string hot_connect_refused;              // the last device that matched no group
+  std::uint16_t hot_connect_refused_count = 0;  // ... at this slave count
   std::atomic<bool> stopping{false};
   // What the cycle thread's CycleThreadOptions came to (written once by the bus thread), and
   // what it holds for the session (cpu_dma_latency, the memory lock; written by the bus thread at

@@ -837,7 +837,7 @@ exec::Task<void> Slave::Impl::health_loop(std::shared_ptr<Session> keep) {
     if (session.stopping) break;
     // A session held in PREOP since startup does not poll until it is activated (the
     // reference's rule, scenarios 47-51).
-    if (session.health_held) {
+    if (session.health_held || absent.load(std::memory_order_acquire)) {
       failed_polls = 0;
       continue;
     }

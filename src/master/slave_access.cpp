@@ -29,6 +29,33 @@ TargetState SlaveAccess::target(const Slave& slave) noexcept {
   return slave.impl().config.target;
 }
 
+void SlaveAccess::set_absent(Slave& slave, bool absent) noexcept {
+  slave.impl().absent.store(absent, std::memory_order_release);
+}
+
+bool SlaveAccess::absent(const Slave& slave) noexcept {
+  return slave.impl().absent.load(std::memory_order_acquire);
+}
+
+void SlaveAccess::place(Slave& slave, std::uint16_t position) {
+  slave.position_.store(position, std::memory_order_relaxed);
+  auto& impl = slave.impl();
+  impl.rebuild_pending = false;
+  impl.failed_polls = 0;
+  std::lock_guard lock(impl.mutex);
+  impl.known_identity.reset();
+}
+
+void SlaveAccess::lose(Slave& slave, std::string why) {
+  auto& impl = slave.impl();
+  impl.absent.store(true, std::memory_order_release);
+  const auto now = impl.state();
+  if (now == SlaveState::preop || now == SlaveState::safeop || now == SlaveState::op) {
+    impl.raise_fault(std::move(why));
+    impl.set_state(SlaveState::down);
+  }
+}
+
 bool SlaveAccess::awaiting_rebuild(const Slave& slave) noexcept {
   return slave.impl().awaiting_rebuild();
 }

@@ -54,6 +54,17 @@ class SlaveAccess {
   // Clears the slave's tracked fault (published when there was one).
   static void clear_fault(Slave& slave);
 
+  // ---- hot connect -----------------------------------------------------------------------------
+  // A hot-connect group's slave that is not in the ring: its health loop leaves it alone and the
+  // master's walks skip it. Loop thread writes, any thread reads.
+  static void set_absent(Slave& slave, bool absent) noexcept;
+  static bool absent(const Slave& slave) noexcept;
+  // The group appeared at `position`: the slave is there now, any unit of its identity (the serial
+  // number seen before is forgotten).
+  static void place(Slave& slave, std::uint16_t position);
+  // The group went: DOWN when it was in PREOP or above, with `why` as its fault.
+  static void lose(Slave& slave, std::string why);
+
   // ---- what the master's policy asks (any thread; they take the slave's lock) ----------------
   // A PREOP configuration failure is retained and the slave was configured without process data:
   // the failure cannot hold a domain back.

@@ -50,6 +50,8 @@ struct Slave::Impl {
   }
   // Lost while in INIT or BOOTSTRAP (a fault, no state change); loop thread.
   bool lost_in_place = false;
+  // A hot-connect group's slave whose group is not in the ring (SlaveAccess::set_absent).
+  std::atomic<bool> absent{false};
 
   // Guards everything below (application threads read snapshots; the loop writes).
   mutable std::mutex mutex;

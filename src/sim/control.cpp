@@ -38,10 +38,10 @@ using Json = nlohmann::ordered_json;
 // The request's "id" as it will be echoed; none when the request had none.
 using RequestId = std::optional<Json>;
 
-constexpr std::array<std::string_view, 14> kOps{
+constexpr std::array<std::string_view, 15> kOps{
     "status",      "fault.inject", "fault.clear",  "fault.list",  "signals",
     "signal.get",  "signal.set",   "signal.clear", "power_cycle", "link",
-    "memory.read", "profiles",     "ring",         "ping"};
+    "memory.read", "profiles",     "ring",         "ping",        "hotconnect"};
 
 std::string hex_bytes(std::span<const std::uint8_t> bytes) {
   std::string out;
@@ -144,6 +144,14 @@ void add_status(Json& out, const SimStatus& st) {
                          {"responses_dropped", st.fault_stats.responses_dropped},
                          {"replies_altered", st.fault_stats.replies_altered}};
   out["faults"] = faults_json(st.faults);
+  Json groups = Json::array();
+  for (const auto& g : st.hot_connect) {
+    groups.push_back(Json{{"group", g.name},
+                          {"first", g.first < st.slaves.size() ? st.slaves[g.first].name : ""},
+                          {"slaves", g.slaves},
+                          {"plugged", g.plugged}});
+  }
+  out["hot_connect"] = std::move(groups);
 }
 
 // The id echoed as the client wrote it: a string stays a string, a number a number.
@@ -387,6 +395,15 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
     Json out = ok_reply(id);
     out["ring"] = info.ring;
     return reply(out);
+  }
+  if (op == "hotconnect") {
+    ECAT_CHECK(r.keys({"op", "id", "group", "plugged"}));
+    auto group = r.text("group");
+    if (!group) return fail(group.error());
+    auto plugged = r.boolean("plugged");
+    if (!plugged) return fail(plugged.error());
+    ECAT_CHECK(server.plug(*group, *plugged));
+    return reply(ok_reply(id));
   }
   if (op == "memory.read") {
     ECAT_CHECK(r.keys({"op", "id", "slave", "address", "length"}));

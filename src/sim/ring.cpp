@@ -25,8 +25,8 @@ using tree::spec_error;
 using tree::SpecContext;
 using tree::SpecNode;
 
-constexpr std::array<std::string_view, 6> kMasterSections{"master",  "link", "slaves",
-                                                          "domains", "dc",   "targets"};
+constexpr std::array<std::string_view, 7> kMasterSections{
+    "master", "link", "slaves", "domains", "dc", "targets", "hot_connect"};
 constexpr std::size_t kMaxSlaves = 4096;
 
 // ---- Ring sections ----------------------------------------------------------------------------
@@ -269,10 +269,10 @@ class RingParser {
   }
 
   Result<void> parse_slave(const SpecNode& node, const std::string& path, Ring& ring) {
-    if (auto r =
-            tree::check_keys(c_, node, path,
-                             {"name", "profile", "file", "options", "clock", "esc", "start",
-                              "objects", "parent", "port", "cable_delay_ns", "timing", "count"});
+    if (auto r = tree::check_keys(
+            c_, node, path,
+            {"name", "profile", "file", "options", "clock", "esc", "start", "objects", "parent",
+             "port", "cable_delay_ns", "timing", "count", "hot_connect"});
         !r) {
       return r;
     }
@@ -402,6 +402,35 @@ class RingParser {
       if (!p) return std::move(p).error();
       slave.port = static_cast<std::uint8_t>(*p);
     }
+    if (const SpecNode* hc = node.find("hot_connect")) {
+      const std::string hp = tree::join_path(path, "hot_connect");
+      if (!hc->is_mapping()) {
+        return spec_error(c_, *hc, hp, "expected {group: NAME, plugged: true|false}");
+      }
+      if (auto r = tree::check_keys(c_, *hc, hp, {"group", "plugged"}); !r) return r;
+      const SpecNode* group = hc->find("group");
+      if (group == nullptr) return spec_error(c_, *hc, hp, "needs a group name (group: NAME)");
+      auto text = tree::to_text(c_, *group, tree::join_path(hp, "group"));
+      if (!text) return std::move(text).error();
+      if (text->empty()) return spec_error(c_, *group, tree::join_path(hp, "group"), "is empty");
+      if (ring.slaves.empty()) {
+        return spec_error(c_, *hc, hp,
+                          "the first slave is cabled to the master: it cannot be hot-connected");
+      }
+      for (const auto& other : ring.slaves) {
+        if (other.hot_connect_group == *text) {
+          return spec_error(c_, *group, tree::join_path(hp, "group"),
+                            fmt::format("group '{}' already starts at slave '{}' (line {})", *text,
+                                        other.name, other.line));
+        }
+      }
+      slave.hot_connect_group = *text;
+      if (const SpecNode* plugged = hc->find("plugged")) {
+        auto b = tree::to_bool(c_, *plugged, tree::join_path(hp, "plugged"));
+        if (!b) return std::move(b).error();
+        slave.plugged = *b;
+      }
+    }
     std::int64_t count = 1;
     if (const SpecNode* count_node = node.find("count")) {
       auto n = tree::to_int(c_, *count_node, tree::join_path(path, "count"), 1, 1024);
@@ -418,6 +447,7 @@ class RingParser {
       if (k > 0) {
         copy.parent.reset();
         copy.port = 1;
+        copy.hot_connect_group.reset();  // the group starts at the first copy
       }
       if (ring.find(copy.name) != nullptr) {
         return spec_error(c_, **name_node, name_path,
@@ -753,6 +783,14 @@ Result<std::unique_ptr<Segment>> build_segment(const Ring& ring) {
     attachment.cable_delay_ns = s.cable_delay_ns;
     auto added = segment->add_slave(s.name, std::move(*esc), attachment, s.timing);
     if (!added) return Error(added.error().code(), where(s, i) + ": " + added.error().describe());
+  }
+  for (std::size_t i = 0; i < ring.slaves.size(); ++i) {
+    const RingSlave& s = ring.slaves[i];
+    if (!s.hot_connect_group) continue;
+    if (auto r = segment->add_hot_connect_group(*s.hot_connect_group, i); !r) {
+      return Error(r.error().code(), where(s, i) + ": hot_connect: " + r.error().describe());
+    }
+    if (!s.plugged) (void)segment->plug(*s.hot_connect_group, false, 0);
   }
   for (std::size_t i = 0; i < ring.wiring.size(); ++i) {
     const RingWire& w = ring.wiring[i];

@@ -90,6 +90,73 @@ void Segment::set_link(std::size_t index, std::uint8_t port, bool up) {
   update_dl_status();
 }
 
+bool Segment::behind(std::size_t index, std::size_t first) const noexcept {
+  std::optional<std::size_t> at = index;
+  while (at) {
+    if (*at == first) return true;
+    at = nodes_[*at].parent;
+  }
+  return false;
+}
+
+Result<void> Segment::add_hot_connect_group(std::string name, std::size_t first) {
+  if (first >= nodes_.size()) {
+    return Error(Errc::not_found, fmt::format("hot-connect group {}: no slave {}", name, first));
+  }
+  if (!nodes_[first].parent) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("hot-connect group {}: {} is cabled to the master, not to a slave "
+                             "it could be plugged into",
+                             name, nodes_[first].name));
+  }
+  for (const auto& [other, at] : hot_connect_) {
+    if (other == name) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("hot-connect group {} is defined twice", name));
+    }
+    if (behind(first, at) || behind(at, first)) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("hot-connect group {}: {} is already part of group {}", name,
+                               nodes_[first].name, other));
+    }
+  }
+  hot_connect_.emplace_back(std::move(name), first);
+  return ok();
+}
+
+Result<void> Segment::plug(std::string_view group, bool plugged, std::int64_t now_ns) {
+  for (const auto& [name, first] : hot_connect_) {
+    if (name != group) continue;
+    if (plugged && !nodes_[first].link_up[0]) {
+      // A device that was unplugged was without power: it comes up as from the factory floor.
+      for (std::size_t i = 0; i < nodes_.size(); ++i) {
+        if (behind(i, first)) nodes_[i].esc->power_cycle(now_ns);
+      }
+    }
+    set_link(first, 0, plugged);
+    return ok();
+  }
+  std::string known;
+  for (const auto& [name, first] : hot_connect_)
+    known += (known.empty() ? "" : ", ") + name;
+  return Error(Errc::not_found, fmt::format("no hot-connect group '{}' (known: {})", group,
+                                            known.empty() ? "none" : known));
+}
+
+std::vector<Segment::HotConnectGroupInfo> Segment::hot_connect_groups() const {
+  std::vector<HotConnectGroupInfo> out;
+  for (const auto& [name, first] : hot_connect_) {
+    HotConnectGroupInfo info;
+    info.name = name;
+    info.first = first;
+    info.plugged = nodes_[first].link_up[0];
+    for (std::size_t i = 0; i < nodes_.size(); ++i)
+      info.slaves += behind(i, first) ? 1 : 0;
+    out.push_back(std::move(info));
+  }
+  return out;
+}
+
 bool Segment::link(std::size_t index, std::uint8_t port) const {
   return index < nodes_.size() && port <= 3 && nodes_[index].link_up[port];
 }

@@ -433,6 +433,11 @@ Result<void> SimServer::set_link(std::string_view slave, std::uint8_t port, bool
                    : fault::link_down(std::string(slave), port));
 }
 
+Result<void> SimServer::plug(std::string_view group, bool plugged) {
+  std::lock_guard lock(mutex_);
+  return segment_->plug(group, plugged, impl_->clock());
+}
+
 void SimServer::set_master_link(bool up) {
   (void)inject(up ? fault::master_link_up() : fault::master_link_down());
 }
@@ -446,6 +451,7 @@ SimStatus SimServer::status() const {
   st.segment = segment_->stats();
   st.fault_stats = injector_->stats();
   st.faults = injector_->info(st.time_ns);
+  st.hot_connect = segment_->hot_connect_groups();
   for (std::size_t i = 0; i < segment_->size(); ++i) {
     Esc& esc = segment_->esc(i);
     SlaveStatus s;

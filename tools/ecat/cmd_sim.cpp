@@ -7,6 +7,7 @@
 //   ecat sim fault inject --json '{"kind":"disconnect","slave":"outputs","next":30}'
 //   ecat sim fault clear | list [--json] | kinds
 //   ecat sim set SLAVE.SIGNAL VALUE | get SLAVE.SIGNAL | release SLAVE.SIGNAL
+//   ecat sim plug GROUP | unplug GROUP   (hot-connect groups)
 //   ecat sim profiles
 //   ecat sim profile CAPTURE | verify CAPTURE   (tools/ecat/cmd_sim_verify.cpp)
 //
@@ -487,6 +488,11 @@ int signal_request(const Options& o, const std::string& op) {
   return 0;
 }
 
+int hot_connect(const Options& o, bool plugged) {
+  auto reply = request(o, json{{"op", "hotconnect"}, {"group", o.target}, {"plugged", plugged}});
+  return reply.code;
+}
+
 int profiles() {
   for (const auto& p : sim::device_profiles()) {
     std::printf("  %-10s %s\n", p.name.c_str(), p.description.c_str());
@@ -560,6 +566,12 @@ Command setup(CLI::App& parent) {
   auto* release_cmd = app->add_subcommand("release", "Stop forcing an input: SLAVE.SIGNAL");
   add_control(release_cmd);
   release_cmd->add_option("SLAVE.SIGNAL", o->target)->required();
+  auto* plug_cmd = app->add_subcommand("plug", "Plug a hot-connect group in: GROUP");
+  add_control(plug_cmd);
+  plug_cmd->add_option("GROUP", o->target)->required();
+  auto* unplug_cmd = app->add_subcommand("unplug", "Unplug a hot-connect group: GROUP");
+  add_control(unplug_cmd);
+  unplug_cmd->add_option("GROUP", o->target)->required();
   auto* profiles_cmd = app->add_subcommand("profiles", "List the device profiles");
   // Profiles rebuilt from captures, and the simulator proven against them.
   const Command profile_cmd = add_sim_profile_command(*app, "profile");
@@ -574,6 +586,8 @@ Command setup(CLI::App& parent) {
             if (set_cmd->parsed()) return signal_request(*o, "signal.set");
             if (get_cmd->parsed()) return signal_request(*o, "signal.get");
             if (release_cmd->parsed()) return signal_request(*o, "signal.clear");
+            if (plug_cmd->parsed()) return hot_connect(*o, true);
+            if (unplug_cmd->parsed()) return hot_connect(*o, false);
             if (profiles_cmd->parsed()) return profiles();
             if (profile_cmd.app->parsed()) return profile_cmd.run();
             if (verify_cmd.app->parsed()) return verify_cmd.run();

@@ -100,7 +100,9 @@ std::span<const DomainTransition> domain_transitions() noexcept;
 // What a registration maps: a SyncManager's image (process data), or the SyncManager's one-byte
 // status register (0x0805 + 8 n) read through an FMMU of its own — the read mailbox's status
 // ("mailbox full", bit 3), so a mailbox reply is seen in the cyclic frame.
-enum class RegistrationKind : std::uint8_t { process_data, sm_status };
+// reserved: room kept for a hot-connect group (Domain::reserve; key.slave 0, key.sync_manager the
+// reservation's index); the group's own registrations are made inside it when it appears.
+enum class RegistrationKind : std::uint8_t { process_data, sm_status, reserved };
 std::string_view to_string(RegistrationKind kind) noexcept;
 
 struct PdoKey {
@@ -509,6 +511,30 @@ struct MailboxGatewayConfig {
   std::size_t workers = 4;
 };
 
+// A hot-connect group (docs/MASTER-CONFIG.md "Hot connect"): slaves that may be absent when the
+// session starts, appear later behind the end of the line (a tool changer, an optional module) and
+// go again. The group is recognised by its first slave: the configured station alias (SII word 4,
+// register 0x0012) when `alias` is given, else the identity (vendor and product code of the first
+// slave's SII, `vendor_id`/`product_code` here or the first slave's own). Its slaves are
+// configured as any other (driver, process data, targets, startup SDOs) and get fixed station
+// addresses after the fixed slaves' (base_station + the count of MasterConfig::slaves + their
+// index among all groups' slaves); their ring positions are where the group is found.
+// Every domain a group's slaves map process data into reserves `reserve_bytes` of its image for
+// the group at start, so nothing moves when it appears; its expected working counter counts the
+// group only while it is present.
+inline constexpr std::size_t kMaxHotConnectGroups = 16;
+
+struct HotConnectGroup {
+  std::string name{};
+  std::optional<std::uint16_t> alias{};
+  std::optional<std::uint32_t> vendor_id{};
+  std::optional<std::uint32_t> product_code{};
+  // Image bytes reserved per domain the group's slaves use; 0: 64 bytes per slave of the group.
+  std::size_t reserve_bytes = 0;
+  // No `position` (found where the group sits); `alias` is not used on them.
+  std::vector<SlaveConfig> slaves{};
+};
+
 struct MasterConfig {
   // What the master talks to when the caller does not say (ring files: `master: backend:`):
   // raw:IFACE, udp:HOST:PORT or sim:RING.yaml. Master::start takes a link; tools open this one.
@@ -522,6 +548,10 @@ struct MasterConfig {
   // or DC category, as the EK1100's) is named "coupler" ("coupler_2", ...), every other one
   // "slave_<position>" (also when its SII cannot be read).
   std::vector<SlaveConfig> slaves{};
+  // Optional groups of slaves after the fixed ones (HotConnectGroup); needs `slaves`. The ring
+  // is polled for them (a broadcast read of the slave count) every `hot_connect_poll`.
+  std::vector<HotConnectGroup> hot_connect{};
+  std::chrono::nanoseconds hot_connect_poll = std::chrono::milliseconds(50);
   // Domain configurations (domain.hpp); logical_base is assigned by the master (index x 0x800)
   // unless set.
   std::vector<DomainConfig> domains{};

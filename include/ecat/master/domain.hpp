@@ -65,6 +65,7 @@
 // Cycler first.
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <compare>
@@ -114,6 +115,13 @@ class DomainObserver {
   }
   // The first valid cycle after a degradation.
   virtual void on_cycle_recovered(Domain& domain) { (void)domain; }
+  // A present reservation's slaves stopped answering: this cycle's working counter was the
+  // expected one less exactly their share, so the cycle counted as valid for the others and the
+  // reservation is now absent (Domain::reserve). Rare: posting to the owner's loop is fine.
+  virtual void on_reservation_lost(Domain& domain, std::uint32_t reservation) {
+    (void)domain;
+    (void)reservation;
+  }
   // The miss streak reached miss_threshold: the domain is now stopped.
   virtual void on_stopped(Domain& domain, const CycleInvalid& last, std::uint64_t misses) {
     (void)domain;
@@ -164,6 +172,28 @@ class Domain final : public CyclicParticipant {
   // New period (>= kMinPeriod), live: the Cycler reschedules between two ticks; stale_after and
   // the realtime budget follow unless configured.
   Result<void> update_period(std::chrono::nanoseconds period);
+  // ---- Reservations (hot connect) ------------------------------------------------------------
+  // Room in the image kept for slaves that may come and go (a hot-connect group): `bytes` at the
+  // image's end, reserved while open, so that nothing moves when they appear. A registration of
+  // one of `stations` (register_pdo, register_sm_status) is placed inside the reservation instead
+  // of appended, and is allowed in any domain state (while cycling too). The reservation's
+  // registrations count in the expected working counter only while it is `present`; while
+  // `joining` a datagram's WKC is accepted with or without their share (their FMMUs are being
+  // switched on); while `absent` their inputs read as stale (read_fresh/sample fail with
+  // Errc::stale naming the reservation) and their staged outputs are kept. A present
+  // reservation whose share vanishes from a cycle (the group was unplugged) becomes absent on the
+  // bus thread, the cycle stays valid for the others, and the observer hears of it.
+  static constexpr std::size_t kMaxReservations = 16;
+  enum class ReservationState : std::uint8_t { absent, joining, present };
+  Result<std::uint32_t> reserve(std::string_view name, std::size_t bytes,
+                                std::vector<std::uint16_t> stations);
+  Result<void> set_reservation_state(std::uint32_t reservation, ReservationState state);
+  ReservationState reservation_state(std::uint32_t reservation) const noexcept;
+  // Bytes used by the reservation's registrations.
+  std::size_t reservation_used(std::uint32_t reservation) const;
+  // Times a present reservation was found gone by the bus thread.
+  std::uint64_t reservations_lost() const noexcept;
+
   // Replaces the computed per-datagram expected WKC (size must match layout().size()); an empty
   // vector restores the computed values. Only while open.
   Result<void> set_expected_wkc(std::vector<std::uint16_t> per_datagram);
@@ -240,6 +270,7 @@ class Domain final : public CyclicParticipant {
   struct Entry;
   struct Exchange;
   struct Plan;
+  struct Reservation;
 
   Domain(bus::Bus& bus, DomainConfig config, DomainObserver* observer);
 
@@ -298,6 +329,17 @@ class Domain final : public CyclicParticipant {
   std::uint32_t image_size_ = 0;    // control thread (under control_mutex_)
   std::size_t image_capacity_ = 0;  // bytes staging_ and input_words_ hold (control thread)
   std::vector<std::uint16_t> wkc_override_;
+
+  // Reservations: made while open (control thread), never moved; their states and per-datagram
+  // shares are atomics the bus thread reads.
+  std::array<std::unique_ptr<Reservation>, kMaxReservations> reservations_{};
+  std::atomic<std::uint32_t> reservation_count_{0};
+  std::atomic<std::uint64_t> reservations_lost_{0};
+  Reservation* reservation_of_locked(std::uint16_t station) const noexcept;
+  Result<std::uint32_t> register_reserved_locked(Reservation& r, PdoKey key, std::size_t bytes,
+                                                 PdoDirection direction, bool contributes_wkc);
+  void compute_shares_locked(Reservation& r);
+  bool reservation_absent(const Entry& e) const noexcept;
 
   // Outputs: staging image under a writer spinlock (replaced, grown, only under it too).
   mutable std::atomic<bool> staging_lock_{false};

@@ -44,8 +44,13 @@ enum class EventKind : std::uint8_t {
   timeouts,           // value: total transaction timeouts, at each threshold crossed
   link_reopened,      // the failed link is back; value: reopen attempts so far; detail: the link
   link_redundancy,  // a redundant link's topology or ring changed; detail: "redundant, ring broken"
+  // Hot connect (MasterConfig::hot_connect); name: the group, subject: its ring position.
+  hotconnect_appeared,  // the group was recognised in the ring; detail: how (alias / identity)
+  hotconnect_ready,     // every slave of the group at its target; value: ns since it was noticed
+  hotconnect_lost,      // the group left the ring; detail: how it was noticed
+  hotconnect_refused,   // a device that is no group's, or a group that failed to come up; detail
 };
-inline constexpr std::size_t kEventKindCount = 18;
+inline constexpr std::size_t kEventKindCount = 22;
 
 // "master.state", "slave.state", "domain.health", "dc.locked", ...: the event's stable name.
 std::string_view to_string(EventKind kind) noexcept;

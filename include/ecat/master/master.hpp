@@ -120,6 +120,26 @@ struct MasterCounters {
 
 enum class StopOutcome : std::uint8_t { stopped, already_stopped };
 
+// A hot-connect group (MasterConfig::hot_connect) as the session sees it. absent: not in the ring
+// (not a failure); joining: recognised, its slaves being configured and brought to the session's
+// target; present: all of them there; failed: recognised but could not be brought up (retried
+// after retry_interval while it stays plugged). A device that is no group's is reported in
+// `refused` of the status, not configured.
+enum class HotConnectState : std::uint8_t { absent, joining, present, failed };
+std::string_view to_string(HotConnectState state) noexcept;
+
+struct HotConnectStatus {
+  std::string group;
+  HotConnectState state = HotConnectState::absent;
+  std::optional<std::uint16_t> position;  // of its first slave, while in the ring
+  std::vector<std::string> slaves;
+  std::string detail;  // how it was recognised, why it failed or was lost
+  std::uint64_t appearances = 0;
+  std::uint64_t losses = 0;
+  // From noticing the group to every slave of it at its target, the last time it joined.
+  std::optional<std::chrono::nanoseconds> last_join{};
+};
+
 struct MasterStatus {
   MasterState state = MasterState::idle;
   TargetState desired_target = TargetState::op;
@@ -129,6 +149,11 @@ struct MasterStatus {
   std::optional<link::RedundancyStatus> redundancy;
   std::uint16_t slave_count = 0;
   std::vector<SlaveSummary> slaves;
+  // Hot-connect groups (empty when none are configured), and the last device found behind the
+  // fixed slaves that matched no group ("position 3: vendor 0x... product 0x...: no group"), until
+  // the ring changes again.
+  std::vector<HotConnectStatus> hot_connect;
+  std::string hot_connect_refused;
   std::vector<DomainSummary> domains;
   std::vector<ActivationFailure> activation_failures;
   std::vector<std::string> runtime_faults;  // critical faults being healed (described)

@@ -6,6 +6,7 @@
 // loop); the others are handed to the control loop and answered within their timeout.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -108,7 +109,9 @@ class Slave {
   Slave& operator=(const Slave&) = delete;
 
   const std::string& name() const noexcept { return name_; }
-  std::uint16_t position() const noexcept { return position_; }
+  // Where the slave sits in the ring; a hot-connect group's slave takes the position where its
+  // group was found each time it appears.
+  std::uint16_t position() const noexcept { return position_.load(std::memory_order_relaxed); }
   std::uint16_t station() const noexcept { return station_; }
   SlaveState state() const noexcept;
   TargetState target() const;
@@ -270,7 +273,7 @@ class Slave {
   const Impl& impl() const noexcept { return *impl_; }
 
   std::string name_;
-  std::uint16_t position_;
+  std::atomic<std::uint16_t> position_;
   std::uint16_t station_;
   std::unique_ptr<Impl> impl_;
 };

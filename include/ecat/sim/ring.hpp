@@ -40,6 +40,10 @@ struct RingSlave {
   std::uint8_t port = 1;
   std::int64_t cable_delay_ns = 5;
   HopTiming timing{};
+  // Hot connect: this slave is the first of a group that can be plugged and unplugged at runtime
+  // (everything cabled behind its port 0); `plugged` is its state when the simulator starts.
+  std::optional<std::string> hot_connect_group;
+  bool plugged = true;
   int line = 0;  // where the entry starts in the ring file
 };
 

@@ -125,6 +125,22 @@ class Segment : private EscLayoutObserver {
   // the simulator (RedundantPorts) routes the frames round the break. nullopt: the cables' word.
   void set_reported_link(std::size_t index, std::uint8_t port, std::optional<bool> up);
 
+  // Hot connect: a group is slave `first` and everything cabled behind it; it hangs on the cable
+  // into `first`'s port 0 (the end of a line, or a junction port of its parent). Unplugging takes
+  // that cable down (the parent's port loses its link and closes its loop, as DL status shows);
+  // plugging powers every slave of the group up afresh (station 0, INIT, as a device that was
+  // switched off) and brings the cable up. Fails for an unknown slave, a slave with no parent, a
+  // name used twice or a slave already in a group.
+  Result<void> add_hot_connect_group(std::string name, std::size_t first);
+  Result<void> plug(std::string_view group, bool plugged, std::int64_t now_ns);
+  struct HotConnectGroupInfo {
+    std::string name;
+    std::size_t first = 0;
+    std::size_t slaves = 0;  // in the group
+    bool plugged = true;
+  };
+  std::vector<HotConnectGroupInfo> hot_connect_groups() const;
+
   // The slaves the frame visits, in processing order (reachable ones only).
   std::vector<std::size_t> processing_order() const;
   // The time a frame needs for the whole round trip through the segment.
@@ -199,6 +215,8 @@ class Segment : private EscLayoutObserver {
     }
   };
   std::unordered_map<std::string, std::size_t, NameHash, std::equal_to<>> by_name_;
+  std::vector<std::pair<std::string, std::size_t>> hot_connect_;  // group name, first slave
+  bool behind(std::size_t index, std::size_t first) const noexcept;
   std::vector<Visit> visits_;  // reused per frame; no allocation in steady state
   std::int64_t round_trip_ = 0;
   bool master_link_ = true;

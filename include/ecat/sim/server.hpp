@@ -77,6 +77,7 @@ struct SimStatus {
   SegmentStats segment;
   FaultStats fault_stats;
   FaultInfo faults;
+  std::vector<Segment::HotConnectGroupInfo> hot_connect;
 };
 
 class SimServer {
@@ -125,6 +126,8 @@ class SimServer {
   Result<void> power_cycle(std::string_view slave);
   Result<void> set_link(std::string_view slave, std::uint8_t port, bool up);
   void set_master_link(bool up);
+  // Plugs or unplugs a hot-connect group (Segment::plug).
+  Result<void> plug(std::string_view group, bool plugged);
 
   SimStatus status() const;
   SimServerStats stats() const;

@@ -1,0 +1,331 @@
+// Hot connect (docs/ARCHITECTURE.md "Hot connect"): a group of slaves behind the fixed ones that
+// is absent at start, plugged and unplugged at runtime in the simulator, and brought to the
+// session's target by the master without disturbing the others' cycles.
+#include <random>
+
+#include <ecat/master/config.hpp>
+
+#include "scenarios/scenario_support.hpp"
+
+namespace ecat::scenarios {
+namespace {
+
+using master::HotConnectState;
+
+// coupler -> inputs -> outputs, then the group `tool`: tool_out (EL2809) -> tool_in (EL1809),
+// tool_out's channel 1 wired to tool_in's channel 1 (so the group's own process data can be
+// checked end to end).
+std::string hot_connect_ring(bool plugged) {
+  return fmt::format(R"(version: 1
+simulator:
+  slaves:
+    - {{name: coupler, profile: EK1100}}
+    - {{name: inputs, profile: EL1809}}
+    - {{name: outputs, profile: EL2809}}
+    - {{name: tool_out, profile: EL2809, hot_connect: {{group: tool, plugged: {}}}}}
+    - {{name: tool_in, profile: EL1809}}
+  wiring:
+    - {{from: outputs.channel_1, to: inputs.channel_1}}
+    - {{from: outputs.channel_16, to: inputs.channel_16}}
+    - {{from: tool_out.channel_1, to: tool_in.channel_1}}
+)",
+                     plugged ? "true" : "false");
+}
+
+// The master's side of the group; identified by the first slave's identity (EL2809) unless
+// `alias` is given.
+master::HotConnectGroup tool_group(std::optional<std::uint16_t> alias = std::nullopt) {
+  master::HotConnectGroup g;
+  g.name = "tool";
+  g.alias = alias;
+  for (const char* name : {"tool_out", "tool_in"}) {
+    master::SlaveConfig s;
+    s.name = name;
+    s.process_data = master::ProcessDataRequest::all("main");
+    s.health_poll = 20ms;
+    g.slaves.push_back(std::move(s));
+  }
+  g.slaves[0].vendor_id = 0x2;
+  g.slaves[0].product_code = 0x0AF93052;
+  g.slaves[1].vendor_id = 0x2;
+  g.slaves[1].product_code = 0x07113052;
+  return g;
+}
+
+RingSpec hot_connect_spec(bool plugged, std::optional<std::uint16_t> alias = std::nullopt) {
+  RingSpec spec;
+  spec.ring_yaml = hot_connect_ring(plugged);
+  spec.adjust = [alias](master::MasterConfig& c) {
+    c.hot_connect.push_back(tool_group(alias));
+    c.hot_connect_poll = 10ms;
+  };
+  return spec;
+}
+
+master::HotConnectStatus group_status(master::Master& m) {
+  auto st = m.status();
+  if (st.hot_connect.empty()) return {};
+  return st.hot_connect.front();
+}
+
+bool group_in(master::Master& m, HotConnectState state) {
+  return group_status(m).state == state;
+}
+
+// The fixed slaves' process data, end to end through the wiring: outputs.channel_1 -> inputs.
+bool fixed_loop_follows(master::Master& m, bool value) {
+  auto out = m.slave("outputs");
+  auto in = m.slave("inputs");
+  if (!out || !in) return false;
+  if (!(*out)->write_output("channel_1", master::Value(value))) return false;
+  return eventually(
+      [&] {
+        auto v = (*in)->read_input("channel_1");
+        return v && master::as_bool(*v) == value;
+      },
+      2s);
+}
+
+TEST(HotConnect, AbsentAtStartTheRestIsOperational) {
+  auto ring = ScenarioRing::operational(hot_connect_spec(false));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  EXPECT_EQ(m.state(), MasterState::operational);
+  const auto g = group_status(m);
+  EXPECT_EQ(g.group, "tool");
+  EXPECT_EQ(g.state, HotConnectState::absent);
+  EXPECT_EQ(g.slaves, (std::vector<std::string>{"tool_out", "tool_in"}));
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+  // The domain reserved room for the group: the fixed slaves' WKC only is expected.
+  auto domain = m.domain("main");
+  ASSERT_TRUE(domain);
+  bool reserved = false;
+  for (const auto& r : (*domain)->registrations())
+    reserved |= r.key.kind == master::RegistrationKind::reserved;
+  EXPECT_TRUE(reserved);
+  EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 100ms));
+}
+
+TEST(HotConnect, PlugBringsTheGroupToOpWithoutDisturbingTheOthers) {
+  auto ring = ScenarioRing::operational(hot_connect_spec(false));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  Monitor monitor(m);
+  const auto before = ring->domain_stats();
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail << "\n"
+      << ring->describe();
+  for (const char* name : {"tool_out", "tool_in"}) {
+    auto s = m.slave(name);
+    ASSERT_TRUE(s);
+    EXPECT_EQ((*s)->state(), SlaveState::op) << name;
+  }
+  const auto g = group_status(m);
+  EXPECT_EQ(g.position, 3);
+  EXPECT_EQ(g.appearances, 1u);
+  ASSERT_TRUE(g.last_join);
+  // The group's own process data, through the simulator's wiring.
+  auto out = m.slave("tool_out");
+  auto in = m.slave("tool_in");
+  ASSERT_TRUE(out && in);
+  ASSERT_TRUE((*out)->write_output("channel_1", master::Value(true)));
+  EXPECT_TRUE(eventually([&] {
+    auto v = (*in)->read_input("channel_1");
+    return v && master::as_bool(*v) == true;
+  })) << ring->describe();
+  // Nobody else noticed: every cycle valid, the session operational all along.
+  const auto after = ring->domain_stats();
+  EXPECT_EQ(after.wkc_mismatch_count, before.wkc_mismatch_count) << ring->describe();
+  EXPECT_FALSE(ring->saw(MasterState::recovering));
+  monitor.stop();
+  EXPECT_TRUE(monitor.matching("state:outputs:down").empty()) << monitor.seen();
+  EXPECT_TRUE(monitor.matching("state:inputs:down").empty()) << monitor.seen();
+  EXPECT_TRUE(monitor.matching("master:recovering").empty()) << monitor.seen();
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+}
+
+TEST(HotConnect, UnplugMarksTheGroupStaleAndReplugRestoresItsStagedOutputs) {
+  auto ring = ScenarioRing::operational(hot_connect_spec(true));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  // Present at start: claimed once the session runs.
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail;
+  auto out = m.slave("tool_out");
+  auto in = m.slave("tool_in");
+  ASSERT_TRUE(out && in);
+  ASSERT_TRUE(ring->server->plug("tool", false));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }));
+  const auto stale = (*in)->read_input("channel_1");
+  ASSERT_FALSE(stale);
+  EXPECT_EQ(stale.error().code(), Errc::stale) << stale.error().describe();
+  EXPECT_EQ((*in)->state(), SlaveState::down);
+  EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 200ms))
+      << ring->describe();
+  EXPECT_TRUE(fixed_loop_follows(m, false));
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+  // Staged while the group is away: delivered when it is back.
+  ASSERT_TRUE((*out)->write_output("channel_1", master::Value(true)));
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail;
+  EXPECT_TRUE(eventually([&] {
+    auto v = (*in)->read_input("channel_1");
+    return v && master::as_bool(*v) == true;
+  })) << ring->describe();
+  const auto g = group_status(m);
+  EXPECT_EQ(g.appearances, 2u);
+  EXPECT_EQ(g.losses, 1u);
+  EXPECT_EQ(m.state(), MasterState::operational);
+  EXPECT_FALSE(ring->saw(MasterState::recovering));
+}
+
+TEST(HotConnect, AWrongDeviceIsRefusedNotConfigured) {
+  // The group is known by alias 0x0777; what is plugged has alias 0.
+  auto ring = ScenarioRing::operational(hot_connect_spec(false, 0x0777));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return !m.status().hot_connect_refused.empty(); }));
+  const auto st = m.status();
+  EXPECT_NE(st.hot_connect_refused.find("position 3"), std::string::npos) << st.hot_connect_refused;
+  EXPECT_NE(st.hot_connect_refused.find("0x0af93052"), std::string::npos) << st.hot_connect_refused;
+  EXPECT_EQ(group_status(m).state, HotConnectState::absent);
+  // Not configured: the simulated device is still in INIT.
+  EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 100ms));
+  auto sim = ring->server->status();
+  EXPECT_EQ(sim.slaves.at(3).al_state, wire::AlState::init);
+}
+
+TEST(HotConnect, RepeatedPlugAndUnplugAtRandomTimes) {
+  auto ring = ScenarioRing::operational(hot_connect_spec(false));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  std::mt19937 rng(20261127);
+  std::uniform_int_distribution<int> pause_ms(0, 60);
+  bool value = false;
+  for (int round = 0; round < 6; ++round) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms(rng)));
+    ASSERT_TRUE(ring->server->plug("tool", true));
+    ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+        << "round " << round << ": " << group_status(m).detail << "\n"
+        << ring->describe();
+    ASSERT_EQ(m.state(), MasterState::operational) << "round " << round;
+    // The output staged before this plug (or in this round) arrives.
+    auto out = m.slave("tool_out");
+    auto in = m.slave("tool_in");
+    ASSERT_TRUE(out && in);
+    if (round > 0) {
+      EXPECT_TRUE(eventually([&] {
+        auto v = (*in)->read_input("channel_1");
+        return v && master::as_bool(*v) == value;
+      })) << "round "
+          << round << ": staged output lost";
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms(rng)));
+    ASSERT_TRUE(ring->server->plug("tool", false));
+    ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }))
+        << "round " << round;
+    value = !value;
+    ASSERT_TRUE((*out)->write_output("channel_1", master::Value(value)));
+    EXPECT_EQ(m.state(), MasterState::operational) << "round " << round;
+  }
+  EXPECT_FALSE(ring->saw(MasterState::recovering));
+  EXPECT_EQ(group_status(m).losses, 6u);
+}
+
+TEST(HotConnectConfig, RingFileErrorsNameWhatIsWrong) {
+  const std::string head = R"(domains: [{id: main, period_us: 1000}]
+slaves: [{name: coupler}]
+)";
+  auto parse = [&](const std::string& tail) {
+    return master::parse_master_config(head + tail, "ring.yaml");
+  };
+  auto ok = parse(R"(hot_connect:
+  - group: tool
+    alias: 0x0042
+    reserve_bytes: 32
+    slaves: [{name: tool_io, process_data: main}]
+)");
+  ASSERT_TRUE(ok) << ok.error().describe();
+  ASSERT_EQ(ok->hot_connect.size(), 1u);
+  EXPECT_EQ(ok->hot_connect[0].alias, 0x0042);
+  EXPECT_EQ(ok->hot_connect[0].reserve_bytes, 32u);
+
+  auto unnamed = parse("hot_connect: [{alias: 1, slaves: [{name: a}]}]\n");
+  ASSERT_FALSE(unnamed);
+  EXPECT_NE(unnamed.error().describe().find("hot_connect[0]"), std::string::npos)
+      << unnamed.error().describe();
+  auto unrecognisable = parse("hot_connect: [{group: tool, slaves: [{name: a}]}]\n");
+  ASSERT_FALSE(unrecognisable);
+  EXPECT_NE(unrecognisable.error().describe().find("cannot be recognised"), std::string::npos)
+      << unrecognisable.error().describe();
+  auto positioned =
+      parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: a, position: 4}]}]\n");
+  ASSERT_FALSE(positioned);
+  EXPECT_NE(positioned.error().describe().find("hot_connect[0].slaves[0].position"),
+            std::string::npos)
+      << positioned.error().describe();
+  auto twice = parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: coupler}]}]\n");
+  ASSERT_FALSE(twice);
+  EXPECT_NE(twice.error().describe().find("used twice"), std::string::npos)
+      << twice.error().describe();
+  auto domain =
+      parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: a, process_data: nowhere}]}]\n");
+  ASSERT_FALSE(domain);
+  EXPECT_NE(domain.error().describe().find("unknown domain"), std::string::npos)
+      << domain.error().describe();
+  auto unknown_key = parse("hot_connect: [{group: tool, alias: 1, where: 3, slaves: []}]\n");
+  ASSERT_FALSE(unknown_key);
+  EXPECT_NE(unknown_key.error().describe().find("where"), std::string::npos)
+      << unknown_key.error().describe();
+}
+
+TEST(HotConnectConfig, SimulatorRingErrorsNameWhatIsWrong) {
+  auto first = sim::parse_ring(R"(simulator:
+  slaves:
+    - {name: a, profile: EK1100, hot_connect: {group: g}}
+)");
+  ASSERT_FALSE(first);
+  EXPECT_NE(first.error().describe().find("cabled to the master"), std::string::npos)
+      << first.error().describe();
+  auto twice = sim::parse_ring(R"(simulator:
+  slaves:
+    - {name: a, profile: EK1100}
+    - {name: b, profile: EL1809, hot_connect: {group: g}}
+    - {name: c, profile: EL1809, hot_connect: {group: g}}
+)");
+  ASSERT_FALSE(twice);
+  EXPECT_NE(twice.error().describe().find("already starts at slave 'b'"), std::string::npos)
+      << twice.error().describe();
+  auto nested = sim::parse_ring(R"(simulator:
+  slaves:
+    - {name: a, profile: EK1100}
+    - {name: b, profile: EL1809, hot_connect: {group: g}}
+    - {name: c, profile: EL1809, hot_connect: {group: h}}
+)");
+  ASSERT_TRUE(nested);  // parsed; the segment refuses a group inside another
+  auto built = sim::build_segment(*nested);
+  ASSERT_FALSE(built);
+  EXPECT_NE(built.error().describe().find("already part of group g"), std::string::npos)
+      << built.error().describe();
+  auto good = sim::parse_ring(hot_connect_ring(false));
+  ASSERT_TRUE(good) << good.error().describe();
+  auto segment = sim::build_segment(*good);
+  ASSERT_TRUE(segment) << segment.error().describe();
+  const auto groups = (*segment)->hot_connect_groups();
+  ASSERT_EQ(groups.size(), 1u);
+  EXPECT_EQ(groups[0].slaves, 2u);
+  EXPECT_FALSE(groups[0].plugged);
+  // DL status of the port the group hangs on follows the cable.
+  EXPECT_FALSE((*segment)->link(2, 1));
+  ASSERT_TRUE((*segment)->plug("tool", true, 0));
+  EXPECT_TRUE((*segment)->link(2, 1));
+  auto unknown = (*segment)->plug("other", true, 0);
+  ASSERT_FALSE(unknown);
+  EXPECT_NE(unknown.error().describe().find("known: tool"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace ecat::scenarios
