@@ -480,7 +480,8 @@ Result<void> Domain::check_room(std::size_t count, std::size_t bytes) const {
                  fmt::format("cannot register {} more: {} of {} registrations ({}) used", count,
                              used, registration_limit_, registration_limit_name()));
   }
-  if (image_size_ + bytes > image_limit_) {
+  // Once the domain cycled, registrations go only into reservations, which check their room.
+  if (state() == DomainState::open && image_size_ + bytes > image_limit_) {
     return error(Errc::out_of_range,
                  fmt::format("cannot register {} more bytes: image_too_large: {} + {} bytes "
                              "exceeds the {} byte maximum ({})",

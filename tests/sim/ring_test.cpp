@@ -261,7 +261,7 @@ TEST(RingErrors, SyntaxAndShape) {
             "ring.yaml:1: no 'simulator:' section (the simulator needs simulator.slaves)");
   EXPECT_EQ(error_of("simulator:\n  slaves: [{name: a, profile: generic}]\ncolour: red\n"),
             "ring.yaml:3: colour: unknown top-level section (known: version, simulator; for the "
-            "master: master, link, slaves, domains, dc, targets)");
+            "master: master, link, slaves, domains, dc, targets, hot_connect)");
   EXPECT_EQ(error_of("version: 2\nsimulator: {slaves: [{name: a, profile: generic}]}\n"),
             "ring.yaml:1: version: 2 is out of range (1 to 1)");
   EXPECT_EQ(error_of("simulator:\n  slaves: [{name: a, profile: generic}]\n  slaves: []\n"),
@@ -310,7 +310,8 @@ TEST(RingErrors, Slaves) {
             "ring.yaml:4: simulator.slaves[1].name: a slave named 'a' already exists");
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, colour: 1}\n"),
             "ring.yaml:3: simulator.slaves[0].colour: unknown key (known: name, profile, file, "
-            "options, clock, esc, start, objects, parent, port, cable_delay_ns, timing, count)");
+            "options, clock, esc, start, objects, parent, port, cable_delay_ns, timing, count, "
+            "hot_connect)");
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, parent: a}\n"),
             "ring.yaml:3: simulator.slaves[0]: the first slave is cabled to the master: it has "
             "no parent or port");

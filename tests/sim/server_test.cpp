@@ -537,7 +537,7 @@ TEST(ControlRequests, TheIdIsEchoedAsWritten) {
   EXPECT_EQ(handle_control_request(server, R"({"op":"nope","id":true})"),
             R"x({"ok":false,"id":true,"error":"op: unknown op 'nope' (known: status, )x"
             R"x(fault.inject, fault.clear, fault.list, signals, signal.get, signal.set, )x"
-            R"x(signal.clear, power_cycle, link, memory.read, profiles, ring, ping)"})x");
+            R"x(signal.clear, power_cycle, link, memory.read, profiles, ring, ping, hotconnect)"})x");
 }
 
 class ControlSocket : public ::testing::Test {
