@@ -5,6 +5,7 @@
 
 #include <ecat/master/config.hpp>
 
+#include "master/json_view.hpp"
 #include "scenarios/scenario_support.hpp"
 
 namespace ecat::scenarios {
@@ -125,6 +126,13 @@ TEST(HotConnect, PlugBringsTheGroupToOpWithoutDisturbingTheOthers) {
   EXPECT_EQ(g.position, 3);
   EXPECT_EQ(g.appearances, 1u);
   ASSERT_TRUE(g.last_join);
+  // The control endpoint's status says the same.
+  const auto json = master::detail::status_json(m);
+  ASSERT_TRUE(json.contains("hot_connect")) << json.dump();
+  EXPECT_EQ(json["hot_connect"][0]["group"], "tool");
+  EXPECT_EQ(json["hot_connect"][0]["state"], "present");
+  EXPECT_EQ(json["hot_connect"][0]["position"], 3);
+  EXPECT_EQ(json["hot_connect"][0]["slaves"][1], "tool_in");
   // The group's own process data, through the simulator's wiring.
   auto out = m.slave("tool_out");
   auto in = m.slave("tool_in");
@@ -149,6 +157,13 @@ TEST(HotConnect, UnplugMarksTheGroupStaleAndReplugRestoresItsStagedOutputs) {
   auto ring = ScenarioRing::operational(hot_connect_spec(true));
   ASSERT_TRUE(ring);
   auto& m = *ring->master;
+  std::mutex events_mutex;
+  std::vector<std::string> events;
+  const auto subscription = m.subscribe_events([&](const master::Event& e, std::uint64_t) {
+    if (e.kind < master::EventKind::hotconnect_appeared) return;
+    std::lock_guard lock(events_mutex);
+    events.push_back(std::string(master::to_string(e.kind)) + ":" + std::string(e.name()));
+  });
   // Present at start: claimed once the session runs.
   ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
       << group_status(m).detail;
@@ -177,8 +192,19 @@ TEST(HotConnect, UnplugMarksTheGroupStaleAndReplugRestoresItsStagedOutputs) {
   const auto g = group_status(m);
   EXPECT_EQ(g.appearances, 2u);
   EXPECT_EQ(g.losses, 1u);
+  EXPECT_TRUE(eventually([&] {
+    std::lock_guard lock(events_mutex);
+    return events.size() >= 5;
+  }));
+  {
+    std::lock_guard lock(events_mutex);
+    EXPECT_EQ(events, (std::vector<std::string>{"hotconnect.appeared:tool", "hotconnect.ready:tool",
+                                                "hotconnect.lost:tool", "hotconnect.appeared:tool",
+                                                "hotconnect.ready:tool"}));
+  }
   EXPECT_EQ(m.state(), MasterState::operational);
   EXPECT_FALSE(ring->saw(MasterState::recovering));
+  m.unsubscribe_events(subscription);
 }
 
 TEST(HotConnect, AWrongDeviceIsRefusedNotConfigured) {

@@ -407,3 +407,41 @@ TEST_F(SimTool, ServesARedundantRingOnTwoInterfacesAndBreaksItOnRequest) {
 }
 
 }  // namespace
+
+TEST_F(SimTool, PlugsAndUnplugsAHotConnectGroup) {
+  std::ofstream(ring_) << "simulator:\n  slaves:\n    - {name: s0, profile: generic}\n"
+                          "    - {name: s1, profile: generic,"
+                          " hot_connect: {group: tool, plugged: false}}\n"
+                          "    - {name: s2, profile: generic}\n";
+  const std::string first =
+      start_server({"--ring", ring_.string(), "--udp", "127.0.0.1:0", "--control", socket_});
+  const auto at = first.find("udp-server:127.0.0.1:");
+  ASSERT_NE(at, std::string::npos) << first;
+  const int port = std::stoi(first.substr(at + std::string("udp-server:127.0.0.1:").size()));
+  auto link = ecat::link::UdpLink::connect("127.0.0.1", static_cast<std::uint16_t>(port));
+  ASSERT_TRUE(link.ok()) << link.error().describe();
+  EXPECT_EQ(brd_wkc(**link, 1), 1);  // the group is unplugged: s0 alone
+
+  auto plugged = [&] {
+    auto r = run_tool("status --json --control '" + socket_ + "'");
+    EXPECT_EQ(r.status, 0) << r.err;
+    json status = json::parse(r.out);
+    EXPECT_EQ(status["hot_connect"].size(), 1u);
+    EXPECT_EQ(status["hot_connect"][0]["group"], "tool");
+    EXPECT_EQ(status["hot_connect"][0]["first"], "s1");
+    EXPECT_EQ(status["hot_connect"][0]["slaves"], 2);
+    return status["hot_connect"][0]["plugged"].get<bool>();
+  };
+  EXPECT_FALSE(plugged());
+  auto r = run_tool("plug tool --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_TRUE(plugged());
+  EXPECT_EQ(brd_wkc(**link, 2), 3);
+  r = run_tool("unplug tool --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_FALSE(plugged());
+  EXPECT_EQ(brd_wkc(**link, 3), 1);
+  r = run_tool("plug nothing --control '" + socket_ + "'");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_THAT(r.err, HasSubstr("no hot-connect group 'nothing' (known: tool)"));
+}
