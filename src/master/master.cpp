@@ -664,11 +664,11 @@ struct Master::Impl : DomainObserver {
             std::max<std::uint16_t>(end, static_cast<std::uint16_t>(*g.position + g.slaves.size()));
     }
     if (n <= end) co_return;
-    if (n == s->hot_connect_refused_count && !s->hot_connect_refused.empty()) co_return;
-    {
-      std::lock_guard lock(mutex);
-      s->hot_connect_refused.clear();
-      s->hot_connect_refused_count = 0;
+    // A refused device is looked at again when the ring changes, and after retry_interval (a
+    // device swapped for another between two polls leaves the count as it was).
+    if (n == s->hot_connect_refused_count && !s->hot_connect_refused.empty() &&
+        exec::Clock::now() - s->hot_connect_refused_at < s->config.retry_interval) {
+      co_return;
     }
     // The first slave behind the known part: at the scratch station, its alias and identity.
     const std::uint16_t at = end;
@@ -708,19 +708,28 @@ struct Master::Impl : DomainObserver {
       break;
     }
     if (!match) {
-      const auto why = fmt::format(
-          "position {}: alias 0x{:04x}, vendor 0x{:08x} product "
-          "0x{:08x}: matches no absent hot-connect group; not configured",
+      auto why = fmt::format(
+          "position {}: alias 0x{:04x}, vendor 0x{:08x} product 0x{:08x}: "
+          "matches no absent hot-connect group; not configured",
           at, alias, vendor, product);
+      const bool again = why == s->hot_connect_refused;  // reported once while it lasts
       {
         std::lock_guard lock(mutex);
-        s->hot_connect_refused = why;
+        s->hot_connect_refused = std::move(why);
         s->hot_connect_refused_count = n;
+        s->hot_connect_refused_at = exec::Clock::now();
       }
-      Event e = make_event(EventKind::hotconnect_refused, {}, why);
-      e.subject = at;
-      events.publish(e);
+      if (!again) {
+        Event e = make_event(EventKind::hotconnect_refused, {}, s->hot_connect_refused);
+        e.subject = at;
+        events.publish(e);
+      }
       co_return;
+    }
+    {
+      std::lock_guard lock(mutex);
+      s->hot_connect_refused.clear();
+      s->hot_connect_refused_count = 0;
     }
     if (exec::Clock::now() < match->retry_after) co_return;
     if (n - at < static_cast<int>(match->slaves.size())) {

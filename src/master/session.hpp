@@ -76,9 +76,10 @@ struct Session : std::enable_shared_from_this<Session> {
   // Hot connect: the fixed slaves end before this position; the groups follow it.
   std::uint16_t fixed_end = 0;
   std::vector<HotConnectRuntime> hot_connect;
-  std::uint16_t hot_connect_scratch = 0;        // the station a candidate is read at
-  std::string hot_connect_refused;              // the last device that matched no group
-  std::uint16_t hot_connect_refused_count = 0;  // ... at this slave count
+  std::uint16_t hot_connect_scratch = 0;             // the station a candidate is read at
+  std::string hot_connect_refused;                   // the last device that matched no group
+  std::uint16_t hot_connect_refused_count = 0;       // ... at this slave count
+  exec::Clock::time_point hot_connect_refused_at{};  // looked at again after retry_interval
   std::atomic<bool> stopping{false};
   // What the cycle thread's CycleThreadOptions came to (written once by the bus thread), and
   // what it holds for the session (cpu_dma_latency, the memory lock; written by the bus thread at

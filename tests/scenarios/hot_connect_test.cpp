@@ -212,6 +212,10 @@ TEST(HotConnect, AWrongDeviceIsRefusedNotConfigured) {
   auto ring = ScenarioRing::operational(hot_connect_spec(false, 0x0777));
   ASSERT_TRUE(ring);
   auto& m = *ring->master;
+  std::atomic<int> refusals{0};
+  const auto subscription = m.subscribe_events([&](const master::Event& e, std::uint64_t) {
+    if (e.kind == master::EventKind::hotconnect_refused) ++refusals;
+  });
   ASSERT_TRUE(ring->server->plug("tool", true));
   ASSERT_TRUE(eventually([&] { return !m.status().hot_connect_refused.empty(); }));
   const auto st = m.status();
@@ -222,6 +226,11 @@ TEST(HotConnect, AWrongDeviceIsRefusedNotConfigured) {
   EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 100ms));
   auto sim = ring->server->status();
   EXPECT_EQ(sim.slaves.at(3).al_state, wire::AlState::init);
+  // Looked at again every retry interval (50 ms here), reported once while it lasts.
+  std::this_thread::sleep_for(200ms);
+  EXPECT_EQ(refusals.load(), 1);
+  EXPECT_FALSE(m.status().hot_connect_refused.empty());
+  m.unsubscribe_events(subscription);
 }
 
 TEST(HotConnect, RepeatedPlugAndUnplugAtRandomTimes) {
