@@ -1,0 +1,134 @@
+// Domain reservations (hot connect, domain.hpp): room kept while open, registrations made in it
+// while cycling, the working counter share accepted while joining and expected while present, a
+// vanished share leaving the others' cycle valid, inputs stale while absent.
+#include <atomic>
+#include <memory>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include <ecat/master/cycler.hpp>
+#include <ecat/master/domain.hpp>
+#include <ecat/sim/faults.hpp>
+
+#include "master/domain_test_support.hpp"
+
+namespace ecat::master::test {
+namespace {
+
+using Reservation = Domain::ReservationState;
+
+class LostObserver : public DomainObserver {
+ public:
+  void on_reservation_lost(Domain&, std::uint32_t reservation) override {
+    last.store(reservation);
+    lost.fetch_add(1);
+  }
+  std::atomic<int> lost{0};
+  std::atomic<std::uint32_t> last{0xFFFF};
+};
+
+TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) {
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  LostObserver observer;
+  DomainConfig c;
+  c.id = "main";
+  c.period = kPeriod;
+  c.logical_base = 0x00010000;
+  auto created = Domain::create(*rig->bus, c, &observer);
+  ASSERT_TRUE(created.ok()) << created.error().describe();
+  auto& d = **created;
+  auto r = d.reserve("group", 16, {kInputs2});
+  ASSERT_TRUE(r.ok()) << r.error().describe();
+  const std::uint32_t group = *r;
+  EXPECT_FALSE(d.reserve("again", 8, {kInputs2}).ok());  // a station belongs to one reservation
+  rig->attach(d, kOutputs);
+  rig->attach(d, kInputs);
+  Cycler cycler(*rig->bus);
+  ASSERT_TRUE(cycler.add(d).ok());
+  ASSERT_TRUE(cycler.start().ok());
+  ASSERT_TRUE(d.start_cycling().ok());
+  rig->all_to(wire::AlState::safeop);
+  rig->all_to(wire::AlState::op);
+  ASSERT_TRUE(eventually([&] { return d.stats().valid_count > 5; }));
+  const auto mismatches = d.stats().wkc_mismatch_count;
+  const auto layout = d.layout();
+
+  // Registration outside a reservation is closed once cycling; inside it is open.
+  auto refused = d.register_pdo({0x1777, 0}, 2, PdoDirection::input);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code(), Errc::wrong_state);
+  ASSERT_TRUE(d.set_reservation_state(group, Reservation::joining).ok());
+  rig->attach(d, kInputs2);  // registered in the room, mapped: its share appears in some cycle
+  EXPECT_EQ(d.reservation_used(group), 2u);
+  EXPECT_EQ(d.layout().size(), layout.size());  // nothing moved
+  EXPECT_EQ(d.layout().front().logical, layout.front().logical);
+  std::array<std::uint8_t, 2> buffer{};
+  auto early = d.read_fresh(PdoKey{kInputs2, 0}, buffer);
+  ASSERT_FALSE(early.ok());
+  EXPECT_EQ(early.error().code(), Errc::stale);
+  EXPECT_NE(early.error().message().find("group"), std::string::npos) << early.error().describe();
+  ASSERT_TRUE(d.set_reservation_state(group, Reservation::present).ok());
+  EXPECT_TRUE(eventually([&] { return d.read_fresh(PdoKey{kInputs2, 0}, buffer).ok(); }));
+  const auto valid = d.stats().valid_count;
+  EXPECT_TRUE(eventually([&] { return d.stats().valid_count > valid + 5; }));
+  EXPECT_EQ(d.stats().wkc_mismatch_count, mismatches);
+
+  // The reservation's slave vanishes: the cycle is still valid for the others, the reservation
+  // absent, the observer told.
+  ASSERT_TRUE(rig->server->inject(sim::fault::disconnect("inputs2")).ok());
+  ASSERT_TRUE(eventually([&] { return observer.lost.load() == 1; }));
+  EXPECT_EQ(observer.last.load(), group);
+  EXPECT_EQ(d.reservation_state(group), Reservation::absent);
+  EXPECT_EQ(d.reservations_lost(), 1u);
+  const auto after_loss = d.stats().valid_count;
+  EXPECT_TRUE(eventually([&] { return d.stats().valid_count > after_loss + 5; }));
+  EXPECT_EQ(d.stats().wkc_mismatch_count, mismatches);
+  auto stale = d.read_fresh(PdoKey{kInputs2, 0}, buffer);
+  ASSERT_FALSE(stale.ok());
+  EXPECT_EQ(stale.error().code(), Errc::stale);
+  EXPECT_TRUE(d.read_fresh(PdoKey{kInputs, 0}, buffer).ok());  // the others are fresh
+
+  // More than the room: refused, naming the reservation.
+  auto too_big = d.register_pdo({kInputs2, 5}, 15, PdoDirection::input);
+  ASSERT_FALSE(too_big.ok());
+  EXPECT_EQ(too_big.error().code(), Errc::out_of_range);
+  EXPECT_NE(too_big.error().message().find("16 bytes reserved for group"), std::string::npos)
+      << too_big.error().describe();
+  (void)cycler.stop();
+}
+
+TEST(DomainReservation, ReservingIsForAnOpenDomainAndNamesWhatIsWrong) {
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  DomainConfig c;
+  c.id = "main";
+  c.period = kPeriod;
+  c.max_image_size = 32;
+  auto created = Domain::create(*rig->bus, c);
+  ASSERT_TRUE(created.ok());
+  auto& d = **created;
+  auto zero = d.reserve("g", 0, {kInputs2});
+  ASSERT_FALSE(zero.ok());
+  EXPECT_NE(zero.error().message().find("outside 1..65535"), std::string::npos);
+  auto big = d.reserve("g", 64, {kInputs2});
+  ASSERT_FALSE(big.ok());
+  EXPECT_NE(big.error().message().find("image_too_large"), std::string::npos)
+      << big.error().describe();
+  auto station0 = d.reserve("g", 8, {0});
+  ASSERT_FALSE(station0.ok());
+  rig->attach(d, kInputs);
+  auto taken = d.reserve("g", 8, {kInputs});
+  ASSERT_FALSE(taken.ok());
+  EXPECT_NE(taken.error().message().find("registrations outside it"), std::string::npos);
+  ASSERT_TRUE(d.reserve("g", 8, {kInputs2}).ok());
+  bool listed = false;
+  for (const auto& reg : d.registrations())
+    listed |= reg.key.kind == RegistrationKind::reserved && reg.size == 8;
+  EXPECT_TRUE(listed);
+  EXPECT_FALSE(d.set_reservation_state(7, Reservation::present).ok());
+}
+
+}  // namespace
+}  // namespace ecat::master::test
