@@ -332,7 +332,7 @@ class Domain final : public CyclicParticipant {
 
   // Reservations: made while open (control thread), never moved; their states and per-datagram
   // shares are atomics the bus thread reads.
-  std::array<std::unique_ptr<Reservation>, kMaxReservations> reservations_{};
+  std::array<std::unique_ptr<Reservation>, kMaxReservations> reservations_;  // null until made
   std::atomic<std::uint32_t> reservation_count_{0};
   std::atomic<std::uint64_t> reservations_lost_{0};
   Reservation* reservation_of_locked(std::uint16_t station) const noexcept;
