@@ -534,10 +534,11 @@ TEST(ControlRequests, TheIdIsEchoedAsWritten) {
             R"({"ok":true,"id":-2.5})");
   EXPECT_EQ(handle_control_request(server, R"({"op":"ping","id":18446744073709551615})"),
             R"({"ok":true,"id":18446744073709551615})");
-  EXPECT_EQ(handle_control_request(server, R"({"op":"nope","id":true})"),
-            R"x({"ok":false,"id":true,"error":"op: unknown op 'nope' (known: status, )x"
-            R"x(fault.inject, fault.clear, fault.list, signals, signal.get, signal.set, )x"
-            R"x(signal.clear, power_cycle, link, memory.read, profiles, ring, ping, hotconnect)"})x");
+  EXPECT_EQ(
+      handle_control_request(server, R"({"op":"nope","id":true})"),
+      R"x({"ok":false,"id":true,"error":"op: unknown op 'nope' (known: status, )x"
+      R"x(fault.inject, fault.clear, fault.list, signals, signal.get, signal.set, )x"
+      R"x(signal.clear, power_cycle, link, memory.read, profiles, ring, ping, hotconnect)"})x");
 }
 
 class ControlSocket : public ::testing::Test {
