@@ -74,6 +74,9 @@ constexpr std::array<FaultKindInfo, kFaultKindCount> kKinds{{
     {FaultKind::port_delay, "port_delay", "PORT MS [FROM]",
      "redundant ring: replies leaving by master PORT come MS later (0: no delay); only those to "
      "frames that entered by port FROM"},
+    {FaultKind::hot_plug, "hot_plug", "GROUP",
+     "hot connect: plug the group GROUP in (its slaves powered up afresh)"},
+    {FaultKind::hot_unplug, "hot_unplug", "GROUP", "hot connect: pull the group GROUP out"},
 }};
 
 constexpr std::array<ProtocolFaultKind, 9> kProtocolKinds{
@@ -358,6 +361,8 @@ FaultClass fault_class(FaultKind kind) noexcept {
     case FaultKind::ring_cut:
     case FaultKind::ring_heal:
     case FaultKind::port_delay:
+    case FaultKind::hot_plug:
+    case FaultKind::hot_unplug:
       return FaultClass::segment;
   }
   return FaultClass::segment;
@@ -543,6 +548,16 @@ Fault ring_cut(wire::RedundantPort port) {
 Fault ring_heal() {
   return make(FaultKind::ring_heal);
 }
+Fault hot_plug(std::string group) {
+  auto f = make(FaultKind::hot_plug);
+  f.effect.group = std::move(group);
+  return f;
+}
+Fault hot_unplug(std::string group) {
+  auto f = make(FaultKind::hot_unplug);
+  f.effect.group = std::move(group);
+  return f;
+}
 Fault port_delay(wire::RedundantPort port, std::chrono::nanoseconds delay,
                  std::optional<wire::RedundantPort> from) {
   auto f = make(FaultKind::port_delay);
@@ -689,6 +704,10 @@ std::string describe(const FaultEffect& e) {
       return fmt::format("{} port replies +{}{}", wire::to_string(e.master_port),
                          duration_text(std::chrono::nanoseconds(e.ns)),
                          e.from ? fmt::format(" (from {})", wire::to_string(*e.from)) : "");
+    case FaultKind::hot_plug:
+      return fmt::format("hot plug {}", e.group);
+    case FaultKind::hot_unplug:
+      return fmt::format("hot unplug {}", e.group);
   }
   return "?";
 }
@@ -789,6 +808,10 @@ Result<void> validate_effect(const FaultEffect& e) {
       break;
     case FaultKind::port_delay:
       if (e.ns < 0) return bad("the delay must not be negative");
+      break;
+    case FaultKind::hot_plug:
+    case FaultKind::hot_unplug:
+      if (e.group.empty()) return bad("needs a hot-connect group");
       break;
     case FaultKind::foe_fault:
       if (e.foe == FoeFaultMode::busy && (e.value == 0 || e.value > 0xFFFF)) {
@@ -995,6 +1018,10 @@ Json effect_json(const Fault& f) {
       j["port"] = wire::to_string(e.master_port);
       j["ms"] = ms_value(std::chrono::nanoseconds(e.ns));
       if (e.from) j["from"] = wire::to_string(*e.from);
+      break;
+    case FaultKind::hot_plug:
+    case FaultKind::hot_unplug:
+      j["group"] = e.group;
       break;
     default:
       break;
@@ -1365,6 +1392,16 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
         ECAT_TRY(from, master_port_key(c, node, path, "from"));
         e.from = *from;
       }
+      break;
+    }
+    case FaultKind::hot_plug:
+    case FaultKind::hot_unplug: {
+      ECAT_TRY(group_node, require(c, node, path, "group"));
+      ECAT_TRY(group, to_text(c, **group_node, join_path(path, "group")));
+      if (group->empty()) {
+        return spec_error(c, **group_node, join_path(path, "group"), "empty group name");
+      }
+      e.group = std::move(*group);
       break;
     }
     case FaultKind::foe_fault: {
@@ -1925,6 +1962,17 @@ struct FaultInjector::Impl {
       }
       return ok();
     }
+    if (e.kind == FaultKind::hot_plug || e.kind == FaultKind::hot_unplug) {
+      const auto groups = segment.hot_connect_groups();
+      std::string known;
+      for (const auto& g : groups) {
+        if (g.name == e.group) return ok();
+        known += (known.empty() ? "" : ", ") + g.name;
+      }
+      return Error(Errc::not_found,
+                   fmt::format("{}: unknown hot-connect group '{}' (known: {})", to_string(e.kind),
+                               e.group, known.empty() ? "none" : known));
+    }
     if (!needs_slave(e.kind)) return ok();
     auto index = find_slave(e.slave);
     if (!index) return std::move(index).error();
@@ -2086,6 +2134,11 @@ struct FaultInjector::Impl {
       case FaultKind::master_link_up:
         segment.set_master_link(true);
         master_down = false;
+        break;
+      case FaultKind::hot_plug:
+      case FaultKind::hot_unplug:
+        // Checked at injection; groups never change while the injector exists.
+        (void)segment.plug(e.group, e.kind == FaultKind::hot_plug, now);
         break;
       // Checked at injection; a detached ring (the ports gone meanwhile) ignores them.
       case FaultKind::ring_break:

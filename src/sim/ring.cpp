@@ -252,6 +252,17 @@ class RingParser {
     if (f.form == Fault::Form::effect && !f.effect.slave.empty()) {
       if (auto r = check_slave_name(f.effect.slave, where, path, ring); !r) return r;
     }
+    if (f.form == Fault::Form::effect && !f.effect.group.empty()) {
+      std::string known;
+      for (const auto& s : ring.slaves) {
+        if (!s.hot_connect_group) continue;
+        if (*s.hot_connect_group == f.effect.group) return ok();
+        known += (known.empty() ? "" : ", ") + *s.hot_connect_group;
+      }
+      return spec_error(c_, where, path,
+                        fmt::format("unknown hot-connect group '{}' (known: {})", f.effect.group,
+                                    known.empty() ? "none" : known));
+    }
     if ((f.form == Fault::Form::after_milestone || f.form == Fault::Form::wait_for) &&
         !f.milestone.slave.empty()) {
       if (auto r = check_slave_name(f.milestone.slave, where, path, ring); !r) return r;

@@ -38,6 +38,7 @@
 
 #include <ecat/link/link.hpp>
 #include <ecat/link/redundant_link.hpp>
+#include <ecat/master/config.hpp>
 #include <ecat/sim/faults.hpp>
 #include <ecat/wire/frame.hpp>
 
@@ -493,6 +494,145 @@ TEST(Soak, RedundantRingCableBreaksAndHealsAmongOtherFaults) {
       << "the master's link does not see the healed ring whole (seed " << seed << ")";
   std::printf("redundant soak: %llu cable breaks healed, %llu with another fault\n",
               static_cast<unsigned long long>(breaks), static_cast<unsigned long long>(with_other));
+}
+
+// Hot connect in the fault mix (issue 16): coupler -> inputs -> outputs, then the group `tool`
+// (tool_out -> tool_in, wired channel 1 to channel 1). The group is plugged and unplugged by the
+// fault kinds hot_plug / hot_unplug (now, or scheduled a little later), now and then while the
+// master's cable is pulled and put back, or with another process-data fault. After every change
+// the master is back in `operational`, the group present when plugged and absent when not, and
+// the outputs staged meanwhile (the fixed slaves' and, when present, the group's) are applied.
+//
+//   ECAT_SOAK_HOT_CONNECT_SECONDS=60 ECAT_SOAK_SEED=1234 build/gcc/tests/test_scenarios
+//     --gtest_filter=Soak.HotConnect*
+//
+// Default: 5 s (CI).
+TEST(Soak, HotConnectGroupPlugsAndUnplugsAmongCableBreaks) {
+  const auto seconds = env_or("ECAT_SOAK_HOT_CONNECT_SECONDS", 5);
+  const auto seed = env_or("ECAT_SOAK_SEED", std::random_device{}());
+  std::printf("hot-connect soak: %llu s, seed %llu (replay: ECAT_SOAK_SEED=%llu)\n",
+              static_cast<unsigned long long>(seconds), static_cast<unsigned long long>(seed),
+              static_cast<unsigned long long>(seed));
+  RecordProperty("seed", std::to_string(seed));
+  std::mt19937_64 rng(seed);
+
+  RingSpec spec;
+  spec.ring_yaml = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: tool_out, profile: EL2809, hot_connect: {group: tool, plugged: false}}
+    - {name: tool_in, profile: EL1809}
+  wiring:
+    - {from: outputs.channel_1, to: inputs.channel_1}
+    - {from: tool_out.channel_1, to: tool_in.channel_1}
+)";
+  spec.adjust = [](master::MasterConfig& c) {
+    master::HotConnectGroup g;
+    g.name = "tool";
+    for (const char* name : {"tool_out", "tool_in"}) {
+      master::SlaveConfig sc;
+      sc.name = name;
+      sc.process_data = master::ProcessDataRequest::all("main");
+      sc.health_poll = 20ms;
+      g.slaves.push_back(std::move(sc));
+    }
+    g.slaves[0].vendor_id = 0x2;
+    g.slaves[0].product_code = 0x0AF93052;
+    g.slaves[1].vendor_id = 0x2;
+    g.slaves[1].product_code = 0x07113052;
+    c.hot_connect.push_back(std::move(g));
+    c.hot_connect_poll = 10ms;
+  };
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  ring->forget_states();
+  auto& m = *ring->master;
+
+  const auto group_state = [&] {
+    const auto st = m.status();
+    return st.hot_connect.empty() ? master::HotConnectState::absent : st.hot_connect[0].state;
+  };
+  const auto loop_reads = [&](const char* out, const char* in, bool value) {
+    auto o = m.slave(out);
+    auto i = m.slave(in);
+    if (!o || !i) return false;
+    auto v = (*i)->read_input("channel_1");
+    return v && master::as_bool(*v) == value;
+  };
+  const auto stage = [&](const char* out, bool value) {
+    auto o = m.slave(out);
+    return o && (*o)->write_output("channel_1", master::Value(value));
+  };
+  std::uniform_int_distribution<int> how(0, 5);
+  std::uniform_int_distribution<std::uint64_t> count(4, 12);
+  std::uniform_int_distribution<int> pause_ms(0, 150);
+  bool plugged = false;
+  bool value = false;
+  bool tool_value = false;
+  std::uint64_t changes = 0;
+  std::uint64_t with_cable = 0;
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(seconds);
+  while (std::chrono::steady_clock::now() < end) {
+    plugged = !plugged;
+    const sim::Fault change = plugged ? fault::hot_plug("tool") : fault::hot_unplug("tool");
+    std::string what = describe(change);
+    switch (how(rng)) {
+      case 0:  // the master's cable pulled meanwhile, put back after the change
+        ASSERT_TRUE(ring->server->inject(
+            fault::script({fault::master_link_down(), fault::wait(20ms), change, fault::wait(20ms),
+                           fault::master_link_up()})));
+        what += " with the master's cable pulled";
+        ++with_cable;
+        break;
+      case 1:  // scheduled
+        ASSERT_TRUE(ring->server->inject(fault::after(change, 30ms)));
+        break;
+      case 2:  // with lost frames
+        ASSERT_TRUE(ring->server->inject(fault::next(fault::drop_responses(), count(rng))));
+        ASSERT_TRUE(ring->server->inject(change));
+        what += " among lost frames";
+        break;
+      default:
+        ASSERT_TRUE(ring->server->inject(change)) << what;
+        break;
+    }
+    ++changes;
+    // Outputs staged while the change happens.
+    value = !value;
+    ASSERT_TRUE(stage("outputs", value));
+    const auto want = plugged ? master::HotConnectState::present : master::HotConnectState::absent;
+    ASSERT_TRUE(eventually([&] { return group_state() == want; }, 10s))
+        << what << ": the group is " << master::to_string(group_state()) << " (seed " << seed
+        << "); " << ring->describe();
+    ASSERT_TRUE(eventually([&] { return ring->state() == MasterState::operational; }, 10s))
+        << "not operational after " << what << " (seed " << seed << "); " << ring->describe();
+    EXPECT_TRUE(eventually([&] { return loop_reads("outputs", "inputs", value); }, 5s))
+        << "an output staged through " << what << " was lost (seed " << seed << ")";
+    if (plugged) {
+      // The output staged for the group while it was away arrives, and a new one too.
+      EXPECT_TRUE(eventually([&] { return loop_reads("tool_out", "tool_in", tool_value); }, 5s))
+          << "the group's output staged before " << what << " was lost (seed " << seed << ")";
+      tool_value = !tool_value;
+      ASSERT_TRUE(stage("tool_out", tool_value));
+      EXPECT_TRUE(eventually([&] { return loop_reads("tool_out", "tool_in", tool_value); }, 5s))
+          << "the group's output was not applied after " << what << " (seed " << seed << ")";
+    } else {
+      tool_value = !tool_value;
+      ASSERT_TRUE(stage("tool_out", tool_value));  // staged while the group is away
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms(rng)));
+  }
+  for (auto s : ring->states()) {
+    EXPECT_TRUE(s == MasterState::operational || s == MasterState::recovering)
+        << "the master went to " << master::to_string(s) << " (seed " << seed << ")";
+  }
+  EXPECT_EQ(m.status().illegal_transitions, 0u);
+  std::printf("hot-connect soak: %llu plugs and unplugs, %llu with the master's cable pulled\n",
+              static_cast<unsigned long long>(changes),
+              static_cast<unsigned long long>(with_cable));
 }
 
 }  // namespace

@@ -565,6 +565,30 @@ TEST_F(FaultsTest, InjectRejectsUnknownSlavesAndChangesNothing) {
   EXPECT_TRUE(lrw().returned);
 }
 
+TEST_F(FaultsTest, HotPlugAndUnplugAGroupAndNameUnknownOnes) {
+  auto r = injector->inject(fault::hot_unplug("tail"), now);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().message(), "hot_unplug: unknown hot-connect group 'tail' (known: none)");
+  ASSERT_TRUE(segment.add_hot_connect_group("tail", 2).ok());
+  r = injector->inject(fault::script({fault::drop_responses(), fault::hot_plug("nope")}), now);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code(), Errc::not_found);
+  EXPECT_EQ(r.error().message(), "hot_plug: unknown hot-connect group 'nope' (known: tail)");
+  EXPECT_TRUE(injector->info(now).scheduled.empty());
+  EXPECT_EQ(brd_wkc(), 3);
+  inject(fault::hot_unplug("tail"));
+  EXPECT_EQ(brd_wkc(), 2);
+  EXPECT_FALSE(segment.hot_connect_groups().at(0).plugged);
+  inject(fault::hot_plug("tail"));
+  EXPECT_EQ(brd_wkc(), 3);
+  EXPECT_TRUE(segment.hot_connect_groups().at(0).plugged);
+  // Plugged in afresh: the group's slave lost its station address.
+  EXPECT_TRUE(send({{Command::fprd, fp(0x1003, reg::kStationAddress), {0, 0}}}).wkc ==
+              std::vector<std::uint16_t>{0});
+  EXPECT_TRUE(send({{Command::fprd, fp(0x1002, reg::kStationAddress), {0, 0}}}).wkc ==
+              std::vector<std::uint16_t>{1});
+}
+
 // ---- Structure, descriptions and the text forms ------------------------------------------------
 
 TEST(FaultForms, ValidateRejectsMisplacedForms) {
@@ -642,6 +666,8 @@ std::vector<Fault> every_kind() {
       fault::ring_cut(wire::RedundantPort::secondary),
       fault::ring_heal(),
       fault::port_delay(wire::RedundantPort::primary, 250us, wire::RedundantPort::secondary),
+      fault::hot_plug("tail"),
+      fault::hot_unplug("tail"),
   };
 }
 
@@ -696,9 +722,21 @@ TEST(FaultForms, JsonRoundTripsEveryKindAndForm) {
             R"({"kind":"soe_fault","slave":"drive","mode":"drop_fragment","idn":17,"value":2,)"
             R"("drive":0,"write":false})");
   EXPECT_EQ(to_json(fault::port_delay(wire::RedundantPort::primary, 250us,
-                                     wire::RedundantPort::secondary)),
+                                      wire::RedundantPort::secondary)),
             R"({"kind":"port_delay","port":"primary","ms":0.25,"from":"secondary"})");
   EXPECT_EQ(to_json(fault::ring_break(2)), R"({"kind":"ring_break","after":2})");
+  EXPECT_EQ(to_json(fault::hot_unplug("tail")), R"({"kind":"hot_unplug","group":"tail"})");
+  EXPECT_EQ(describe(fault::after(fault::hot_plug("tail"), 250ms)), "after 250 ms: hot plug tail");
+  const std::vector<std::string> words{"hot_plug", "tail"};
+  auto plug = parse_fault_words(words);
+  ASSERT_TRUE(plug.ok()) << plug.error().describe();
+  EXPECT_EQ(to_json(*plug), R"({"kind":"hot_plug","group":"tail"})");
+  const std::vector<std::string> none{"hot_plug"};
+  EXPECT_EQ(parse_fault_words(none).error().message(),
+            "hot_plug: expected 1 argument, got 0 (usage: hot_plug GROUP)");
+  EXPECT_THAT(parse_fault_json(R"({"kind":"hot_unplug"})").error().message(), HasSubstr("group"));
+  EXPECT_THAT(parse_fault_json(R"({"kind":"hot_unplug","group":""})").error().message(),
+              HasSubstr("empty group name"));
   EXPECT_EQ(describe(fault::ring_cut(wire::RedundantPort::secondary)),
             "ring cut at the master's secondary port");
   EXPECT_EQ(to_json(fault::voe_fault("mbx", HandlerFaultKind::garble_reply)),

@@ -268,8 +268,9 @@ TEST(RingErrors, SyntaxAndShape) {
             "ring.yaml:3: slaves: duplicate key");
   EXPECT_EQ(error_of("simulator:\n  slaves: []\n"),
             "ring.yaml:2: simulator.slaves: expected a non-empty list of slaves");
-  EXPECT_EQ(error_of("simulator:\n  slaves: [{name: a, profile: generic}]\n  wires: []\n"),
-            "ring.yaml:3: simulator.wires: unknown key (known: slaves, wiring, faults, redundancy)");
+  EXPECT_EQ(
+      error_of("simulator:\n  slaves: [{name: a, profile: generic}]\n  wires: []\n"),
+      "ring.yaml:3: simulator.wires: unknown key (known: slaves, wiring, faults, redundancy)");
   EXPECT_EQ(error_of("simulator: [1]\n"),
             "ring.yaml:1: simulator: expected a mapping, found a list");
 }
@@ -427,6 +428,8 @@ TEST(RingErrors, WiringAndFaults) {
                          "(known: drop_responses, "));
   EXPECT_EQ(error_of(head + "  faults:\n    - {kind: disconnect, slave: q}\n"),
             "ring.yaml:6: simulator.faults[0]: unknown slave 'q' (known: a, b)");
+  EXPECT_EQ(error_of(head + "  faults:\n    - {after_ms: 5, fault: {kind: hot_plug, group: q}}\n"),
+            "ring.yaml:6: simulator.faults[0]: unknown hot-connect group 'q' (known: none)");
   EXPECT_EQ(error_of(head + "  faults:\n    - script:\n        - {kind: wkc_offset, delta: 1}\n"
                             "        - {wait_for: {milestone: healthy_polls, slave: x, count: "
                             "1}}\n"),

@@ -444,4 +444,15 @@ TEST_F(SimTool, PlugsAndUnplugsAHotConnectGroup) {
   r = run_tool("plug nothing --control '" + socket_ + "'");
   EXPECT_EQ(r.status, 1);
   EXPECT_THAT(r.err, HasSubstr("no hot-connect group 'nothing' (known: tool)"));
+  // The same as faults: ecat sim fault inject hot_plug / hot_unplug.
+  r = run_tool("fault inject hot_plug tool --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_TRUE(plugged());
+  EXPECT_EQ(brd_wkc(**link, 4), 3);
+  r = run_tool("fault inject hot_unplug tool --control '" + socket_ + "'");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_FALSE(plugged());
+  r = run_tool("fault inject hot_unplug nothing --control '" + socket_ + "'");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_THAT(r.err, HasSubstr("hot_unplug: unknown hot-connect group 'nothing' (known: tool)"));
 }

@@ -80,8 +80,11 @@ enum class FaultKind : std::uint8_t {
   ring_cut,    // the cable at the master's port `master_port` is cut
   ring_heal,   // every cable of the ring whole again
   port_delay,  // replies leaving by `master_port` held back `ns` (only those entered by `from`)
+  // ---- Hot connect: a group of the segment (Segment::add_hot_connect_group), applied once.
+  hot_plug,    // the group `group` is plugged in (powered up afresh, its cable up)
+  hot_unplug,  // ... and pulled out (its cable down)
 };
-constexpr std::size_t kFaultKindCount = 32;
+constexpr std::size_t kFaultKindCount = 34;
 
 // What a foe_fault does. `error`, `drop_reply`, `wrong_packet` and `busy` are the FoE server's
 // own faults (FoeFaultKind); `wrong_password` is an ERROR 0x800A (FoE "no rights") to the
@@ -103,6 +106,7 @@ bool is_per_exchange(FaultKind kind) noexcept;
 struct FaultEffect {
   FaultKind kind = FaultKind::drop_responses;
   std::string slave;  // the slave's name in the segment
+  std::string group;  // hot_plug, hot_unplug: the hot-connect group's name
   // wkc_offset, command_wkc_offset, logical_wkc_offset.
   std::int64_t delta = 0;
   wire::Command command = wire::Command::nop;  // command_wkc_offset
@@ -230,6 +234,10 @@ Fault ring_cut(wire::RedundantPort port);
 Fault ring_heal();
 Fault port_delay(wire::RedundantPort port, std::chrono::nanoseconds delay,
                  std::optional<wire::RedundantPort> from = std::nullopt);
+// A hot-connect group plugged in or pulled out (Segment::plug); refused for an unknown group.
+// clear() does not plug a pulled group back in.
+Fault hot_plug(std::string group);
+Fault hot_unplug(std::string group);
 
 // Scheduling. next() is only valid around per-exchange kinds.
 Fault next(Fault fault, std::uint64_t exchanges = 1);
