@@ -1292,6 +1292,12 @@ Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out)
     return error(Errc::not_ready,
                  fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
   }
+  if (reservation_absent(e)) {
+    // A hot-connect group's input while the group is absent or still joining (as sample_entry).
+    return error(Errc::stale,
+                 fmt::format("{} (input) is stale: it belongs to {}, which is not present",
+                             to_string(e.key), reservations_[e.reservation]->name));
+  }
   const std::int64_t age = std::max<std::int64_t>(0, to_ns(Clock::now()) - refreshed);
   const nanoseconds limit = stale_after();
   if (age > limit.count()) {
