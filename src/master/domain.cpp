@@ -504,26 +504,10 @@ Result<std::uint32_t> Domain::register_pdo(PdoKey key, std::size_t bytes, PdoDir
                              "is only possible before it first cycles)",
                              to_string(key), to_string(direction), to_string(s)));
   }
-  if (bytes == 0 || bytes > 0xFFFF) {
-    return error(Errc::invalid_argument,
-                 fmt::format("cannot register {}: size {} bytes is outside 1..65535",
-                             to_string(key), bytes));
-  }
-  if (key.kind == RegistrationKind::sm_status && (bytes != 1 || direction != PdoDirection::input)) {
-    return error(Errc::invalid_argument,
-                 fmt::format("cannot register {}: a SyncManager status is one input byte, not {} "
-                             "{} bytes",
-                             to_string(key), to_string(direction), bytes));
+  if (auto checked = check_new_registration_locked(key, bytes, direction); !checked) {
+    return std::move(checked).error();
   }
   const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
-  for (std::uint32_t i = 0; i < count; ++i) {
-    if (entry(i).key == key) {
-      return error(
-          Errc::invalid_argument,
-          fmt::format("{} is already registered (at logical 0x{:08x}, {} bytes)", to_string(key),
-                      config_.logical_base + entry(i).offset, entry(i).size));
-    }
-  }
   if (count >= registration_limit_) {
     return error(Errc::out_of_range,
                  fmt::format("cannot register {}: all {} registrations ({}) used", to_string(key),
@@ -646,24 +630,19 @@ Result<std::uint32_t> Domain::reserve(std::string_view name, std::size_t bytes,
   return index;
 }
 
-Result<std::uint32_t> Domain::register_reserved_locked(Reservation& r, PdoKey key,
-                                                       std::size_t bytes, PdoDirection direction,
-                                                       bool contributes_wkc) {
-  if (r.state.load(std::memory_order_acquire) == ReservationState::present) {
-    return error(Errc::wrong_state,
-                 fmt::format("cannot register {}: reservation {} is present (registrations are "
-                             "made while it is absent or joining)",
-                             to_string(key), r.name));
-  }
+// The checks every new registration passes, into the image or into a hot-connect reservation.
+Result<void> Domain::check_new_registration_locked(PdoKey key, std::size_t bytes,
+                                                   PdoDirection direction) const {
   if (bytes == 0 || bytes > 0xFFFF) {
     return error(Errc::invalid_argument,
                  fmt::format("cannot register {}: size {} bytes is outside 1..65535",
                              to_string(key), bytes));
   }
   if (key.kind == RegistrationKind::sm_status && (bytes != 1 || direction != PdoDirection::input)) {
-    return error(
-        Errc::invalid_argument,
-        fmt::format("cannot register {}: a SyncManager status is one input byte", to_string(key)));
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot register {}: a SyncManager status is one input byte, not {} "
+                             "{} bytes",
+                             to_string(key), to_string(direction), bytes));
   }
   const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
   for (std::uint32_t i = 0; i < count; ++i) {
@@ -674,6 +653,22 @@ Result<std::uint32_t> Domain::register_reserved_locked(Reservation& r, PdoKey ke
                       config_.logical_base + entry(i).offset, entry(i).size));
     }
   }
+  return {};
+}
+
+Result<std::uint32_t> Domain::register_reserved_locked(Reservation& r, PdoKey key,
+                                                       std::size_t bytes, PdoDirection direction,
+                                                       bool contributes_wkc) {
+  if (r.state.load(std::memory_order_acquire) == ReservationState::present) {
+    return error(Errc::wrong_state,
+                 fmt::format("cannot register {}: reservation {} is present (registrations are "
+                             "made while it is absent or joining)",
+                             to_string(key), r.name));
+  }
+  if (auto checked = check_new_registration_locked(key, bytes, direction); !checked) {
+    return std::move(checked).error();
+  }
+  const std::uint32_t count = entry_count_.load(std::memory_order_relaxed);
   if (r.used + bytes > r.size) {
     return error(Errc::out_of_range,
                  fmt::format("cannot register {}: {} + {} bytes exceed the {} bytes reserved for "

@@ -336,6 +336,8 @@ class Domain final : public CyclicParticipant {
   std::atomic<std::uint32_t> reservation_count_{0};
   std::atomic<std::uint64_t> reservations_lost_{0};
   Reservation* reservation_of_locked(std::uint16_t station) const noexcept;
+  Result<void> check_new_registration_locked(PdoKey key, std::size_t bytes,
+                                             PdoDirection direction) const;
   Result<std::uint32_t> register_reserved_locked(Reservation& r, PdoKey key, std::size_t bytes,
                                                  PdoDirection direction, bool contributes_wkc);
   void compute_shares_locked(Reservation& r);
