@@ -244,6 +244,9 @@ Json status_json(Master& master) {
   out["illegal_transitions"] = {{"master", st.illegal_transitions},
                                 {"slaves", st.illegal_slave_transitions},
                                 {"domains", st.illegal_domain_transitions}};
+  if (!st.last_illegal_transition.empty()) {
+    out["illegal_transitions"]["last_master"] = st.last_illegal_transition;
+  }
   out["dc"] = dc_json(master);
   if (!st.cycle_thread.empty()) out["cycle_thread"] = st.cycle_thread;
   if (st.redundancy) out["redundancy"] = redundancy_json(*st.redundancy);

@@ -263,6 +263,7 @@ struct Master::Impl : DomainObserver {
   std::map<std::string, std::string> runtime_faults;
   std::optional<Failure> last;
   std::uint64_t refused_transitions = 0;
+  std::string last_refused_transition;  // "from -> to" of the last one
   std::function<void(MasterState, MasterState)> on_change;
   std::atomic<bool> inputs_pending{false};
   std::atomic<bool> retry_armed{false};
@@ -280,6 +281,7 @@ struct Master::Impl : DomainObserver {
       if (from == to) return true;
       if (!master_transition_allowed(from, to)) {
         ++refused_transitions;
+        last_refused_transition = fmt::format("{} -> {}", to_string(from), to_string(to));
         return false;
       }
       state = to;
@@ -1099,14 +1101,20 @@ struct Master::Impl : DomainObserver {
     }
     std::vector<exec::Task<Result<void>>> steps;
     std::vector<Slave*> order;
-    const bool recovering = current() == MasterState::recovering;
+    // While recovering, and while the session already stands operational at an OP target (a
+    // second pass of run_activation after recovery ended in operational), a retained PREOP
+    // failure of a slave without process data is a slave-local fault its own retry loop heals:
+    // it neither holds the session in recovering nor blocks a running one (operational ->
+    // activation_blocked is not drawn: that second pass once asked for it and was refused).
+    const MasterState at_start = current();
+    const bool slave_local_skipped =
+        at_start == MasterState::recovering ||
+        (at_start == MasterState::operational && want == TargetState::op);
     for (auto& slave : s->slaves) {
       const auto target = min_target(want, SlaveAccess::target(*slave));
       if (SlaveAccess::awaiting_rebuild(*slave)) continue;
       if (!hot_connect_walkable(*s, *slave)) continue;  // a group not (yet) present
-      // While recovering, a retained PREOP failure of a slave without process data is a
-      // slave-local fault its own retry loop heals: it does not hold the session in recovering.
-      if (recovering && retained_slave_local(*slave)) continue;
+      if (slave_local_skipped && retained_slave_local(*slave)) continue;
       order.push_back(slave.get());
       steps.push_back(SlaveAccess::go_to(*slave, target, s));
     }
@@ -2253,6 +2261,7 @@ MasterStatus Master::status() const {
     out.desired_target = impl_->desired;
     out.last_failure = impl_->last;
     out.illegal_transitions = impl_->refused_transitions;
+    out.last_illegal_transition = impl_->last_refused_transition;
     if (impl_->session) {
       std::lock_guard report_lock(impl_->session->report_mutex);
       out.cycle_thread = impl_->session->cycle_thread_report;

@@ -395,21 +395,7 @@ TEST(RetainedConfig, Scenario31_OutputsHealFirstWhileMailboxFailureIsRetained) {
   retained_mailbox_then_outputs_disconnect(false);
 }
 
-#if defined(__SANITIZE_ADDRESS__)
-#define ECAT_SCENARIO34_ASAN 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define ECAT_SCENARIO34_ASAN 1
-#endif
-#endif
-
 TEST(RetainedConfig, Scenario34_RetainedFailureArmsOutputsDisconnect) {
-#ifdef ECAT_SCENARIO34_ASAN
-  // KNOWN DEFECT (session 9): in the full sanitizer suite this scenario counted one refused
-  // state change (illegal_transitions 1) in two runs out of two, never when run alone nor under
-  // g++. Skipped here until it is found; it runs in the g++ suite.
-  GTEST_SKIP() << "known defect under AddressSanitizer: one refused state change (see note)";
-#endif
   retained_mailbox_then_outputs_disconnect(true);
 }
 

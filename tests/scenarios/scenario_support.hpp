@@ -459,7 +459,7 @@ class ScenarioRing {
       // Every scenario, whatever it drove: no change the seed's diagrams do not draw, for the
       // master, its slaves or its domains (each is refused and counted, never made).
       const auto status = master->status();
-      EXPECT_EQ(status.illegal_transitions, 0u);
+      EXPECT_EQ(status.illegal_transitions, 0u) << "last: " << status.last_illegal_transition;
       EXPECT_EQ(status.illegal_slave_transitions, 0u);
       EXPECT_EQ(status.illegal_domain_transitions, 0u);
     }

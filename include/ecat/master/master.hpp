@@ -161,6 +161,9 @@ struct MasterStatus {
   // State changes the seed's diagram does not draw that were asked for and refused: always 0
   // unless the master has a bug.
   std::uint64_t illegal_transitions = 0;
+  // The last of those, "operational -> activation_blocked" (empty when none): what a test or a
+  // bug report needs to find it.
+  std::string last_illegal_transition;
   // The same for the session's slaves (their lifecycle, slave_fsm) and domains (start while
   // cycling, stop while not cycling): always 0 unless the master has a bug.
   std::uint64_t illegal_slave_transitions = 0;
