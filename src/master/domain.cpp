@@ -151,7 +151,52 @@ constexpr std::optional<DomainState> transition(DomainState from, DomainEvent ev
   return std::nullopt;
 }
 
+using RS = Domain::ReservationState;
+
+// The hot-connect reservation's diagram (domain.hpp), and nothing else.
+constexpr std::array kReservationTransitions{
+    Domain::ReservationTransition{RS::absent, RS::joining,
+                                  "the group's stations are assigned: its FMMUs may answer"},
+    Domain::ReservationTransition{RS::joining, RS::present, "the group reached its target"},
+    Domain::ReservationTransition{RS::joining, RS::absent,
+                                  "the group failed to come up or left while joining"},
+    Domain::ReservationTransition{
+        RS::present, RS::absent,
+        "the group left: a cycle came back short exactly its share (bus thread), the slave "
+        "count no longer reaches it, or a slave of it stopped answering"},
+    Domain::ReservationTransition{
+        RS::absent, RS::absent,
+        "the master confirms a loss that a cycle (bus thread) already recorded"},
+};
+
+constexpr bool reservation_allowed(RS from, RS to) noexcept {
+  for (const auto& t : kReservationTransitions) {
+    if (t.from == from && t.to == to) return true;
+  }
+  return false;
+}
+
 }  // namespace
+
+std::span<const Domain::ReservationTransition> Domain::reservation_transitions() noexcept {
+  return kReservationTransitions;
+}
+
+bool Domain::reservation_transition_allowed(ReservationState from, ReservationState to) noexcept {
+  return reservation_allowed(from, to);
+}
+
+std::string_view to_string(Domain::ReservationState state) noexcept {
+  switch (state) {
+    case RS::absent:
+      return "absent";
+    case RS::joining:
+      return "joining";
+    case RS::present:
+      return "present";
+  }
+  return "unknown";
+}
 
 std::string_view to_string(DomainTrigger trigger) noexcept {
   switch (trigger) {
@@ -732,8 +777,21 @@ Result<void> Domain::set_reservation_state(std::uint32_t reservation, Reservatio
   if (reservation >= reservation_count_.load(std::memory_order_relaxed)) {
     return error(Errc::not_found, fmt::format("no reservation {}", reservation));
   }
-  reservations_[reservation]->state.store(state, std::memory_order_release);
-  return ok();
+  Reservation& r = *reservations_[reservation];
+  ReservationState from = r.state.load(std::memory_order_acquire);
+  for (;;) {
+    if (!reservation_allowed(from, state)) {
+      refused_reservation_transitions_.fetch_add(1, std::memory_order_relaxed);
+      return error(Errc::wrong_state,
+                   fmt::format("reservation {} ({}): {} -> {} is not a transition of its diagram",
+                               reservation, r.name, to_string(from), to_string(state)));
+    }
+    // Fails only when the bus thread found the reservation gone meanwhile: decide again.
+    if (r.state.compare_exchange_weak(from, state, std::memory_order_acq_rel,
+                                      std::memory_order_acquire)) {
+      return ok();
+    }
+  }
 }
 
 Domain::ReservationState Domain::reservation_state(std::uint32_t reservation) const noexcept {
@@ -982,6 +1040,8 @@ DomainStats Domain::stats() const noexcept {
   DomainStats s;
   s.state = state();
   s.refused_transitions = refused_transitions_.load(std::memory_order_relaxed);
+  s.refused_reservation_transitions =
+      refused_reservation_transitions_.load(std::memory_order_relaxed);
   const auto health = unpack(c.health.load(std::memory_order_relaxed));
   s.health.healthy = !health.has_value();
   s.health.invalid = health;
@@ -1506,6 +1566,9 @@ void Domain::on_exchange_done(Exchange& x) noexcept {
       bool counted = false;
       for (std::uint32_t k = 0; k < reservations; ++k) {
         if ((gone & (1u << k)) == 0) continue;
+        // The diagram's present -> absent, one compare-exchange: a reservation the control
+        // thread changed meanwhile is its to report.
+        static_assert(reservation_allowed(RS::present, RS::absent));
         ReservationState expected = ReservationState::present;
         if (!reservations_[k]->state.compare_exchange_strong(expected, ReservationState::absent,
                                                              std::memory_order_acq_rel)) {

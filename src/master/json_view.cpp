@@ -243,7 +243,8 @@ Json status_json(Master& master) {
   }
   out["illegal_transitions"] = {{"master", st.illegal_transitions},
                                 {"slaves", st.illegal_slave_transitions},
-                                {"domains", st.illegal_domain_transitions}};
+                                {"domains", st.illegal_domain_transitions},
+                                {"reservations", st.illegal_reservation_transitions}};
   if (!st.last_illegal_transition.empty()) {
     out["illegal_transitions"]["last_master"] = st.last_illegal_transition;
   }

@@ -2292,8 +2292,11 @@ MasterStatus Master::status() const {
       out.hot_connect_refused = impl_->session->hot_connect_refused;
       for (const auto& slave : impl_->session->slaves)
         out.illegal_slave_transitions += SlaveAccess::refused_transitions(*slave);
-      for (const auto& d : impl_->session->domains)
-        out.illegal_domain_transitions += d->stats().refused_transitions;
+      for (const auto& d : impl_->session->domains) {
+        const auto stats = d->stats();
+        out.illegal_domain_transitions += stats.refused_transitions;
+        out.illegal_reservation_transitions += stats.refused_reservation_transitions;
+      }
     }
   }
   out.slaves = slaves();

@@ -82,6 +82,10 @@ TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) 
   EXPECT_EQ(observer.last.load(), group);
   EXPECT_EQ(d.reservation_state(group), Reservation::absent);
   EXPECT_EQ(d.reservations_lost(), 1u);
+  // The bus thread's change is a drawn one, and the master's confirmation after it too.
+  EXPECT_EQ(d.stats().refused_reservation_transitions, 0u);
+  ASSERT_TRUE(d.set_reservation_state(group, Reservation::absent).ok());
+  EXPECT_EQ(d.stats().refused_reservation_transitions, 0u);
   const auto after_loss = d.stats().valid_count;
   EXPECT_TRUE(eventually([&] { return d.stats().valid_count > after_loss + 5; }));
   EXPECT_EQ(d.stats().wkc_mismatch_count, mismatches);
@@ -128,6 +132,64 @@ TEST(DomainReservation, ReservingIsForAnOpenDomainAndNamesWhatIsWrong) {
     listed |= reg.key.kind == RegistrationKind::reserved && reg.size == 8;
   EXPECT_TRUE(listed);
   EXPECT_FALSE(d.set_reservation_state(7, Reservation::present).ok());
+}
+
+TEST(DomainReservation, OnlyTheDrawnChangesHappenAndUndrawnOnesAreCounted) {
+  // The diagram: into present only from joining, out of it only to absent.
+  const auto table = Domain::reservation_transitions();
+  ASSERT_FALSE(table.empty());
+  for (const auto& t : table) {
+    EXPECT_TRUE(Domain::reservation_transition_allowed(t.from, t.to));
+    EXPECT_FALSE(t.label.empty());
+    if (t.to == Reservation::present) {
+      EXPECT_EQ(t.from, Reservation::joining);
+    }
+    if (t.from == Reservation::present) {
+      EXPECT_EQ(t.to, Reservation::absent);
+    }
+  }
+  EXPECT_TRUE(Domain::reservation_transition_allowed(Reservation::present, Reservation::absent));
+  EXPECT_FALSE(Domain::reservation_transition_allowed(Reservation::absent, Reservation::present));
+  EXPECT_FALSE(Domain::reservation_transition_allowed(Reservation::present, Reservation::joining));
+  EXPECT_FALSE(Domain::reservation_transition_allowed(Reservation::joining, Reservation::joining));
+  EXPECT_FALSE(Domain::reservation_transition_allowed(Reservation::present, Reservation::present));
+
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  DomainConfig c;
+  c.id = "main";
+  c.period = kPeriod;
+  auto created = Domain::create(*rig->bus, c);
+  ASSERT_TRUE(created.ok());
+  auto& d = **created;
+  auto r = d.reserve("tool", 8, {kInputs2});
+  ASSERT_TRUE(r.ok()) << r.error().describe();
+  const std::uint32_t g = *r;
+  EXPECT_EQ(d.reservation_state(g), Reservation::absent);
+
+  // Straight to present: refused, named, counted, and nothing changes.
+  auto skip = d.set_reservation_state(g, Reservation::present);
+  ASSERT_FALSE(skip.ok());
+  EXPECT_EQ(skip.error().code(), Errc::wrong_state);
+  EXPECT_NE(skip.error().message().find("tool"), std::string::npos) << skip.error().describe();
+  EXPECT_NE(skip.error().message().find("absent -> present"), std::string::npos)
+      << skip.error().describe();
+  EXPECT_EQ(d.reservation_state(g), Reservation::absent);
+  EXPECT_EQ(d.stats().refused_reservation_transitions, 1u);
+
+  ASSERT_TRUE(d.set_reservation_state(g, Reservation::joining).ok());
+  EXPECT_FALSE(d.set_reservation_state(g, Reservation::joining).ok());
+  ASSERT_TRUE(d.set_reservation_state(g, Reservation::present).ok());
+  EXPECT_FALSE(d.set_reservation_state(g, Reservation::joining).ok());
+  EXPECT_FALSE(d.set_reservation_state(g, Reservation::present).ok());
+  EXPECT_EQ(d.reservation_state(g), Reservation::present);
+  EXPECT_EQ(d.stats().refused_reservation_transitions, 4u);
+  ASSERT_TRUE(d.set_reservation_state(g, Reservation::absent).ok());
+  ASSERT_TRUE(d.set_reservation_state(g, Reservation::absent).ok());
+  ASSERT_TRUE(d.set_reservation_state(g, Reservation::joining).ok());
+  ASSERT_TRUE(d.set_reservation_state(g, Reservation::absent).ok());  // a failed join
+  EXPECT_EQ(d.stats().refused_reservation_transitions, 4u);
+  EXPECT_EQ(to_string(Reservation::joining), "joining");
 }
 
 }  // namespace

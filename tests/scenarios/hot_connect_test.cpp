@@ -268,6 +268,7 @@ TEST(HotConnect, RepeatedPlugAndUnplugAtRandomTimes) {
   }
   EXPECT_FALSE(ring->saw(MasterState::recovering));
   EXPECT_EQ(group_status(m).losses, 6u);
+  EXPECT_EQ(m.status().illegal_reservation_transitions, 0u);
 }
 
 TEST(HotConnectConfig, RingFileErrorsNameWhatIsWrong) {

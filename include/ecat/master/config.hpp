@@ -218,6 +218,8 @@ struct DomainStats {
   // Changes the state diagram does not draw that were asked for and refused (start while
   // cycling, stop while not cycling).
   std::uint64_t refused_transitions = 0;
+  // The same for the hot-connect reservations' diagram (Domain::reservation_transitions).
+  std::uint64_t refused_reservation_transitions = 0;
   std::uint32_t last_wkc = 0;  // sum of the working counters of the latest reply
   std::optional<Clock::time_point> last_valid_at;
   std::optional<Clock::time_point> last_invalid_at;

@@ -185,8 +185,22 @@ class Domain final : public CyclicParticipant {
   // bus thread, the cycle stays valid for the others, and the observer hears of it.
   static constexpr std::size_t kMaxReservations = 16;
   enum class ReservationState : std::uint8_t { absent, joining, present };
+  // The reservation's state diagram: the only changes a reservation makes, each edge with what
+  // causes it. The control thread's changes (set_reservation_state) and the bus thread's
+  // present -> absent (one compare-exchange) both go through it; an undrawn change asked for is
+  // refused and counted (DomainStats::refused_reservation_transitions).
+  struct ReservationTransition {
+    ReservationState from;
+    ReservationState to;
+    std::string_view label;
+  };
+  static std::span<const ReservationTransition> reservation_transitions() noexcept;
+  static bool reservation_transition_allowed(ReservationState from, ReservationState to) noexcept;
   Result<std::uint32_t> reserve(std::string_view name, std::size_t bytes,
                                 std::vector<std::uint16_t> stations);
+  // From the control side only: a drawn change from the reservation's state now (read and
+  // compare-exchanged, so a loss the bus thread records meanwhile is taken into account);
+  // Errc::wrong_state, counted, for an undrawn one.
   Result<void> set_reservation_state(std::uint32_t reservation, ReservationState state);
   ReservationState reservation_state(std::uint32_t reservation) const noexcept;
   // Bytes used by the reservation's registrations.
@@ -335,6 +349,7 @@ class Domain final : public CyclicParticipant {
   std::array<std::unique_ptr<Reservation>, kMaxReservations> reservations_;  // null until made
   std::atomic<std::uint32_t> reservation_count_{0};
   std::atomic<std::uint64_t> reservations_lost_{0};
+  std::atomic<std::uint64_t> refused_reservation_transitions_{0};
   Reservation* reservation_of_locked(std::uint16_t station) const noexcept;
   Result<void> check_new_registration_locked(PdoKey key, std::size_t bytes,
                                              PdoDirection direction) const;
@@ -379,5 +394,7 @@ class Domain final : public CyclicParticipant {
   std::atomic<std::uint32_t> cycle_waiters_{0};
   std::atomic<std::uint64_t> last_valid_cycle_{0};
 };
+
+std::string_view to_string(Domain::ReservationState state) noexcept;
 
 }  // namespace ecat::master

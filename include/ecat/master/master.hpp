@@ -168,6 +168,8 @@ struct MasterStatus {
   // cycling, stop while not cycling): always 0 unless the master has a bug.
   std::uint64_t illegal_slave_transitions = 0;
   std::uint64_t illegal_domain_transitions = 0;
+  // ... and for the domains' hot-connect reservations (absent / joining / present).
+  std::uint64_t illegal_reservation_transitions = 0;
   // What MasterConfig::cycle_thread came to, one part per request: "SCHED_FIFO 80: applied; CPU
   // 1: pinned; cpu_dma_latency 0 us: held; memory: locked, 256 KiB of stack pre-faulted", or
   // "... refused (reason)" / "memory: not locked (mlockall: reason)"; empty when nothing was asked.
