@@ -446,10 +446,11 @@ class Reader {
   Result<SlaveConfig> slave(const SpecNode& item, const std::string& path) {
     {
       if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
-      if (auto r = check_keys(ctx_, item, path,
-                              {"name", "position", "alias", "vendor_id", "product_code", "driver",
-                               "driver_options", "process_data", "target", "health_poll_ms",
-                               "startup_sdos", "pdo_source", "sync", "esi", "mailbox_status"});
+      if (auto r =
+              check_keys(ctx_, item, path,
+                         {"name", "position", "alias", "vendor_id", "product_code", "revision",
+                          "driver", "driver_options", "process_data", "target", "health_poll_ms",
+                          "startup_sdos", "pdo_source", "sync", "esi", "mailbox_status"});
           !r) {
         return r.error();
       }
@@ -479,10 +480,13 @@ class Reader {
           auto x = to_int(ctx_, v, p, 1, 0xFFFF);
           if (!x) return x.error();
           s.alias = static_cast<std::uint16_t>(*x);
-        } else if (e.key == "vendor_id" || e.key == "product_code") {
+        } else if (e.key == "vendor_id" || e.key == "product_code" || e.key == "revision") {
           auto x = to_int(ctx_, v, p, 0, 0xFFFFFFFFll);
           if (!x) return x.error();
-          (e.key == "vendor_id" ? s.vendor_id : s.product_code) = static_cast<std::uint32_t>(*x);
+          auto& field = e.key == "vendor_id"      ? s.vendor_id
+                        : e.key == "product_code" ? s.product_code
+                                                  : s.revision;
+          field = static_cast<std::uint32_t>(*x);
         } else if (e.key == "driver") {
           auto x = to_text(ctx_, v, p);
           if (!x) return x.error();

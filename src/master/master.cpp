@@ -25,6 +25,7 @@
 
 #include "cycle_thread.hpp"
 #include "dynamic_names.hpp"
+#include "hot_connect_identity.hpp"
 #include "session.hpp"
 #include "slave_access.hpp"
 
@@ -665,7 +666,11 @@ struct Master::Impl : DomainObserver {
         end =
             std::max<std::uint16_t>(end, static_cast<std::uint16_t>(*g.position + g.slaves.size()));
     }
-    if (n <= end) co_return;
+    if (n <= end) {
+      for (auto& g : s->hot_connect)
+        g.short_since.reset();  // nothing behind the known part: no group is short
+      co_return;
+    }
     // A refused device is looked at again when the ring changes, and after retry_interval (a
     // device swapped for another between two polls leaves the count as it was).
     if (n == s->hot_connect_refused_count && !s->hot_connect_refused.empty() &&
@@ -733,20 +738,102 @@ struct Master::Impl : DomainObserver {
       s->hot_connect_refused.clear();
       s->hot_connect_refused_count = 0;
     }
+    for (auto& g : s->hot_connect) {
+      if (&g != match) g.short_since.reset();
+    }
     if (exec::Clock::now() < match->retry_after) co_return;
     if (n - at < static_cast<int>(match->slaves.size())) {
-      set_group(*match, HotConnectState::absent,
-                fmt::format("{}: {} of its {} slaves in the ring so far", how, n - at,
-                            match->slaves.size()));
+      // Short of slaves: the rest may still be powering up. Refused (reported once) when it
+      // lasts retry_interval; joined as soon as they are all there.
+      auto why = fmt::format("{}: {} of its {} slaves in the ring so far ({} missing)", how, n - at,
+                             match->slaves.size(), match->slaves[n - at]->name());
+      const auto now = exec::Clock::now();
+      if (!match->short_since) match->short_since = now;
+      if (now - *match->short_since >= s->config.retry_interval) {
+        refuse_group(*s, *match, std::move(why));
+      } else if (match->state != HotConnectState::failed) {
+        set_group(*match, HotConnectState::absent, std::move(why));
+      }
       co_return;
     }
+    match->short_since.reset();
     co_await join_group(s, *match, at, std::move(how));
+  }
+
+  // A group seen but not taken (short of slaves, or its slaves not what it declares): nothing is
+  // written to it but station addresses; `failed` with the reason, reported once while the same,
+  // looked at again after retry_interval.
+  void refuse_group(Session& s, HotConnectRuntime& g, std::string why) {
+    bool again = false;
+    {
+      std::lock_guard lock(mutex);
+      again = g.state == HotConnectState::failed && g.detail == why;
+      g.state = HotConnectState::failed;
+      g.detail = why;
+      g.position.reset();
+      g.retry_after = exec::Clock::now() + s.config.retry_interval;
+    }
+    if (!again) events.publish(make_event(EventKind::hotconnect_refused, g.name, std::move(why)));
+  }
+
+  // What each slave of a group placed at `at` says it is (SII words 8..13), read at its station.
+  exec::Task<Result<std::vector<FoundIdentity>>> read_group_identities(Session& s,
+                                                                       HotConnectRuntime& g) {
+    std::vector<exec::Task<Result<std::vector<std::uint8_t>>>> reads;
+    for (Slave* slave : g.slaves)
+      reads.push_back(read_sii_words(loop, *s.bus, slave->station(), 0x0008, 6));
+    auto words = co_await exec::when_all(loop, std::move(reads));
+    std::vector<FoundIdentity> found;
+    for (std::size_t k = 0; k < words.size(); ++k) {
+      if (!words[k]) {
+        co_return words[k].error().context(
+            fmt::format("reading the identity of {}", g.slaves[k]->name()));
+      }
+      auto id = decode_found_identity(*words[k]);
+      if (!id) {
+        co_return Error(Errc::invalid_argument,
+                        fmt::format("reading the identity of {}: {} bytes of SII words 8..13",
+                                    g.slaves[k]->name(), words[k]->size()));
+      }
+      found.push_back(*id);
+    }
+    co_return found;
   }
 
   exec::Task<void> join_group(std::shared_ptr<Session> s, HotConnectRuntime& g, std::uint16_t at,
                               std::string how) {
     auto& bus = *s->bus;
     const auto noticed = exec::Clock::now();
+    bus::Transaction assign;
+    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
+      assign.apwr(static_cast<std::uint16_t>(at + k), wire::reg::kStationAddress,
+                  le16(g.slaves[k]->station()));
+    }
+    auto assigned = co_await exec::transact(loop, bus, std::move(assign));
+    if (s->stopping || session != s) co_return;
+    if (!assigned) {
+      refuse_group(*s, g, assigned.error().context("assigning the group's stations").describe());
+      co_return;
+    }
+    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
+      if (assigned->wkc(k) != 1) {
+        refuse_group(*s, g,
+                     fmt::format("assigning station 0x{:04x} to position {}: working counter {}",
+                                 g.slaves[k]->station(), at + k, assigned->wkc(k)));
+        co_return;
+      }
+    }
+    // Every slave of the group is what the group declares, or none is brought up.
+    auto found = co_await read_group_identities(*s, g);
+    if (s->stopping || session != s) co_return;
+    if (!found) {
+      refuse_group(*s, g, found.error().describe());
+      co_return;
+    }
+    if (auto why = group_identity_mismatch(s->config.hot_connect[g.index], at, *found)) {
+      refuse_group(*s, g, std::move(*why));
+      co_return;
+    }
     {
       std::lock_guard lock(mutex);
       g.state = HotConnectState::joining;
@@ -759,28 +846,8 @@ struct Master::Impl : DomainObserver {
       e.subject = at;
       events.publish(e);
     }
-    bus::Transaction assign;
-    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
-      assign.apwr(static_cast<std::uint16_t>(at + k), wire::reg::kStationAddress,
-                  le16(g.slaves[k]->station()));
-    }
-    auto assigned = co_await exec::transact(loop, bus, std::move(assign));
-    if (s->stopping || session != s) co_return;
-    if (!assigned) {
-      co_await fail_group(s, g, assigned.error().context("assigning the group's stations"));
-      co_return;
-    }
-    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
-      if (assigned->wkc(k) != 1) {
-        co_await fail_group(s, g,
-                            Error(Errc::wkc_mismatch,
-                                  fmt::format("assigning station 0x{:04x} to position {}: "
-                                              "working counter {}",
-                                              g.slaves[k]->station(), at + k, assigned->wkc(k))));
-        co_return;
-      }
+    for (std::size_t k = 0; k < g.slaves.size(); ++k)
       SlaveAccess::place(*g.slaves[k], static_cast<std::uint16_t>(at + k));
-    }
     // From here the group's FMMUs may answer at any cycle: the domains take either count.
     for (const auto& [d, r] : g.reservations)
       (void)d->set_reservation_state(r, Domain::ReservationState::joining);

@@ -51,6 +51,8 @@ struct HotConnectRuntime {
   std::uint64_t losses = 0;
   std::optional<std::chrono::nanoseconds> last_join;
   exec::Clock::time_point retry_after{};  // a failed join is tried again from then on
+  // Since when the group's first slave is in the ring without all the others (hot_connect_scan).
+  std::optional<exec::Clock::time_point> short_since;
 };
 
 struct Session : std::enable_shared_from_this<Session> {

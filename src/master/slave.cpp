@@ -73,12 +73,14 @@ exec::Task<Result<void>> Slave::Impl::bring_up(std::shared_ptr<Session> keep) {
   if (session.stopping) co_return Error(Errc::closed, "session stopped");
 
   if ((config.vendor_id && *config.vendor_id != image.identity.vendor_id) ||
-      (config.product_code && *config.product_code != image.identity.product_code)) {
+      (config.product_code && *config.product_code != image.identity.product_code) ||
+      (config.revision && *config.revision != image.identity.revision)) {
     co_return Error(Errc::invalid_argument,
                     fmt::format("{}: identity mismatch: configured vendor 0x{:08x} product "
-                                "0x{:08x}, found {}",
+                                "0x{:08x} revision 0x{:08x}, found {}",
                                 who(), config.vendor_id.value_or(image.identity.vendor_id),
                                 config.product_code.value_or(image.identity.product_code),
+                                config.revision.value_or(image.identity.revision),
                                 hex_identity(image.identity)));
   }
   if (known_identity && (known_identity->vendor_id != image.identity.vendor_id ||

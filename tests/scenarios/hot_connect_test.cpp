@@ -1,7 +1,10 @@
 // Hot connect (docs/ARCHITECTURE.md "Hot connect"): a group of slaves behind the fixed ones that
 // is absent at start, plugged and unplugged at runtime in the simulator, and brought to the
 // session's target by the master without disturbing the others' cycles.
+#include <mutex>
 #include <random>
+#include <string>
+#include <vector>
 
 #include <ecat/master/config.hpp>
 
@@ -233,6 +236,102 @@ TEST(HotConnect, AWrongDeviceIsRefusedNotConfigured) {
   m.unsubscribe_events(subscription);
 }
 
+// The group plugged is not the one declared past its first slave: an EL3202 where tool_in (an
+// EL1809) should be.
+RingSpec wrong_group_spec() {
+  auto spec = hot_connect_spec(false);
+  const std::string in = "{name: tool_in, profile: EL1809}";
+  const auto at = spec.ring_yaml.find(in);
+  spec.ring_yaml.replace(at, in.size(), "{name: tool_in, profile: EL3202}");
+  const std::string wire = "    - {from: tool_out.channel_1, to: tool_in.channel_1}\n";
+  spec.ring_yaml.erase(spec.ring_yaml.find(wire), wire.size());
+  return spec;
+}
+
+struct Refusals {
+  explicit Refusals(master::Master& m) : master(m) {
+    subscription = m.subscribe_events([this](const master::Event& e, std::uint64_t) {
+      if (e.kind != master::EventKind::hotconnect_refused) return;
+      std::lock_guard lock(mutex);
+      seen.emplace_back(e.detail());
+    });
+  }
+  ~Refusals() { master.unsubscribe_events(subscription); }
+  std::vector<std::string> all() {
+    std::lock_guard lock(mutex);
+    return seen;
+  }
+  master::Master& master;
+  std::mutex mutex;
+  std::vector<std::string> seen;
+  std::uint64_t subscription = 0;
+};
+
+TEST(HotConnect, AGroupWhoseLaterSlaveDiffersIsRefusedAndNotBroughtUp) {
+  auto ring = ScenarioRing::operational(wrong_group_spec());
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  Refusals refusals(m);
+  const auto before = ring->domain_stats();
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::failed); }))
+      << group_status(m).detail;
+  const auto detail = group_status(m).detail;
+  EXPECT_EQ(detail,
+            "group tool: slave tool_in at position 4: product code 0x07113052 declared, "
+            "0x0c823052 found");
+  EXPECT_FALSE(group_status(m).position);
+  EXPECT_EQ(group_status(m).appearances, 0u);
+  // Not brought up: both still in INIT, the others untouched, the session operational.
+  EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 100ms));
+  auto sim = ring->server->status();
+  EXPECT_EQ(sim.slaves.at(3).al_state, wire::AlState::init);
+  EXPECT_EQ(sim.slaves.at(4).al_state, wire::AlState::init);
+  for (const char* name : {"tool_out", "tool_in"}) {
+    auto s = m.slave(name);
+    ASSERT_TRUE(s);
+    EXPECT_FALSE((*s)->read_input("channel_1")) << name;
+  }
+  // Looked at again every retry interval (50 ms here), reported once while it lasts.
+  std::this_thread::sleep_for(250ms);
+  const auto seen = refusals.all();
+  ASSERT_EQ(seen.size(), 1u);
+  EXPECT_NE(seen[0].find("slave tool_in at position 4"), std::string::npos) << seen[0];
+  EXPECT_EQ(group_in(m, HotConnectState::failed), true);
+  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count);
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+  EXPECT_EQ(m.status().illegal_reservation_transitions, 0u);
+}
+
+TEST(HotConnect, AGroupShortOfSlavesIsRefusedOnceItLasts) {
+  auto spec = hot_connect_spec(false);
+  spec.adjust = [](master::MasterConfig& c) {
+    auto g = tool_group();
+    master::SlaveConfig extra;
+    extra.name = "tool_extra";  // declared, never plugged
+    g.slaves.push_back(extra);
+    c.hot_connect.push_back(std::move(g));
+    c.hot_connect_poll = 10ms;
+  };
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  Refusals refusals(m);
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::failed); }))
+      << group_status(m).detail;
+  EXPECT_NE(group_status(m).detail.find("2 of its 3 slaves in the ring so far (tool_extra "
+                                        "missing)"),
+            std::string::npos)
+      << group_status(m).detail;
+  std::this_thread::sleep_for(200ms);
+  EXPECT_EQ(refusals.all().size(), 1u);
+  auto sim = ring->server->status();
+  EXPECT_EQ(sim.slaves.at(3).al_state, wire::AlState::init);
+  EXPECT_EQ(sim.slaves.at(4).al_state, wire::AlState::init);
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
 TEST(HotConnect, RepeatedPlugAndUnplugAtRandomTimes) {
   auto ring = ScenarioRing::operational(hot_connect_spec(false));
   ASSERT_TRUE(ring);
@@ -282,12 +381,18 @@ slaves: [{name: coupler}]
   - group: tool
     alias: 0x0042
     reserve_bytes: 32
-    slaves: [{name: tool_io, process_data: main}]
+    slaves: [{name: tool_io, process_data: main, revision: 0x00110000}]
 )");
   ASSERT_TRUE(ok) << ok.error().describe();
   ASSERT_EQ(ok->hot_connect.size(), 1u);
   EXPECT_EQ(ok->hot_connect[0].alias, 0x0042);
   EXPECT_EQ(ok->hot_connect[0].reserve_bytes, 32u);
+  EXPECT_EQ(ok->hot_connect[0].slaves[0].revision, 0x00110000u);
+  auto bad_revision =
+      parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: a, revision: -1}]}]\n");
+  ASSERT_FALSE(bad_revision);
+  EXPECT_NE(bad_revision.error().describe().find("slaves[0].revision"), std::string::npos)
+      << bad_revision.error().describe();
 
   auto unnamed = parse("hot_connect: [{alias: 1, slaves: [{name: a}]}]\n");
   ASSERT_FALSE(unnamed);

@@ -411,6 +411,7 @@ struct SlaveConfig {
   // When set, the slave's identity must match (checked after the SII is read).
   std::optional<std::uint32_t> vendor_id{};
   std::optional<std::uint32_t> product_code{};
+  std::optional<std::uint32_t> revision{};
   std::string driver{};  // driver name; empty = chosen by identity, else the generic driver
   DriverConfig driver_config{};
   ProcessDataRequest process_data{};
