@@ -21,25 +21,27 @@ namespace {
 // One row per kind, in enum order: the name ring files, control requests and the command line
 // use, the command-line arguments, and what it does.
 constexpr std::array<FaultKindInfo, kFaultKindCount> kKinds{{
-    {FaultKind::drop_responses, "drop_responses", "",
+    {FaultKind::drop_responses, "drop_responses", "[PORT]",
      "no reply to the frame (the master times out)"},
-    {FaultKind::wkc_offset, "wkc_offset", "DELTA", "add DELTA to every datagram's WKC"},
-    {FaultKind::command_wkc_offset, "command_wkc_offset", "COMMAND DELTA",
+    {FaultKind::wkc_offset, "wkc_offset", "DELTA [PORT]", "add DELTA to every datagram's WKC"},
+    {FaultKind::command_wkc_offset, "command_wkc_offset", "COMMAND DELTA [PORT]",
      "add DELTA to the WKC of one command"},
     {FaultKind::logical_wkc_offset, "logical_wkc_offset", "SLAVE DELTA",
      "add DELTA to the slave's share of logical WKCs"},
     {FaultKind::disconnect, "disconnect", "SLAVE", "cut the slave off (no processing, no WKC)"},
-    {FaultKind::truncate_reply, "truncate_reply", "[BYTES]",
+    {FaultKind::truncate_reply, "truncate_reply", "[BYTES [PORT]]",
      "cut the last BYTES (1) bytes off the reply"},
-    {FaultKind::unsupported_type, "unsupported_type", "[TYPE]",
+    {FaultKind::unsupported_type, "unsupported_type", "[TYPE [PORT]]",
      "set the EtherCAT header type to TYPE (0)"},
-    {FaultKind::wrong_index, "wrong_index", "", "add 1 to the first datagram's index in the reply"},
-    {FaultKind::replay_previous, "replay_previous", "", "send the previous reply instead"},
-    {FaultKind::corrupt_byte, "corrupt_byte", "[OFFSET [MASK]]",
+    {FaultKind::wrong_index, "wrong_index", "[PORT]",
+     "add 1 to the first datagram's index in the reply"},
+    {FaultKind::replay_previous, "replay_previous", "[PORT]", "send the previous reply instead"},
+    {FaultKind::corrupt_byte, "corrupt_byte", "[OFFSET [MASK [PORT]]]",
      "XOR the reply byte at OFFSET (12) with MASK (0xFF)"},
-    {FaultKind::duplicate_reply, "duplicate_reply", "", "send the reply twice"},
-    {FaultKind::reorder_replies, "reorder_replies", "", "send the reply after the next one"},
-    {FaultKind::delay_replies, "delay_replies", "MS", "send the reply MS milliseconds later"},
+    {FaultKind::duplicate_reply, "duplicate_reply", "[PORT]", "send the reply twice"},
+    {FaultKind::reorder_replies, "reorder_replies", "[PORT]", "send the reply after the next one"},
+    {FaultKind::delay_replies, "delay_replies", "MS [PORT]",
+     "send the reply MS milliseconds later"},
     {FaultKind::retreat_to_safeop, "retreat_to_safeop", "SLAVE", "OP -> SAFEOP without an error"},
     {FaultKind::power_cycle, "power_cycle", "SLAVE", "power cycle the slave"},
     {FaultKind::latch_al_error, "latch_al_error", "SLAVE CODE",
@@ -373,6 +375,17 @@ bool is_per_exchange(FaultKind kind) noexcept {
   return c == FaultClass::exchange || c == FaultClass::reply;
 }
 
+namespace {
+
+// The per-exchange kinds that may name the master port whose replies they act on (`port`): those
+// that act on a whole frame, not on one slave.
+bool takes_port(FaultKind kind) noexcept {
+  return kind == FaultKind::drop_responses || kind == FaultKind::wkc_offset ||
+         kind == FaultKind::command_wkc_offset || fault_class(kind) == FaultClass::reply;
+}
+
+}  // namespace
+
 std::string_view to_string(Milestone::Kind kind) noexcept {
   switch (kind) {
     case Milestone::Kind::healthy_exchanges:
@@ -446,6 +459,10 @@ Fault delay_replies(std::chrono::nanoseconds delay) {
   auto f = make(FaultKind::delay_replies);
   f.effect.ns = delay.count();
   return f;
+}
+Fault at_port(Fault fault, wire::RedundantPort port) {
+  if (fault.form == Fault::Form::effect) fault.effect.on_port = port;
+  return fault;
 }
 Fault retreat_to_safeop(std::string slave) {
   return make(FaultKind::retreat_to_safeop, std::move(slave));
@@ -618,6 +635,11 @@ Milestone mailbox_step(std::string slave, MailboxStage step, std::uint64_t count
 // ---- describe -----------------------------------------------------------------------------
 
 std::string describe(const FaultEffect& e) {
+  if (e.on_port) {
+    FaultEffect any = e;
+    any.on_port.reset();
+    return fmt::format("{} at the {} port", describe(any), wire::to_string(*e.on_port));
+  }
   switch (e.kind) {
     case FaultKind::drop_responses:
       return "drop responses";
@@ -761,6 +783,11 @@ Result<void> validate_effect(const FaultEffect& e) {
     return Error(Errc::invalid_argument, fmt::format("{}: {}", to_string(e.kind), what));
   };
   if (needs_slave(e.kind) && e.slave.empty()) return bad("needs a slave");
+  if (e.on_port && !takes_port(e.kind)) {
+    return bad(
+        "names no master port (only drop_responses, wkc_offset, command_wkc_offset and the "
+        "reply faults do)");
+  }
   switch (e.kind) {
     case FaultKind::command_wkc_offset:
       if (e.command == wire::Command::nop) return bad("needs a command (APRD ... FRMW)");
@@ -1026,6 +1053,7 @@ Json effect_json(const Fault& f) {
     default:
       break;
   }
+  if (e.on_port && takes_port(e.kind)) j["port"] = wire::to_string(*e.on_port);
   if (f.exchanges != 0) j["next"] = f.exchanges;
   return j;
 }
@@ -1471,6 +1499,10 @@ Result<Fault> parse_effect(const SpecContext& c, const SpecNode& node, const std
     default:
       break;
   }
+  if (takes_port(*kind) && node.find("port") != nullptr) {
+    ECAT_TRY(port, master_port_key(c, node, path, "port"));
+    e.on_port = *port;
+  }
   if (is_protocol_kind(*kind)) {
     if (const SpecNode* once = node.find("once")) {
       ECAT_TRY(value, to_bool(c, *once, join_path(path, "once")));
@@ -1888,30 +1920,83 @@ struct FaultInjector::Impl {
     }
   };
 
-  // The DL status the slaves report for the cabling (Segment::set_reported_link), set at every
-  // cabling change: the last slave's port 1 has a link while the secondary's cable is in; a break
-  // after slave n-1 takes the link of slave n-1's port 1 and slave n's port 0 (both close their
-  // loops); a cut master cable that of slave 0's port 0 or the last slave's port 1. Without a
-  // second master port the segment's cables speak for themselves again.
-  void report_links() {
+  // ---- The cabling of a redundant segment ----
+  // Which of the ring's cables are down: the cabling's own, and both ends of every unplugged
+  // hot-connect group (its slaves are without power: no frame passes them).
+  std::vector<bool> effective_down() const {
+    const std::size_t n = segment.size();
+    auto down = cables_down(cabling->topology, n);
+    std::vector<bool> out = down ? std::move(*down) : std::vector<bool>(n + 1, false);
+    for (const auto& g : segment.hot_connect_groups()) {
+      if (g.plugged) continue;
+      out[std::min(g.first, n)] = true;
+      out[std::min(g.first + g.slaves, n)] = true;
+    }
+    return out;
+  }
+
+  // Sets one cable of the ring (0: the primary's, n: the secondary's) up or down.
+  void set_cable(std::size_t cable, bool up) {
+    const std::size_t n = segment.size();
+    auto down = cables_down(cabling->topology, n);
+    if (!down || cable > n) return;
+    (*down)[cable] = !up;
+    std::vector<std::size_t> list;
+    for (std::size_t k = 0; k <= n; ++k) {
+      if ((*down)[k]) list.push_back(k);
+    }
+    cabling->topology = RedundantTopology::cables_down(std::move(list), n);
+  }
+
+  // At every cabling change: the routes of the two master ports' frames, and the DL status the
+  // slaves report for the ring's cables (Segment::set_reported_link): each end of a cable down
+  // loses its link and closes its loop; the last slave's port 1 has a link while the secondary's
+  // cable is in. Without a second master port the segment's cables speak for themselves again.
+  void refresh_cabling() {
     const std::size_t n = segment.size();
     for (std::size_t i = 0; i < n; ++i) {
       segment.set_reported_link(i, 0, std::nullopt);
       segment.set_reported_link(i, 1, std::nullopt);
     }
+    routes = {};
     if (!cabling || n == 0) return;
-    const RedundantTopology& topology = cabling->topology;
-    const bool cut = topology.kind == RedundantTopology::Kind::master_break;
-    if (cut && topology.master_break == wire::RedundantPort::primary) {
-      segment.set_reported_link(0, 0, false);
+    const std::vector<bool> down = effective_down();
+    routes[0] = route_redundant(down, wire::RedundantPort::primary);
+    routes[1] = route_redundant(down, wire::RedundantPort::secondary);
+    for (std::size_t cable = 0; cable <= n; ++cable) {
+      if (cable > 0) segment.set_reported_link(cable - 1, 1, !down[cable]);
+      if (cable < n) segment.set_reported_link(cable, 0, !down[cable]);
     }
-    segment.set_reported_link(n - 1, 1,
-                              !(cut && topology.master_break == wire::RedundantPort::secondary));
-    if (topology.kind == RedundantTopology::Kind::break_after && topology.break_after >= 1 &&
-        topology.break_after < n) {
-      segment.set_reported_link(topology.break_after - 1, 1, false);
-      segment.set_reported_link(topology.break_after, 0, false);
+  }
+
+  // The ring's cable at a slave's port on a redundant segment (ports 0 and 1 of a line).
+  std::optional<std::size_t> ring_cable(std::size_t slave, std::uint8_t port) const {
+    if (!cabling || port > 1) return std::nullopt;
+    return port == 0 ? slave : slave + 1;
+  }
+
+  // The cable into an unplugged group's first slave: the group, not a fault, holds it down.
+  bool unplugged_cable(std::size_t slave, std::uint8_t port) const {
+    if (port != 0) return false;
+    for (const auto& g : segment.hot_connect_groups()) {
+      if (g.first == slave && !g.plugged) return true;
     }
+    return false;
+  }
+
+  Result<void> plug(std::string_view group, bool plugged, std::int64_t now_ns) {
+    if (auto r = segment.plug(group, plugged, now_ns); !r) return r;
+    if (plugged && !cabling) {
+      // A link_down on the group's cable still holds it down: the group is in, its cable is not.
+      for (const auto& g : segment.hot_connect_groups()) {
+        if (g.name != group) continue;
+        for (const auto& [slave, port] : links_down) {
+          if (slave == g.first && port == 0) segment.set_link(slave, 0, false);
+        }
+      }
+    }
+    refresh_cabling();
+    return ok();
   }
 
   explicit Impl(Segment& s) : segment(s) {
@@ -1947,6 +2032,11 @@ struct FaultInjector::Impl {
   }
 
   Result<void> check_effect(const FaultEffect& e) {
+    if (e.on_port && !cabling) {
+      return Error(Errc::unsupported,
+                   fmt::format("{} at the {} port: the segment has no second master port",
+                               to_string(e.kind), wire::to_string(*e.on_port)));
+    }
     if (e.kind == FaultKind::ring_break || e.kind == FaultKind::ring_cut ||
         e.kind == FaultKind::ring_heal || e.kind == FaultKind::port_delay) {
       if (!cabling) {
@@ -2120,7 +2210,13 @@ struct FaultInjector::Impl {
       case FaultKind::link_down:
       case FaultKind::link_up: {
         const bool up = e.kind == FaultKind::link_up;
-        segment.set_link(slave, e.port, up);
+        if (const auto cable = ring_cable(slave, e.port)) {
+          // A redundant ring: the port closes its loop and the ring turns round there.
+          set_cable(*cable, up);
+          refresh_cabling();
+          break;
+        }
+        if (!up || !unplugged_cable(slave, e.port)) segment.set_link(slave, e.port, up);
         const auto key = std::make_pair(slave, e.port);
         auto it = std::find(links_down.begin(), links_down.end(), key);
         if (!up && it == links_down.end()) links_down.push_back(key);
@@ -2128,30 +2224,35 @@ struct FaultInjector::Impl {
         break;
       }
       case FaultKind::master_link_down:
-        segment.set_master_link(false);
-        master_down = true;
+      case FaultKind::master_link_up: {
+        const bool up = e.kind == FaultKind::master_link_up;
+        if (cabling) {
+          // The primary's cable of a redundant ring.
+          set_cable(0, up);
+          refresh_cabling();
+          break;
+        }
+        segment.set_master_link(up);
+        master_down = !up;
         break;
-      case FaultKind::master_link_up:
-        segment.set_master_link(true);
-        master_down = false;
-        break;
+      }
       case FaultKind::hot_plug:
       case FaultKind::hot_unplug:
         // Checked at injection; groups never change while the injector exists.
-        (void)segment.plug(e.group, e.kind == FaultKind::hot_plug, now);
+        (void)plug(e.group, e.kind == FaultKind::hot_plug, now);
         break;
       // Checked at injection; a detached ring (the ports gone meanwhile) ignores them.
       case FaultKind::ring_break:
         if (cabling) cabling->topology = RedundantTopology::broken_after(e.after);
-        report_links();
+        refresh_cabling();
         break;
       case FaultKind::ring_cut:
         if (cabling) cabling->topology = RedundantTopology::cut_at(e.master_port);
-        report_links();
+        refresh_cabling();
         break;
       case FaultKind::ring_heal:
         if (cabling) cabling->topology = RedundantTopology::whole_ring();
-        report_links();
+        refresh_cabling();
         break;
       case FaultKind::port_delay:
         if (cabling) {
@@ -2267,13 +2368,21 @@ struct FaultInjector::Impl {
   }
 
   // ---- Exchanges ----
+  // Whether a fault acts on this exchange: one naming a master port only on the frames whose
+  // reply arrives there.
+  bool applies(const FaultEffect& e) const {
+    return !e.on_port || (exchange_port && *e.on_port == *exchange_port);
+  }
+
   void begin_exchange() {
     current.reset(segment.size());
-    for (const auto& s : sticky)
-      current.add(s.effect, s.slave);
-    if (!countdowns.empty()) current.queued = true;
+    for (const auto& s : sticky) {
+      if (applies(s.effect)) current.add(s.effect, s.slave);
+    }
     for (auto& c : countdowns) {
+      if (!applies(c.effect)) continue;
       current.add(c.effect, c.slave);
+      current.queued = true;
       --c.remaining;
     }
     std::erase_if(countdowns, [](const Countdown& c) { return c.remaining == 0; });
@@ -2370,7 +2479,14 @@ struct FaultInjector::Impl {
   // A second master port's cabling (RedundantPorts), and the one clear() returns to.
   std::optional<RedundantCabling> cabling;
   RedundantCabling cabling_base;
-  std::vector<std::uint8_t> previous_reply;
+  std::array<std::optional<RedundantRoute>, 2> routes;  // by ingress (refresh_cabling)
+  // The master port the current exchange's reply leaves by (RedundantPorts), if any.
+  std::optional<wire::RedundantPort> exchange_port;
+  // The previous reply, for replay_previous: of a single port, of the primary, of the secondary.
+  std::array<std::vector<std::uint8_t>, 3> previous_reply;
+  std::size_t reply_slot() const {
+    return exchange_port ? 1 + static_cast<std::size_t>(*exchange_port) : 0;
+  }
   std::vector<std::uint8_t> scratch;
 };
 
@@ -2393,13 +2509,49 @@ Result<void> FaultInjector::attach_redundant_ring(const RedundantCabling& base) 
   }
   s.cabling = base;
   s.cabling_base = base;
-  s.report_links();
+  // The links the faults took down on the ring's cables become the ring's: one model from now on.
+  for (auto it = s.links_down.begin(); it != s.links_down.end();) {
+    const auto cable = s.ring_cable(it->first, it->second);
+    if (!cable) {
+      ++it;
+      continue;
+    }
+    if (!s.unplugged_cable(it->first, it->second)) s.segment.set_link(it->first, it->second, true);
+    s.set_cable(*cable, false);
+    it = s.links_down.erase(it);
+  }
+  if (s.master_down) {
+    s.segment.set_master_link(true);
+    s.master_down = false;
+    s.set_cable(0, false);
+  }
+  s.refresh_cabling();
   return ok();
 }
 
 void FaultInjector::detach_redundant_ring() {
   impl_->cabling.reset();
-  impl_->report_links();
+  impl_->refresh_cabling();
+}
+
+std::optional<RedundantRoute> FaultInjector::redundant_route(
+    wire::RedundantPort ingress) const noexcept {
+  return impl_->routes[static_cast<std::size_t>(ingress)];
+}
+
+void FaultInjector::set_exchange_port(std::optional<wire::RedundantPort> egress) noexcept {
+  impl_->exchange_port = egress;
+}
+
+bool FaultInjector::pass_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) {
+  if (!before_frame(frame, now_ns)) return false;
+  after_frame(frame, now_ns);
+  return true;
+}
+
+Result<void> FaultInjector::plug(std::string_view group, bool plugged, std::int64_t now_ns) {
+  impl_->advance(now_ns);
+  return impl_->plug(group, plugged, now_ns);
 }
 
 const std::optional<RedundantCabling>& FaultInjector::redundant_cabling() const noexcept {
@@ -2409,11 +2561,15 @@ const std::optional<RedundantCabling>& FaultInjector::redundant_cabling() const 
 Result<void> FaultInjector::set_redundant_topology(const RedundantTopology& topology) {
   Impl& s = *impl_;
   if (!s.cabling) return Error(Errc::unsupported, "the segment has no second master port");
-  if (auto r = route_redundant(topology, s.segment.size(), wire::RedundantPort::primary); !r) {
-    return std::move(r).error();
+  const std::size_t n = s.segment.size();
+  auto down = cables_down(topology, n);
+  if (!down) return std::move(down).error();
+  std::vector<std::size_t> list;
+  for (std::size_t k = 0; k <= n; ++k) {
+    if ((*down)[k]) list.push_back(k);
   }
-  s.cabling->topology = topology;
-  s.report_links();
+  s.cabling->topology = RedundantTopology::cables_down(std::move(list), n);
+  s.refresh_cabling();
   return ok();
 }
 
@@ -2464,7 +2620,7 @@ void FaultInjector::clear() {
   s.refusals.clear();
   if (s.cabling) {
     s.cabling = s.cabling_base;
-    s.report_links();
+    s.refresh_cabling();
   }
   for (const auto& [slave, port] : s.links_down)
     s.segment.set_link(slave, port, true);
@@ -2601,14 +2757,14 @@ ReplyPlan FaultInjector::shape_reply(std::vector<std::uint8_t>& reply) {
   Impl& s = *impl_;
   const Impl::ExchangeState& x = s.current;
   ReplyPlan plan;
+  std::vector<std::uint8_t>& previous = s.previous_reply[s.reply_slot()];
   if (!x.reply_faults) {
-    s.previous_reply.assign(reply.begin(), reply.end());
+    previous.assign(reply.begin(), reply.end());
     return plan;
   }
   ++stats_.replies_altered;
   s.scratch.assign(reply.begin(), reply.end());
-  if (x.replay && !s.previous_reply.empty())
-    reply.assign(s.previous_reply.begin(), s.previous_reply.end());
+  if (x.replay && !previous.empty()) reply.assign(previous.begin(), previous.end());
   // The first datagram's index sits after the 2-byte frame header and its command byte.
   if (x.wrong_index && reply.size() > 3) reply[3] = static_cast<std::uint8_t>(reply[3] + 1);
   if (x.frame_type && reply.size() >= 2) {
@@ -2623,7 +2779,7 @@ ReplyPlan FaultInjector::shape_reply(std::vector<std::uint8_t>& reply) {
   plan.copies = x.duplicate ? 2 : 1;
   plan.hold = x.reorder;
   plan.delay = std::chrono::nanoseconds(x.delay_ns);
-  s.previous_reply.swap(s.scratch);
+  previous.swap(s.scratch);
   return plan;
 }
 

@@ -11,10 +11,39 @@
 
 #include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/server.hpp>
+#include <ecat/wire/bytes.hpp>
 
 namespace ecat::sim {
 
 using wire::RedundantPort;
+
+namespace {
+
+// One down cable in a description: 0 and N are the master's cables.
+std::string cable_text(std::size_t cable, std::size_t slave_count) {
+  if (cable == 0) return "master break primary";
+  if (cable == slave_count) return "master break secondary";
+  return fmt::format("break after {}", cable);
+}
+
+}  // namespace
+
+RedundantTopology RedundantTopology::cables_down(std::vector<std::size_t> cables,
+                                                 std::size_t slave_count) {
+  std::sort(cables.begin(), cables.end());
+  cables.erase(std::unique(cables.begin(), cables.end()), cables.end());
+  if (cables.empty()) return whole_ring();
+  if (cables.size() == 1) {
+    if (cables[0] == 0) return cut_at(RedundantPort::primary);
+    if (cables[0] == slave_count) return cut_at(RedundantPort::secondary);
+    return broken_after(cables[0]);
+  }
+  RedundantTopology t;
+  t.kind = Kind::several;
+  t.cables = std::move(cables);
+  t.slaves = slave_count;
+  return t;
+}
 
 std::string describe(const RedundantTopology& topology) {
   switch (topology.kind) {
@@ -22,10 +51,47 @@ std::string describe(const RedundantTopology& topology) {
       return fmt::format("break after {}", topology.break_after);
     case RedundantTopology::Kind::master_break:
       return fmt::format("master break {}", wire::to_string(topology.master_break));
+    case RedundantTopology::Kind::several: {
+      std::string out;
+      for (const std::size_t cable : topology.cables)
+        out += (out.empty() ? "" : ", ") + cable_text(cable, topology.slaves);
+      return out;
+    }
     case RedundantTopology::Kind::whole:
       break;
   }
   return "whole";
+}
+
+Result<std::vector<bool>> cables_down(const RedundantTopology& topology, std::size_t slave_count) {
+  std::vector<bool> down(slave_count + 1, false);
+  switch (topology.kind) {
+    case RedundantTopology::Kind::whole:
+      break;
+    case RedundantTopology::Kind::break_after:
+      if (topology.break_after < 1 || topology.break_after >= slave_count) {
+        return Error(
+            Errc::invalid_argument,
+            fmt::format("a ring of {} slaves cannot break after slave {} (1..{})", slave_count,
+                        topology.break_after, slave_count > 0 ? slave_count - 1 : 0));
+      }
+      down[topology.break_after] = true;
+      break;
+    case RedundantTopology::Kind::master_break:
+      down[topology.master_break == RedundantPort::primary ? 0 : slave_count] = true;
+      break;
+    case RedundantTopology::Kind::several:
+      for (const std::size_t cable : topology.cables) {
+        if (cable > slave_count) {
+          return Error(Errc::invalid_argument,
+                       fmt::format("a ring of {} slaves has no cable {} (0..{})", slave_count,
+                                   cable, slave_count));
+        }
+        down[cable] = true;
+      }
+      break;
+  }
+  return down;
 }
 
 std::string describe(const RedundantCabling& cabling) {
@@ -40,29 +106,30 @@ std::string describe(const RedundantCabling& cabling) {
   return out;
 }
 
+RedundantRoute route_redundant(const std::vector<bool>& down, RedundantPort ingress) {
+  const std::size_t n = down.empty() ? 0 : down.size() - 1;
+  if (ingress == RedundantPort::primary) {
+    if (n == 0 || down[0]) return RedundantRoute{0, 0, std::nullopt};
+    // Out of each slave's port 1 until a cable without link: that port closes its loop.
+    for (std::size_t cable = 1; cable <= n; ++cable) {
+      if (down[cable]) return RedundantRoute{0, cable, RedundantPort::primary};
+    }
+    return RedundantRoute{0, n, RedundantPort::secondary};
+  }
+  if (n == 0 || down[n]) return RedundantRoute{0, 0, std::nullopt};
+  // In at the last slave's port 1, unprocessed towards slave 0 (the processing unit sits on the
+  // way out of port 0) until a port 0 without link turns it round into the processing unit.
+  for (std::size_t cable = n; cable-- > 0;) {
+    if (down[cable]) return RedundantRoute{cable, n, RedundantPort::secondary};
+  }
+  return RedundantRoute{n, n, RedundantPort::primary};
+}
+
 Result<RedundantRoute> route_redundant(const RedundantTopology& topology, std::size_t slave_count,
                                        RedundantPort ingress) {
-  const bool primary = ingress == RedundantPort::primary;
-  switch (topology.kind) {
-    case RedundantTopology::Kind::whole:
-      // The processing unit sits on the way out of port 0: only the primary's frame meets it.
-      if (primary) return RedundantRoute{0, slave_count, RedundantPort::secondary};
-      return RedundantRoute{slave_count, slave_count, RedundantPort::primary};
-    case RedundantTopology::Kind::break_after:
-      if (topology.break_after < 1 || topology.break_after >= slave_count) {
-        return Error(
-            Errc::invalid_argument,
-            fmt::format("a ring of {} slaves cannot break after slave {} (1..{})", slave_count,
-                        topology.break_after, slave_count > 0 ? slave_count - 1 : 0));
-      }
-      if (primary) return RedundantRoute{0, topology.break_after, RedundantPort::primary};
-      return RedundantRoute{topology.break_after, slave_count, RedundantPort::secondary};
-    case RedundantTopology::Kind::master_break:
-      if (ingress == topology.master_break) return RedundantRoute{0, 0, std::nullopt};
-      // In from the far end, unprocessed to slave 0, whose open port 0 turns it round.
-      return RedundantRoute{0, slave_count, ingress};
-  }
-  return Error(Errc::invalid_argument, "unknown redundant topology");
+  auto down = cables_down(topology, slave_count);
+  if (!down) return std::move(down).error();
+  return route_redundant(*down, ingress);
 }
 
 namespace {
@@ -122,8 +189,42 @@ struct RedundantPorts::Shared {
   RedundantPortsStats stats;
   std::size_t slave_count = 0;
 
+  // A reply to a frame that entered by `ingress`, held back by reorder_replies until the next one
+  // leaves by the same port.
+  std::array<Slot, 2> held;
+  std::array<bool, 2> holding{};
+  std::vector<std::uint8_t> reply = [] {
+    std::vector<std::uint8_t> v;
+    v.reserve(wire::kMaxFrameSize);
+    return v;
+  }();
+
+  // Queues a reply for `port` in the order of the times it is due (a late one is overtaken, as on
+  // a wire). False on a full queue.
+  bool enqueue(std::size_t port, const std::uint8_t* data, std::size_t size,
+               const wire::MacAddress& source, std::chrono::steady_clock::time_point due) {
+    PortQueue& q = queues[port];
+    const std::size_t capacity = q.slots.size();
+    if (q.count == capacity) {
+      ++stats.overflowed;
+      return false;
+    }
+    Slot& slot = q.slots[(q.head + q.count) % capacity];
+    std::memcpy(slot.bytes.data(), data, size);
+    slot.size = size;
+    slot.source = source;
+    slot.due = due;
+    for (std::size_t i = q.count++; i > 0; --i) {
+      Slot& before = q.slots[(q.head + i - 1) % capacity];
+      Slot& at = q.slots[(q.head + i) % capacity];
+      if (before.due <= at.due) break;
+      std::swap(before, at);
+    }
+    return true;
+  }
+
   // The frame the master sent on `ingress` (from `source`: the requester's address), through the
-  // ring. Returns the port its reply was queued for, if any.
+  // ring and the reply faults. Returns the port its reply leaves by, if any.
   std::optional<RedundantPort> carry(RedundantPort ingress, wire::Bytes frame,
                                      const wire::MacAddress& source) {
     std::unique_lock lock(mutex);
@@ -135,49 +236,78 @@ struct RedundantPorts::Shared {
     std::memcpy(work.data(), frame.data(), frame.size());
     const std::span<std::uint8_t> bytes(work.data(), frame.size());
     // The cabling is the injector's (faults change it): the route and the delay are read under
-    // the server's lock, with the frame's trip through the slaves.
+    // the server's lock, with the frame's trip through the slaves and the reply faults.
     const std::int64_t now = server->now_ns();
-    std::optional<RedundantRoute> route;
+    std::optional<RedundantPort> egress;
     RedundantPortDelay delay;
+    ReplyPlan plan;
     const bool replied = server->with_segment([&](Segment& segment, FaultInjector& injector) {
       const auto& cabling = injector.redundant_cabling();
-      if (!cabling) return false;
-      auto r = route_redundant(cabling->topology, slave_count, ingress);
-      if (!r || !r->egress) return false;
-      route = *r;
-      delay = cabling->delays[side(*r->egress)];
-      if (r->first >= r->last) return true;  // passes every slave unprocessed
-      RangeHooks hooks(injector, r->first, r->last);
-      segment.set_hooks(&hooks);
-      const bool ok = segment.process_frame(bytes, now);
-      segment.set_hooks(&injector);
+      const auto route = injector.redundant_route(ingress);
+      if (!cabling || !route || !route->egress) return false;  // lost on a cut cable
+      egress = route->egress;
+      delay = cabling->delays[side(*egress)];
+      injector.set_exchange_port(*egress);
+      bool ok = false;
+      if (route->first >= route->last) {
+        ok = injector.pass_frame(bytes, now);  // passes every slave unprocessed
+      } else {
+        RangeHooks hooks(injector, route->first, route->last);
+        segment.set_hooks(&hooks);
+        ok = segment.process_frame(bytes, now);
+        segment.set_hooks(&injector);
+      }
+      if (ok) {
+        // The EtherCAT frame only, without the padding the request may have carried.
+        std::size_t size = bytes.size();
+        if (size >= wire::kFrameHeaderSize) {
+          size = std::min(size, wire::kFrameHeaderSize + (wire::load_le16(bytes.data()) & 0x07FF));
+        }
+        reply.assign(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(size));
+        plan = injector.shape_reply(reply);
+      }
+      injector.set_exchange_port(std::nullopt);
       return ok;
     });
     if (!replied) {
       ++stats.lost;
       return std::nullopt;
     }
-    PortQueue& q = queues[side(*route->egress)];
-    if (q.count == q.slots.size()) {
-      ++stats.overflowed;
-      return std::nullopt;
-    }
-    Slot& slot = q.slots[(q.head + q.count) % q.slots.size()];
-    std::memcpy(slot.bytes.data(), bytes.data(), bytes.size());
-    slot.size = bytes.size();
-    slot.source = source;
-    slot.source[0] |= 0x02;  // set by the ESCs the frame passed
-    slot.due = std::chrono::steady_clock::now();
-    if (!delay.from || *delay.from == ingress) slot.due += delay.delay;
-    ++q.count;
-    if (*route->egress == ingress) {
+    const std::size_t out = side(*egress);
+    if (*egress == ingress) {
       ++stats.bounces;
     } else {
       ++stats.crosses;
     }
+    wire::MacAddress from = source;
+    from[0] |= 0x02;  // set by the ESCs the frame passed
+    auto due = std::chrono::steady_clock::now() +
+               std::chrono::duration_cast<std::chrono::steady_clock::duration>(plan.delay);
+    if (!delay.from || *delay.from == ingress) {
+      due += std::chrono::duration_cast<std::chrono::steady_clock::duration>(delay.delay);
+    }
+    if (plan.delay.count() > 0 || plan.hold) ++stats.delayed;
+    if (plan.hold) {
+      // Sent after the next reply that leaves by this port; one held before leaves now.
+      if (holding[out]) {
+        (void)enqueue(out, held[out].bytes.data(), held[out].size, held[out].source, due);
+      }
+      std::memcpy(held[out].bytes.data(), reply.data(), reply.size());
+      held[out].size = reply.size();
+      held[out].source = from;
+      holding[out] = true;
+    } else {
+      for (std::size_t i = 0; i < plan.copies; ++i)
+        (void)enqueue(out, reply.data(), reply.size(), from, due);
+      stats.duplicated += plan.copies - 1;
+      if (holding[out]) {
+        (void)enqueue(out, held[out].bytes.data(), held[out].size, held[out].source, due);
+        holding[out] = false;
+      }
+    }
     lock.unlock();
     arrived.notify_all();
-    return route->egress;
+    return egress;
   }
 
   // The earliest reply waiting for `port`, if any (steady clock).

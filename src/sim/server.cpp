@@ -435,7 +435,7 @@ Result<void> SimServer::set_link(std::string_view slave, std::uint8_t port, bool
 
 Result<void> SimServer::plug(std::string_view group, bool plugged) {
   std::lock_guard lock(mutex_);
-  return segment_->plug(group, plugged, impl_->clock());
+  return injector_->plug(group, plugged, impl_->clock());
 }
 
 void SimServer::set_master_link(bool up) {

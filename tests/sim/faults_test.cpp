@@ -881,7 +881,7 @@ TEST(FaultForms, KeysAndWordsFollowTheArgumentTable) {
             "fault.x: unknown key (known: kind, slave, index, subindex, stage, protocol, value, "
             "once)");
   EXPECT_EQ(message(R"({"kind":"corrupt_byte","x":1})"),
-            "fault.x: unknown key (known: kind, next, offset, mask)");
+            "fault.x: unknown key (known: kind, next, offset, mask, port)");
   EXPECT_EQ(message(R"({"kind":"mailbox_protocol_fault","slave":"a","index":1,"subindex":0,)"
                     R"("stage":"upload_init","protocol":"coe_service","value":16})"),
             "fault.value: 16 is out of range (0 to 15)");

@@ -12,7 +12,9 @@
 //                                          fault::healthy_exchanges(100)), now);
 //
 // The FaultInjector installs itself as the Segment's hooks. One "exchange" is one frame the
-// segment processes. Not thread-safe: the SimServer serializes access with its lock.
+// segment processes; on a segment with a second master port (RedundantPorts), every frame that
+// enters a master port, processed or passing the ring unprocessed (so a master's exchange is two:
+// one per port). Not thread-safe: the SimServer serializes access with its lock.
 #pragma once
 
 #include <array>
@@ -132,6 +134,10 @@ struct FaultEffect {
   // frames that entered by `from` when set.
   wire::RedundantPort master_port = wire::RedundantPort::primary;
   std::optional<wire::RedundantPort> from;
+  // drop_responses, wkc_offset, command_wkc_offset and the reply faults on a segment with a second
+  // master port: only the frames whose reply arrives at this master port (the route is known
+  // before the ring processes a frame); none: every frame. Refused without a second port.
+  std::optional<wire::RedundantPort> on_port;
   // foe_fault, soe_fault, eoe_fault, voe_fault: what goes wrong (the `mode` key).
   FoeFaultMode foe = FoeFaultMode::error;
   SoeFaultKind soe = SoeFaultKind::error_response;
@@ -234,6 +240,9 @@ Fault ring_cut(wire::RedundantPort port);
 Fault ring_heal();
 Fault port_delay(wire::RedundantPort port, std::chrono::nanoseconds delay,
                  std::optional<wire::RedundantPort> from = std::nullopt);
+// `fault` (drop_responses, wkc_offset, command_wkc_offset or a reply fault) only on the replies
+// arriving at the master's `port` of a redundant segment.
+Fault at_port(Fault fault, wire::RedundantPort port);
 // A hot-connect group plugged in or pulled out (Segment::plug); refused for an unknown group.
 // clear() does not plug a pulled group back in.
 Fault hot_plug(std::string group);
@@ -371,6 +380,21 @@ class FaultInjector final : public SegmentHooks {
   // Errc::invalid_argument for a break outside 1..slaves-1, Errc::unsupported when detached.
   Result<void> set_redundant_topology(const RedundantTopology& topology);
   Result<void> set_port_delay(wire::RedundantPort egress, const RedundantPortDelay& delay);
+  // Where a frame entering `ingress` goes under the cabling (the cables down and the unplugged
+  // hot-connect groups); empty when detached. Computed at every change, not per frame.
+  std::optional<RedundantRoute> redundant_route(wire::RedundantPort ingress) const noexcept;
+  // The master port the next exchange's reply leaves by: faults naming a port act only on
+  // theirs. Set by RedundantPorts around each frame (nullopt after it).
+  void set_exchange_port(std::optional<wire::RedundantPort> egress) noexcept;
+  // An exchange for a frame that passes every slave unprocessed (a whole ring's secondary copy):
+  // the exchange faults apply (false: lost), then shape_reply may be called as for a processed
+  // frame.
+  bool pass_frame(std::span<std::uint8_t> frame, std::int64_t now_ns);
+
+  // Plugs or pulls a hot-connect group (Segment::plug) and keeps the cabling with it: DL status,
+  // a redundant ring's route (an unplugged group is out of the ring) and the links a link_down
+  // holds down compose. Errc::not_found for an unknown group.
+  Result<void> plug(std::string_view group, bool plugged, std::int64_t now_ns);
 
   // ---- SegmentHooks ----
   bool before_frame(std::span<std::uint8_t> frame, std::int64_t now_ns) override;

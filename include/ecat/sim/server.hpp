@@ -126,7 +126,7 @@ class SimServer {
   Result<void> power_cycle(std::string_view slave);
   Result<void> set_link(std::string_view slave, std::uint8_t port, bool up);
   void set_master_link(bool up);
-  // Plugs or unplugs a hot-connect group (Segment::plug).
+  // Plugs or unplugs a hot-connect group (through the injector's cabling: FaultInjector::plug).
   Result<void> plug(std::string_view group, bool plugged);
 
   SimStatus status() const;
