@@ -3,6 +3,7 @@
 // The cable is broken between slaves or cut at a master port while the domain cycles.
 #include <chrono>
 #include <string>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -368,6 +369,212 @@ TEST(Scenario39, RedundantRingStartsWithThePrimaryCut) {
   EXPECT_TRUE(ring->loopback(true)) << ring->describe();
   EXPECT_TRUE(ring->loopback(false)) << ring->describe();
   EXPECT_EQ(ring->redundant_link->status().ring, RingState::broken);
+}
+
+// ---- Faults on the redundant ports' replies, with the master's link on top ----------------------
+
+// Injects `fault` (a `next N` one) and checks the session copes while it lasts and after: the
+// master stays operational with the whole ring's working counter, losing at most `lost` cycles.
+void expect_copes_with(ScenarioRing& ring, const sim::Fault& fault, std::uint64_t lost) {
+  SCOPED_TRACE(sim::describe(fault));
+  ASSERT_TRUE(cycles_pass(ring, 5));
+  const auto before = ring.domain_stats();
+  ASSERT_TRUE(ring.server->inject(fault));
+  ASSERT_TRUE(eventually([&] { return ring.server->fault_info().queued.empty(); }))
+      << ring.describe();
+  ASSERT_TRUE(cycles_pass(ring, 20)) << ring.describe();
+  const auto after = ring.domain_stats();
+  EXPECT_LE(invalid_since(before, after), lost) << ring.describe() << debug_status(ring);
+  EXPECT_EQ(after.last_wkc, before.last_wkc);
+  EXPECT_TRUE(ring.loopback(true)) << ring.describe();
+  EXPECT_TRUE(ring.loopback(false)) << ring.describe();
+  EXPECT_EQ(ring.state(), MasterState::operational);
+  EXPECT_TRUE(ring.master->status().runtime_faults.empty()) << ring.describe();
+}
+
+TEST(RedundantReplyFaults, DuplicatesAreNotCountedTwice) {
+  auto ring = ScenarioRing::operational(redundant_spec());
+  ASSERT_TRUE(ring);
+  // Whole: the forward cross comes twice; broken in the middle: both bounces do.
+  expect_copes_with(*ring, sim::fault::next(sim::fault::duplicate_reply(), 60), 0);
+  ASSERT_TRUE(ring->redundant_ports->set_topology(RedundantTopology::broken_after(2)));
+  ASSERT_TRUE(cycles_pass(*ring, 5));
+  const auto merged = ring->redundant_link->status().merged;
+  expect_copes_with(*ring, sim::fault::next(sim::fault::duplicate_reply(), 60), 1);
+  EXPECT_GT(ring->redundant_link->status().merged, merged + 20);
+  EXPECT_GT(ring->redundant_ports->stats().duplicated, 20u);
+  expect_never_recovered(*ring);
+}
+
+TEST(RedundantReplyFaults, ReorderedAndDelayedRepliesOnABrokenRing) {
+  auto ring = ScenarioRing::operational(redundant_spec());
+  ASSERT_TRUE(ring);
+  ASSERT_TRUE(ring->redundant_ports->set_topology(RedundantTopology::broken_after(2)));
+  ASSERT_TRUE(cycles_pass(*ring, 5));
+  const auto delayed = ring->redundant_ports->stats().delayed;
+  // The secondary's half of one frame held back behind the next: its cycle is short by that half
+  // at most (the primary's half waits out the merge window alone), the late half is dropped.
+  expect_copes_with(
+      *ring,
+      sim::fault::next(sim::fault::at_port(sim::fault::reorder_replies(), RedundantPort::secondary),
+                       1),
+      2);
+  EXPECT_EQ(ring->redundant_ports->stats().delayed, delayed + 1);
+  // Within the merge window: merged as if on time.
+  auto status = ring->redundant_link->status();
+  expect_copes_with(
+      *ring,
+      sim::fault::next(
+          sim::fault::at_port(sim::fault::delay_replies(100us), RedundantPort::secondary), 30),
+      1);
+  EXPECT_GT(ring->redundant_link->status().merged, status.merged + 40) << debug_status(*ring);
+  EXPECT_LE(ring->redundant_link->status().merge_timeouts, status.merge_timeouts + 1)
+      << debug_status(*ring);
+  // Beyond it: the lone bounce is handed on after the window (that cycle short), the late half
+  // is no second reply.
+  status = ring->redundant_link->status();
+  expect_copes_with(
+      *ring,
+      sim::fault::next(
+          sim::fault::at_port(sim::fault::delay_replies(3ms), RedundantPort::secondary), 2),
+      2);
+  EXPECT_GT(ring->redundant_link->status().merge_timeouts, status.merge_timeouts)
+      << debug_status(*ring);
+  expect_never_recovered(*ring);
+}
+
+// The master's link alone over the ports: replies that arrive out of order are each matched to
+// their own frame, and a duplicate is no second reply.
+TEST(RedundantReplyFaults, LinkMatchesReorderedReplies) {
+  auto made = sim::make_server(*sim::parse_ring(ring_yaml(RingKind::basic)));
+  ASSERT_TRUE(made);
+  sim::RedundantPortsOptions options;
+  auto ports = sim::RedundantPorts::create(**made, options);
+  ASSERT_TRUE(ports);
+  link::RedundantLinkOptions link_options;
+  link_options.primary_mac = options.primary_mac;
+  link_options.secondary_mac = options.secondary_mac;
+  auto opened =
+      link::RedundantLink::open((*ports)->take_link(RedundantPort::primary),
+                                (*ports)->take_link(RedundantPort::secondary), link_options);
+  ASSERT_TRUE(opened);
+  link::RedundantLink& link = **opened;
+  const auto frame = [](std::uint8_t index) {
+    std::array<std::uint8_t, wire::kMaxFrameSize> buffer{};
+    wire::FrameBuilder builder(buffer);
+    wire::DatagramHeader header;
+    header.command = wire::Command::brd;
+    header.index = index;
+    header.length = 1;
+    EXPECT_TRUE(builder.add(header, std::array<std::uint8_t, 1>{}).has_value());
+    const auto bytes = builder.finish();
+    return std::vector<std::uint8_t>(bytes.begin(), bytes.end());
+  };
+  const auto receive = [&]() -> std::optional<std::pair<std::uint8_t, std::uint16_t>> {
+    auto r = link.receive(20ms);
+    EXPECT_TRUE(r);
+    if (!r || !*r) return std::nullopt;
+    const auto decoded = wire::decode_frame((*r)->frame);
+    EXPECT_TRUE(decoded);
+    if (!decoded) return std::nullopt;
+    const auto d = *decoded.frame->begin();
+    return std::make_pair(d.header.index, d.wkc);
+  };
+  for (const RedundantTopology& topology :
+       {RedundantTopology::whole_ring(), RedundantTopology::broken_after(1)}) {
+    SCOPED_TRACE(sim::describe(topology));
+    ASSERT_TRUE((*ports)->set_topology(topology));
+    // Whole, the replies arrive at the secondary; broken, the reorder is the secondary's half.
+    ASSERT_TRUE((*made)->inject(sim::fault::next(
+        sim::fault::at_port(sim::fault::reorder_replies(), RedundantPort::secondary), 1)));
+    ASSERT_TRUE(link.send(frame(0x10)));
+    ASSERT_TRUE(link.send(frame(0x11)));
+    const auto first = receive();
+    const auto second = receive();
+    ASSERT_TRUE(first && second);
+    EXPECT_EQ(first->second, 3);
+    EXPECT_EQ(second->second, 3);
+    EXPECT_NE(first->first, second->first);
+    EXPECT_FALSE(receive());
+    // Duplicated at both ports: one reply.
+    ASSERT_TRUE((*made)->inject(sim::fault::next(sim::fault::duplicate_reply(), 2)));
+    ASSERT_TRUE(link.send(frame(0x12)));
+    const auto one = receive();
+    ASSERT_TRUE(one);
+    EXPECT_EQ(*one, std::make_pair(std::uint8_t{0x12}, std::uint16_t{3}));
+    EXPECT_FALSE(receive());
+  }
+  EXPECT_GT((*ports)->stats().delayed, 0u);
+}
+
+// ---- Link faults on a redundant ring: the ring turns round at the port
+// ---------------------------
+
+TEST(RedundantLinkFaults, LinkDownIsABreakTheMasterLocates) {
+  auto ring = ScenarioRing::operational(redundant_spec());
+  ASSERT_TRUE(ring);
+  const auto slaves = ring->master->status().slaves;
+  ASSERT_EQ(slaves.size(), 3u);
+  const auto located = [&]() -> std::optional<link::RingBreak> {
+    const auto r = ring->master->status().redundancy;
+    return r ? r->break_location : std::nullopt;
+  };
+  const auto inject = [&](const sim::Fault& f) {
+    return [&ring, f] { ASSERT_TRUE(ring->server->inject(f)); };
+  };
+  // The inputs terminal's port 0 loses its link: a break between the coupler and it.
+  expect_flows_through(*ring, RedundantTopology::broken_after(1),
+                       inject(sim::fault::link_down("inputs", 0)));
+  const link::RingBreak between{link::RingBreak::Where::between_slaves, 0, slaves[0].station, 1,
+                                slaves[1].station};
+  EXPECT_TRUE(eventually([&] { return located() == between; }))
+      << (located() ? link::describe(*located()) : std::string("none"));
+  expect_flows_through(*ring, RedundantTopology::whole_ring(),
+                       inject(sim::fault::link_up("inputs", 0)));
+  EXPECT_TRUE(eventually([&] { return !located(); }));
+  // The last slave's port 1: the secondary's cable.
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::secondary),
+                       inject(sim::fault::link_down("outputs", 1)));
+  EXPECT_TRUE(eventually([&] {
+    const auto b = located();
+    return b && b->where == link::RingBreak::Where::secondary_cable && b->before_position == 2;
+  })) << ring->describe();
+  expect_flows_through(*ring, RedundantTopology::whole_ring(),
+                       inject(sim::fault::link_up("outputs", 1)));
+  // The master's own cable: the primary's.
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary),
+                       inject(sim::fault::master_link_down()));
+  const link::RingBreak primary{link::RingBreak::Where::primary_cable, 0, slaves[0].station, 0,
+                                slaves[0].station};
+  EXPECT_TRUE(eventually([&] { return located() == primary; }))
+      << (located() ? link::describe(*located()) : std::string("none"));
+  expect_flows_through(*ring, RedundantTopology::whole_ring(),
+                       inject(sim::fault::master_link_up()));
+  EXPECT_TRUE(eventually([&] { return !located(); }));
+  expect_never_recovered(*ring);
+}
+
+// The same faults act on the ports served on two raw interfaces (one code path carries both).
+TEST(RedundantLinkFaults, LinkDownAndReplyFaultsOverTwoVethPairs) {
+  std::string skip;
+  auto ring = ScenarioRing::operational(redundant_spec(5ms, Transport::redundant_raw), &skip);
+  if (!skip.empty()) GTEST_SKIP() << skip;
+  ASSERT_TRUE(ring);
+  expect_flows_through(*ring, RedundantTopology::broken_after(2), [&] {
+    ASSERT_TRUE(ring->server->inject(sim::fault::link_down("outputs", 0)));
+  });
+  expect_copes_with(*ring, sim::fault::next(sim::fault::duplicate_reply(), 60), 1);
+  EXPECT_GT(ring->redundant_ports->stats().duplicated, 20u);
+  expect_copes_with(
+      *ring,
+      sim::fault::next(
+          sim::fault::at_port(sim::fault::delay_replies(100us), RedundantPort::primary), 30),
+      1);
+  expect_flows_through(*ring, RedundantTopology::whole_ring(), [&] {
+    ASSERT_TRUE(ring->server->inject(sim::fault::link_up("outputs", 0)));
+  });
+  expect_never_recovered(*ring);
+  EXPECT_EQ(ring->redundant_ports->stats().send_errors, 0u);
 }
 
 // ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
