@@ -216,10 +216,11 @@ void DcUnit::compare_system_time(std::uint32_t received, std::int64_t t) {
   // What is left of the error seen last time, if the rate correction were exact.
   const double predicted = -(slew_amount_ - slewed_at(t));
   double estimate = static_cast<double>(difference);
+  std::int64_t interval = 0;
   if (have_sample_) {
     const double innovation = static_cast<double>(difference) - predicted;
     estimate = predicted + alpha * innovation;
-    const std::int64_t interval = t - last_sample_time_;
+    interval = t - last_sample_time_;
     if (interval >= kMinFrequencyInterval) {
       // Time gained since the last sample beyond what was slewed: the clock runs fast by
       // innovation / interval; slow it down.
@@ -229,9 +230,15 @@ void DcUnit::compare_system_time(std::uint32_t received, std::int64_t t) {
   const double limit = max_rate();
   reanchor(t);
   frequency_rate_ = std::clamp(frequency_rate_, -limit, limit);
-  // The phase is slewed with what the speed counter has left beside the frequency correction.
+  // The phase is slewed over the time the last sample took to come (the loop's own period), with
+  // at most what the speed counter has left beside the frequency correction: the speed counter
+  // diff (0x0932) then moves with the filtered error, as a real ESC's control value does, instead
+  // of swinging to its limit for a few nanoseconds of error (and back) at every sample.
   slew_amount_ = -estimate;
-  slew_rate_ = std::max(limit - std::fabs(frequency_rate_), 0.0);
+  const double room = std::max(limit - std::fabs(frequency_rate_), 0.0);
+  slew_rate_ = interval >= kMinFrequencyInterval
+                   ? std::min(room, std::fabs(estimate) / static_cast<double>(interval))
+                   : room;
   phase_estimate_ = estimate;
   last_difference_ = difference;
   last_sample_time_ = t;
