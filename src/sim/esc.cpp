@@ -1,6 +1,8 @@
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstring>
+#include <utility>
 
 #include <ecat/sim/application.hpp>
 #include <ecat/sim/dc_unit.hpp>
@@ -37,6 +39,16 @@ bool in_range(std::uint32_t address, std::uint32_t first, std::uint32_t size) no
 bool overlaps(std::uint32_t first, std::uint32_t last, std::uint32_t start,
               std::uint32_t size) noexcept {
   return first < start + size && last >= start;
+}
+
+// A process-data window is a few bytes: a loop beats a call into the C library's memcpy.
+void copy_bytes(std::uint8_t* to, const std::uint8_t* from, std::size_t n) noexcept {
+  if (n > 16) {
+    std::memcpy(to, from, n);
+    return;
+  }
+  for (std::size_t k = 0; k < n; ++k)
+    to[k] = from[k];
 }
 
 std::uint8_t masked(std::uint8_t old_value, std::uint8_t new_value, const std::uint8_t* mask,
@@ -216,6 +228,8 @@ void Esc::reset_registers() {
     update_sm_status(i);
   for (auto& f : fmmus_)
     f = wire::FmmuConfig{};
+  active_fmmus_ = 0;
+  rebuild_sm_areas();
   last_mailbox_reply_.clear();
   if (dc_) dc_->reset();
   if (layout_observer_ != nullptr) layout_observer_->esc_layout_changed(layout_tag_);
@@ -271,11 +285,8 @@ void Esc::advance(std::int64_t now_ns) {
   // Process-data watchdog: an output SyncManager with the watchdog trigger enabled that sees no
   // complete write for the watchdog time expires (status bit 0 -> 0, counter + 1).
   std::optional<std::int64_t> timeout_ns;  // read when an SM needs it
-  for (const auto& sm : sms_) {
-    if (!sm.enabled || !sm.config.control.watchdog ||
-        sm.config.control.direction != wire::SmDirection::write) {
-      continue;
-    }
+  for (std::uint32_t bits = watchdog_sms_; bits != 0; bits &= bits - 1) {
+    const auto& sm = sms_[static_cast<std::size_t>(std::countr_zero(bits))];
     if (!timeout_ns) {
       const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
       const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
@@ -299,11 +310,8 @@ bool Esc::advance_due(std::int64_t now_ns) const noexcept {
   }
   // A running process-data watchdog (status bit 0 set) that expires by now_ns (as advance()).
   const std::int64_t now = std::max(now_ns, now_ns_);
-  for (const auto& sm : sms_) {
-    if (!sm.enabled || !sm.config.control.watchdog ||
-        sm.config.control.direction != wire::SmDirection::write) {
-      continue;
-    }
+  for (std::uint32_t bits = watchdog_sms_; bits != 0; bits &= bits - 1) {
+    const auto& sm = sms_[static_cast<std::size_t>(std::countr_zero(bits))];
     if ((read_u16(reg::kWatchdogStatus) & 1) == 0) break;
     const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
     const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
@@ -431,8 +439,8 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
   AccessResult result;
   const std::uint64_t first_bit = static_cast<std::uint64_t>(d.address) * 8;
   const std::uint64_t end_bit = first_bit + d.data.size() * 8;  // exclusive
-  for (const auto& f : fmmus_) {
-    if (!f.active || f.length == 0) continue;
+  for (std::uint32_t bits = active_fmmus_; bits != 0; bits &= bits - 1) {
+    const wire::FmmuConfig& f = fmmus_[static_cast<std::size_t>(std::countr_zero(bits))];
     const bool f_reads = f.type == wire::FmmuType::read || f.type == wire::FmmuType::read_write;
     const bool f_writes = f.type == wire::FmmuType::write || f.type == wire::FmmuType::read_write;
     const bool reading = do_read && f_reads;
@@ -459,10 +467,27 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
     const std::size_t d_offset = static_cast<std::size_t>((lo - first_bit) / 8);
     if (aligned) {
       auto window = d.data.subspan(d_offset, p_bytes);
+      if (p_byte >= kRegisterAreaEnd && p_byte + p_bytes <= memory_.size() &&
+          !sm_overlaps(p_byte, p_byte + static_cast<std::uint32_t>(p_bytes))) {
+        // Process RAM outside every SyncManager (physical_read's and physical_write's fast
+        // path, taken here without the copy of the incoming bytes): a read-write swaps.
+        std::uint8_t* ram = &memory_[p_byte];
+        if (reading && writing) {
+          for (std::size_t k = 0; k < p_bytes; ++k)
+            std::swap(ram[k], window[k]);
+        } else if (reading) {
+          copy_bytes(window.data(), ram, p_bytes);
+        } else {
+          copy_bytes(ram, window.data(), p_bytes);
+        }
+        result.read |= reading;
+        result.written |= writing;
+        continue;
+      }
       if (reading && writing) {
         // Only the window's p_bytes are copied and used.
         std::array<std::uint8_t, kMaxDatagram> incoming;
-        std::memcpy(incoming.data(), window.data(), p_bytes);
+        copy_bytes(incoming.data(), window.data(), p_bytes);
         result.read |= physical_read(p_byte, window, nullptr, false).read;
         result.written |=
             physical_write(p_byte, std::span<const std::uint8_t>(incoming.data(), p_bytes), nullptr,
@@ -529,19 +554,59 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
 }
 
 int Esc::sm_index_for(std::uint32_t address) const noexcept {
-  for (std::size_t i = 0; i < sms_.size(); ++i) {
-    const auto& sm = sms_[i];
-    if (sm.enabled && in_range(address, sm.config.physical_start, sm.config.length)) {
-      return static_cast<int>(i);
-    }
+  for (std::size_t i = 0; i < sm_area_count_; ++i) {
+    const SmArea& area = sm_areas_[i];
+    if (address >= area.start && address < area.end) return static_cast<int>(area.index);
   }
   return -1;
+}
+
+bool Esc::sm_overlaps(std::uint32_t first, std::uint32_t end) const noexcept {
+  for (std::size_t i = 0; i < sm_area_count_; ++i) {
+    if (sm_areas_[i].start < end && sm_areas_[i].end > first) return true;
+  }
+  return false;
+}
+
+void Esc::rebuild_sm_areas() noexcept {
+  sm_area_count_ = 0;
+  watchdog_sms_ = 0;
+  for (std::size_t i = 0; i < sms_.size() && i < sm_areas_.size(); ++i) {
+    const auto& sm = sms_[i];
+    if (!sm.enabled) continue;
+    if (sm.config.length > 0) {
+      sm_areas_[sm_area_count_++] =
+          SmArea{sm.config.physical_start,
+                 static_cast<std::uint32_t>(sm.config.physical_start) + sm.config.length,
+                 static_cast<std::uint32_t>(i)};
+    }
+    if (sm.config.control.watchdog && sm.config.control.direction == wire::SmDirection::write) {
+      watchdog_sms_ |= 1u << i;
+    }
+  }
 }
 
 Esc::AccessResult Esc::physical_read(std::uint32_t address, std::span<std::uint8_t> out,
                                      const std::uint8_t* mask, bool or_into_data) {
   AccessResult result;
   const std::uint32_t end = address + static_cast<std::uint32_t>(out.size());
+  if (address >= kRegisterAreaEnd && end <= memory_.size() && !sm_overlaps(address, end)) {
+    // Process RAM outside every SyncManager (a plain FMMU window): no register semantics, no
+    // buffer handshake, nothing else to look at.
+    if (out.empty()) return result;
+    const std::uint8_t* from = &memory_[address];
+    if (or_into_data) {
+      for (std::size_t k = 0; k < out.size(); ++k)
+        out[k] = static_cast<std::uint8_t>(out[k] | from[k]);
+    } else if (mask == nullptr) {
+      copy_bytes(out.data(), from, out.size());
+    } else {
+      for (std::size_t k = 0; k < out.size(); ++k)
+        out[k] = masked(out[k], from[k], mask, k);
+    }
+    result.read = true;
+    return result;
+  }
   if (address < kRegisterAreaEnd) refresh_registers_for_read(address, out.size());
   std::uint32_t pos = address;
   while (pos < end) {
@@ -552,11 +617,8 @@ Esc::AccessResult Esc::physical_read(std::uint32_t address, std::span<std::uint8
         std::min<std::uint32_t>(end, static_cast<std::uint32_t>(memory_.size()));
     if (sm_index < 0) {
       // Up to the next SyncManager area that starts inside the range.
-      for (const auto& sm : sms_) {
-        if (sm.enabled && sm.config.length > 0 && sm.config.physical_start > pos &&
-            sm.config.physical_start < run_end) {
-          run_end = sm.config.physical_start;
-        }
+      for (std::size_t s = 0; s < sm_area_count_; ++s) {
+        if (sm_areas_[s].start > pos && sm_areas_[s].start < run_end) run_end = sm_areas_[s].start;
       }
       for (std::uint32_t a = pos; a < run_end; ++a) {
         // Bytes the ESC does not have leave the datagram alone and do not count.
@@ -620,6 +682,19 @@ Esc::AccessResult Esc::physical_write(std::uint32_t address, std::span<const std
                                       const std::uint8_t* mask, const PassContext& pass) {
   AccessResult result;
   const std::uint32_t end = address + static_cast<std::uint32_t>(in.size());
+  if (address >= kRegisterAreaEnd && end <= memory_.size() && !sm_overlaps(address, end)) {
+    // Process RAM outside every SyncManager: written as it comes (physical_read's fast path).
+    if (in.empty()) return result;
+    std::uint8_t* to = &memory_[address];
+    if (mask == nullptr) {
+      copy_bytes(to, in.data(), in.size());
+    } else {
+      for (std::size_t k = 0; k < in.size(); ++k)
+        to[k] = masked(to[k], in[k], mask, k);
+    }
+    result.written = true;
+    return result;
+  }
   std::uint32_t pos = address;
   while (pos < end) {
     if (pos >= memory_.size()) break;
@@ -627,11 +702,8 @@ Esc::AccessResult Esc::physical_write(std::uint32_t address, std::span<const std
     std::uint32_t run_end =
         std::min<std::uint32_t>(end, static_cast<std::uint32_t>(memory_.size()));
     if (sm_index < 0) {
-      for (const auto& sm : sms_) {
-        if (sm.enabled && sm.config.length > 0 && sm.config.physical_start > pos &&
-            sm.config.physical_start < run_end) {
-          run_end = sm.config.physical_start;
-        }
+      for (std::size_t s = 0; s < sm_area_count_; ++s) {
+        if (sm_areas_[s].start > pos && sm_areas_[s].start < run_end) run_end = sm_areas_[s].start;
       }
       if (pos < kRegisterAreaEnd) {
         // Registers outside any SyncManager keep their ECAT write permissions.
@@ -762,6 +834,9 @@ void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const Pa
     auto decoded = wire::FmmuConfig::decode(wire::Bytes(&memory_[reg::fmmu(i)], reg::kFmmuSize));
     // A configuration the FMMU cannot represent (bit numbers > 7) leaves it inactive.
     fmmus_[i] = decoded ? *decoded : wire::FmmuConfig{};
+    const std::uint32_t bit = 1u << i;
+    active_fmmus_ =
+        fmmus_[i].active && fmmus_[i].length != 0 ? active_fmmus_ | bit : active_fmmus_ & ~bit;
   }
   layout_written(first, last);
   for (std::size_t i = 0; i < sms_.size(); ++i) {
@@ -825,6 +900,7 @@ void Esc::sync_manager_written(std::size_t index, bool was_enabled) {
     sm.read_open = false;
     sm.config.status = wire::SmStatus{};
   }
+  rebuild_sm_areas();
   update_sm_status(index);
   if (sm.enabled && sm.config.activate.repeat_request != old_repeat &&
       sm.config.control.mode == wire::SmMode::mailbox) {
@@ -1026,7 +1102,7 @@ void Esc::sii_control_written(std::uint32_t first, std::uint32_t last) {
   }
 }
 
-void Esc::sii_finish_if_due() {
+void Esc::sii_finish_if_due_slow() {
   namespace sc = wire::sii_control;
   if (!sii_pending_ || now_ns_ < sii_busy_until_ns_) return;
   const SiiPending done = *sii_pending_;

@@ -394,11 +394,20 @@ void Segment::find_addressed() {
       runs_sorted = std::is_sorted(hits_.begin() + static_cast<std::ptrdiff_t>(run_begin[r]),
                                    hits_.begin() + static_cast<std::ptrdiff_t>(end));
     }
-    if (runs_sorted && runs <= 8) {
-      for (std::size_t r = 1; r < runs; ++r) {
-        const std::size_t end = r + 1 < runs ? run_begin[r + 1] : hits_.size();
-        std::inplace_merge(hits_.begin(), hits_.begin() + static_cast<std::ptrdiff_t>(run_begin[r]),
-                           hits_.begin() + static_cast<std::ptrdiff_t>(end));
+    std::size_t longest_later_run = 0;
+    for (std::size_t r = 1; r < runs; ++r) {
+      const std::size_t end = r + 1 < runs ? run_begin[r + 1] : hits_.size();
+      longest_later_run = std::max(longest_later_run, end - run_begin[r]);
+    }
+    if (runs_sorted && runs <= 8 && longest_later_run <= 8) {
+      // Short later runs (a station's FPRD after an LRW) are inserted into the sorted prefix in
+      // place: std::inplace_merge would take a temporary buffer from the heap on every frame.
+      for (std::size_t j = run_begin[1]; j < hits_.size(); ++j) {
+        const auto value = hits_[j];
+        const auto prefix_end = hits_.begin() + static_cast<std::ptrdiff_t>(j);
+        const auto at = std::upper_bound(hits_.begin(), prefix_end, value);
+        std::move_backward(at, prefix_end, prefix_end + 1);
+        *at = value;
       }
     } else {
       std::sort(hits_.begin(), hits_.end());
@@ -423,20 +432,24 @@ void Segment::advance_due(std::int64_t now_ns) {
   // A slave this frame addresses by station or logical address is advanced in dispatch() right
   // before it processes (advance_for_frame), so it needs no check here; a frame with a
   // broadcast addresses every reachable slave. Only the others are asked whether time-driven
-  // work is due: a cyclic LRW over the whole ring costs no per-slave check at all.
-  const bool everyone = !everyone_.empty();
+  // work is due: a cyclic LRW over the whole ring costs no per-slave check at all. (An
+  // addressed slave the fault hooks cut off is asked in dispatch(), where they are consulted.)
+  const auto check = [&](std::size_t i) {
+    if (nodes_[i].esc->advance_due(now_ns)) advance_for_frame(i, now_ns);
+  };
+  if (visits_.size() != nodes_.size()) {
+    for (std::size_t i = 0; i < nodes_.size(); ++i) {
+      if (i >= visit_of_.size() || visit_of_[i] == kNotVisited) check(i);  // off the route
+    }
+  }
+  if (!everyone_.empty()) return;
   hit_.assign(visits_.size(), 0);
   for (const auto& [position, k] : hits_) {
     (void)k;
     hit_[position] = 1;
   }
-  for (std::size_t i = 0; i < nodes_.size(); ++i) {
-    const std::size_t position = i < visit_of_.size() ? visit_of_[i] : kNotVisited;
-    if (position != kNotVisited && (everyone || hit_[position] != 0) &&
-        (hooks_ == nullptr || !hooks_->slave_unreachable(i))) {
-      continue;
-    }
-    if (nodes_[i].esc->advance_due(now_ns)) advance_for_frame(i, now_ns);
+  for (std::size_t position = 0; position < visits_.size(); ++position) {
+    if (hit_[position] == 0) check(visits_[position].index);
   }
 }
 
@@ -478,7 +491,11 @@ void Segment::dispatch(std::span<std::uint8_t> frame, std::int64_t now_ns) {
     while (hit < hits_.size() && hits_[hit].first == position)
       ++hit;
     const std::size_t hits_end = hit;
-    if (hooks_ != nullptr && hooks_->slave_unreachable(v.index)) continue;
+    if (hooks_ != nullptr && hooks_->slave_unreachable(v.index)) {
+      // Cut off: not addressed after all, so work due is done here (see advance_due).
+      if (nodes_[v.index].esc->advance_due(now_ns)) advance_for_frame(v.index, now_ns);
+      continue;
+    }
     const std::size_t ordinal = reachable++;
     while (positional < positional_.size() && positional_[positional].first < ordinal)
       ++positional;

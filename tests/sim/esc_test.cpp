@@ -565,6 +565,45 @@ TEST(SyncManagerConfiguration, StartAndLengthOnlyChangeWhileDisabled) {
   EXPECT_TRUE(segment.esc(0).sync_manager(2).enabled);
 }
 
+// Physical accesses look up the enabled SyncManagers' areas in a table the ESC rebuilds when one
+// is enabled, disabled or moved, and take RAM outside every area directly: the table must follow
+// each change, and a power cycle.
+TEST(SyncManagerConfiguration, AccessesFollowEnableMoveDisableAndPowerCycle) {
+  Segment segment;
+  ASSERT_TRUE(segment.add_slave("s", make_esc(1)).ok());
+  const auto ap = [](std::uint16_t offset) { return wire::physical_address(0, offset); };
+  auto& esc = segment.esc(0);
+  const auto plain_write_lands = [&](std::uint16_t at, std::uint8_t value) {
+    const auto r = exchange(segment, Command::apwr, ap(at), {value, value});
+    return r.wkc == 1 && esc.read_u16(at) == static_cast<std::uint16_t>(value * 0x0101);
+  };
+  EXPECT_TRUE(plain_write_lands(0x1100, 0x11));
+  // An output SM over 0x1100..0x1103: half a buffer is no longer visible.
+  exchange(segment, Command::apwr, ap(reg::sync_manager(2)),
+           sm_config(0x1100, 4, wire::kOutputsControl, true));
+  EXPECT_FALSE(plain_write_lands(0x1100, 0x22));
+  EXPECT_EQ(esc.read_u16(0x1100), 0x1111);
+  // A read that overlaps the area's end only: the bytes before it are plain RAM.
+  esc.pdi_write(0x10FE, std::vector<std::uint8_t>{0xAB, 0xCD});
+  EXPECT_EQ(exchange(segment, Command::aprd, ap(0x10FE), {0, 0}).data,
+            (std::vector<std::uint8_t>{0xAB, 0xCD}));
+  // Disabled: plain RAM again.
+  exchange(segment, Command::apwr, ap(reg::sync_manager(2) + reg::kSyncManagerActivateOffset), {0});
+  EXPECT_TRUE(plain_write_lands(0x1100, 0x33));
+  // Moved to 0x1200 and enabled: 0x1100 plain, 0x1200 buffered.
+  exchange(segment, Command::apwr, ap(reg::sync_manager(2)),
+           sm_config(0x1200, 4, wire::kOutputsControl, true));
+  EXPECT_TRUE(plain_write_lands(0x1100, 0x44));
+  EXPECT_FALSE(plain_write_lands(0x1200, 0x55));
+  // An input SM refuses writes from ECAT; a power cycle disables every SM.
+  exchange(segment, Command::apwr, ap(reg::sync_manager(3)),
+           sm_config(0x1180, 2, wire::kInputsControl, true));
+  EXPECT_EQ(exchange(segment, Command::apwr, ap(0x1180), {1, 2}).wkc, 0);
+  esc.power_cycle(2'000'000);
+  EXPECT_TRUE(plain_write_lands(0x1180, 0x66));
+  EXPECT_TRUE(plain_write_lands(0x1200, 0x77));
+}
+
 TEST(SyncManagerBuffered, OutputsBecomeVisibleOnlyWhenTheLastByteIsWritten) {
   Segment segment;
   ASSERT_TRUE(segment.add_slave("s", make_esc(1)).ok());

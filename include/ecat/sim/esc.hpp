@@ -261,7 +261,9 @@ class Esc {
   void sii_control_written(std::uint32_t first, std::uint32_t last);
   // The master wrote 0x0500 (EEPROM configuration: offer to the PDI, force ECAT access).
   void sii_access_written();
-  void sii_finish_if_due();
+  void sii_finish_if_due() {
+    if (sii_pending_) sii_finish_if_due_slow();
+  }
   // Loads the ESC configuration area (words 0..7) into the registers: at power-up everything,
   // on a reload command all but the station alias and 0x0141 bits 1, 4..7. Returns whether the
   // checksum matched (nothing is loaded when it did not).
@@ -271,6 +273,28 @@ class Esc {
   // sii_control_written sees it).
   void sii_store_status(std::uint16_t status) noexcept;
   int sm_index_for(std::uint32_t address) const noexcept;
+  // Whether an enabled SyncManager covers any byte of [first, end).
+  bool sm_overlaps(std::uint32_t first, std::uint32_t end) const noexcept;
+  // Rebuilds sm_areas_ and watchdog_sms_ from sms_ (after an SM is enabled, disabled, moved).
+  void rebuild_sm_areas() noexcept;
+  void sii_finish_if_due_slow();
+
+  // What every datagram of a frame looks at first, kept together and apart from the bulky state
+  // below: the frame path of a 256-slave ring is bound by the cache lines it touches per ESC.
+  // The enabled SyncManagers' areas in SM index order ([start, end), index), so that a physical
+  // access searches these instead of every SyncManager's state (sm_index_for keeps the lowest
+  // index first, as before), rebuilt by rebuild_sm_areas whenever one is enabled, disabled or
+  // moved; the output SyncManagers whose process-data watchdog runs (advance, advance_due);
+  // the active FMMUs (logical).
+  struct SmArea {
+    std::uint32_t start = 0;
+    std::uint32_t end = 0;
+    std::uint32_t index = 0;
+  };
+  std::array<SmArea, wire::reg::kMaxSyncManagers> sm_areas_{};
+  std::uint8_t sm_area_count_ = 0;
+  std::uint32_t watchdog_sms_ = 0;   // bit per SyncManager
+  std::uint32_t active_fmmus_ = 0;   // bit per FMMU: active with a non-zero length
 
   EscHardware hardware_;
   std::vector<std::uint8_t> memory_;

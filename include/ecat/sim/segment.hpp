@@ -158,8 +158,12 @@ class Segment : private EscLayoutObserver {
 
  private:
   struct Node {
-    std::string name;
+    // What every frame touches first (one cache line), the rest after.
     std::unique_ptr<Esc> esc;
+    std::uint64_t advanced_in = 0;  // the frame (frame_serial_) this ESC was last advanced in
+    bool port_dirty = false;   // port control not compared since the layout changed
+    bool index_dirty = false;  // addresses and FMMUs not re-read since the layout changed
+    std::string name;
     std::optional<std::size_t> parent;
     std::uint8_t parent_port = 1;
     std::array<std::optional<std::size_t>, 4> children{};  // by port; [0] unused
@@ -168,12 +172,9 @@ class Segment : private EscLayoutObserver {
     std::int64_t cable_delay_ns = 5;
     HopTiming timing;
     // Dispatch indexes (see esc_layout_changed): what they hold for this node.
-    bool port_dirty = false;   // port control not compared since the layout changed
-    bool index_dirty = false;  // addresses and FMMUs not re-read since the layout changed
     std::array<std::uint16_t, 2> keys{};  // station address, alias (when enabled and different)
     std::uint8_t key_count = 0;
     std::vector<std::pair<std::uint64_t, std::uint64_t>> logical;  // FMMU bytes [first, end)
-    std::uint64_t advanced_in = 0;  // the frame (frame_serial_) this ESC was last advanced in
   };
   struct LogicalRange {
     std::uint64_t first = 0;
