@@ -293,8 +293,8 @@ class Esc {
   };
   std::array<SmArea, wire::reg::kMaxSyncManagers> sm_areas_{};
   std::uint8_t sm_area_count_ = 0;
-  std::uint32_t watchdog_sms_ = 0;   // bit per SyncManager
-  std::uint32_t active_fmmus_ = 0;   // bit per FMMU: active with a non-zero length
+  std::uint32_t watchdog_sms_ = 0;  // bit per SyncManager
+  std::uint32_t active_fmmus_ = 0;  // bit per FMMU: active with a non-zero length
 
   EscHardware hardware_;
   std::vector<std::uint8_t> memory_;

@@ -161,8 +161,8 @@ class Segment : private EscLayoutObserver {
     // What every frame touches first (one cache line), the rest after.
     std::unique_ptr<Esc> esc;
     std::uint64_t advanced_in = 0;  // the frame (frame_serial_) this ESC was last advanced in
-    bool port_dirty = false;   // port control not compared since the layout changed
-    bool index_dirty = false;  // addresses and FMMUs not re-read since the layout changed
+    bool port_dirty = false;        // port control not compared since the layout changed
+    bool index_dirty = false;       // addresses and FMMUs not re-read since the layout changed
     std::string name;
     std::optional<std::size_t> parent;
     std::uint8_t parent_port = 1;
