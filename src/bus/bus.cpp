@@ -1766,6 +1766,11 @@ BusStats Bus::stats() const noexcept {
   return out;
 }
 
+Result<void> Bus::set_port_nop(link::Port port, std::optional<link::DatagramSelector> selector) {
+  if (!impl_) return Error(Errc::closed, "bus on link " + link_name_ + " is gone");
+  return impl_->link->set_port_nop(port, selector);
+}
+
 BusInfo Bus::info() const {
   BusInfo out;
   out.link_name = link_name_;

@@ -14,4 +14,9 @@ std::size_t Link::max_frame_size() const {
   return wire::kMaxFrameSize;
 }
 
+Result<void> Link::set_port_nop(Port, std::optional<DatagramSelector>) {
+  return Error(Errc::unsupported,
+               "link " + name() + " has one port: per-port frame contents need a redundant link");
+}
+
 }  // namespace ecat::link

@@ -359,5 +359,8 @@ std::size_t RecordingLink::max_frame_size() const {
 std::optional<RedundancyStatus> RecordingLink::redundancy() const {
   return inner_->redundancy();
 }
+Result<void> RecordingLink::set_port_nop(Port port, std::optional<DatagramSelector> selector) {
+  return inner_->set_port_nop(port, selector);
+}
 
 }  // namespace ecat::link

@@ -26,6 +26,32 @@ namespace {
 constexpr std::size_t kSlots = 64;
 // How long one blocking wait on a leg lasts before the other leg is looked at.
 constexpr nanoseconds kSlice = std::chrono::microseconds(100);
+// Datagrams of one frame a port's copy may carry as NOP (Link::set_port_nop): every datagram a
+// frame can hold.
+constexpr std::size_t kMaxMasked = wire::kMaxFrameSize / wire::kDatagramOverhead + 1;
+
+// A port's NOP selector packed into one word, so that send() reads it without a lock:
+// bit 48 set = active, bit 49 = any ADP, bits 40..47 command, 16..31 ADP, 0..15 ADO.
+constexpr std::uint64_t kSelectorActive = std::uint64_t{1} << 48;
+constexpr std::uint64_t kSelectorAnyAdp = std::uint64_t{1} << 49;
+constexpr std::uint64_t kSelectorWhileOtherReads = std::uint64_t{1} << 50;
+std::uint64_t pack(const DatagramSelector& d) {
+  return kSelectorActive | (d.any_adp ? kSelectorAnyAdp : 0) |
+         (d.while_other_side_reads ? kSelectorWhileOtherReads : 0) |
+         (std::uint64_t{d.command} << 40) | (std::uint64_t{d.adp} << 16) | d.ado;
+}
+bool matches(std::uint64_t packed, const wire::DatagramHeader& h) {
+  return (packed & kSelectorActive) != 0 &&
+         static_cast<std::uint8_t>(packed >> 40) == static_cast<std::uint8_t>(h.command) &&
+         ((packed & kSelectorAnyAdp) != 0 || static_cast<std::uint16_t>(packed >> 16) == h.adp()) &&
+         static_cast<std::uint16_t>(packed) == h.ado();
+}
+
+// A datagram one port's copy carried as NOP: where its command byte is and what it was.
+struct Masked {
+  std::uint16_t offset = 0;
+  std::uint8_t command = 0;
+};
 
 enum class SlotState : std::uint8_t { free, waiting, done };
 
@@ -37,6 +63,10 @@ struct Exchange {
   std::array<std::uint8_t, wire::kMaxFrameSize> sent{};
   std::size_t sent_size = 0;
   std::array<bool, 2> leg_sent{};
+  // Datagrams one port's copy carried as NOP: an arrival's are put back to the request's
+  // command, so that it is compared and merged with the frame the bus sent.
+  std::array<Masked, kMaxMasked> masked{};
+  std::size_t masked_count = 0;
   std::array<bool, 2> arrived{};  // anything came back on this port (a copy, a bounce)
   std::array<bool, 2> has_bounce{};
   std::array<std::array<std::uint8_t, wire::kMaxFrameSize>, 2> bounce{};
@@ -130,6 +160,15 @@ struct RedundantLink::Impl {
   // bounce from the other side then completes at once instead of waiting for the window.
   std::array<unsigned, 2> silent{};
   std::array<std::uint8_t, wire::kMaxFrameSize> out{};
+  // Per-port frame contents (set_port_nop): each port's selector, and the copy a port sends
+  // when it differs (send() only: one thread sends at a time).
+  std::array<std::atomic<std::uint64_t>, 2> nop_selector{};
+  // For a selector that applies only while the other port's side reads: whether the other
+  // port's copy of the last matching datagram came back with its data changed (under `mutex`).
+  std::array<bool, 2> other_side_reads{};
+  std::array<std::uint8_t, wire::kMaxFrameSize> port_copy{};
+  // An arrival with its masked datagrams put back (under `mutex`).
+  std::array<std::uint8_t, wire::kMaxFrameSize> restored{};
   std::size_t next_leg_to_wait = 1;  // the secondary, where a whole ring's replies arrive
 
   std::atomic<bool> closed{false};
@@ -192,18 +231,36 @@ struct RedundantLink::Impl {
                    s == 0 ? options.primary_mac : options.secondary_mac);
   }
 
-  std::optional<ReceivedFrame> on_arrival(RedundantPort port, const ReceivedFrame& frame) {
+  // `arrival` with the datagrams its port's copy carried as NOP given back the request's command
+  // (a NOP comes back as sent: working counter 0, data untouched), in `restored`. Under `mutex`.
+  ReceivedFrame restore(const Exchange& e, const ReceivedFrame& arrival) {
+    if (e.masked_count == 0) return arrival;
+    const std::size_t n = std::min(arrival.frame.size(), restored.size());
+    std::memcpy(restored.data(), arrival.frame.data(), n);
+    for (std::size_t k = 0; k < e.masked_count; ++k) {
+      const Masked& m = e.masked[k];
+      if (m.offset < n && restored[m.offset] == static_cast<std::uint8_t>(wire::Command::nop)) {
+        restored[m.offset] = m.command;
+      }
+    }
+    ReceivedFrame put_back = arrival;
+    put_back.frame = wire::Bytes(restored.data(), n);
+    return put_back;
+  }
+
+  std::optional<ReceivedFrame> on_arrival(RedundantPort port, const ReceivedFrame& arrival) {
     const std::size_t at = side(port);
     legs[at].frames_received.fetch_add(1, std::memory_order_relaxed);
-    const auto decoded = wire::decode_frame(frame.frame);
+    const auto decoded = wire::decode_frame(arrival.frame);
     if (!decoded) {
       // Not ours to judge: the bus counts what does not decode.
-      return deliver(frame.frame, frame.timestamp_ns, frame.source);
+      return deliver(arrival.frame, arrival.timestamp_ns, arrival.source);
     }
     const wire::DatagramView first = *decoded.frame->begin();
     std::lock_guard lock(mutex);
     Exchange* e = find(first.header.index, decoded.frame->datagram_count());
     const wire::Bytes sent = e ? wire::Bytes(e->sent.data(), e->sent_size) : wire::Bytes{};
+    const ReceivedFrame frame = e != nullptr ? restore(*e, arrival) : arrival;
     if (e == nullptr || !wire::same_shape(sent, frame.frame)) {
       stale.fetch_add(1, std::memory_order_relaxed);
       ignored.fetch_add(1, std::memory_order_relaxed);
@@ -222,6 +279,7 @@ struct RedundantLink::Impl {
     }
     const ArrivalKind kind =
         wire::classify_arrival(port, frame.source, options.primary_mac, options.secondary_mac);
+    note_reader(kind, sent, frame.frame);
     if (kind == ArrivalKind::primary_bounce || kind == ArrivalKind::secondary_bounce) {
       const std::size_t s = kind == ArrivalKind::primary_bounce ? 0 : 1;
       silent[s] = 0;
@@ -278,6 +336,73 @@ struct RedundantLink::Impl {
       next = std::min(next, e.window_end);
     }
     return std::nullopt;
+  }
+
+  // What port `k` sends of `frame`: the frame itself, or a copy in `port_copy` whose datagrams
+  // that match the port's selector are NOPs (recorded in `e`, under the lock, for restore()).
+  // A processed copy of port j's frame came back (`kind`): whether the datagram the other port's
+  // conditional selector matches had its data changed on j's side (a reader there). Under `mutex`.
+  void note_reader(ArrivalKind kind, wire::Bytes sent, wire::Bytes arrived) {
+    std::size_t from = 0;
+    if (kind == ArrivalKind::forward_cross || kind == ArrivalKind::primary_bounce) {
+      from = 0;
+    } else if (kind == ArrivalKind::reverse_cross || kind == ArrivalKind::secondary_bounce) {
+      from = 1;
+    } else {
+      return;
+    }
+    const std::size_t k = other(from);
+    const std::uint64_t selector = nop_selector[k].load(std::memory_order_acquire);
+    if ((selector & kSelectorWhileOtherReads) == 0) return;
+    const auto request = wire::decode_frame(sent);
+    const auto reply = wire::decode_frame(arrived);
+    if (!request || !reply) return;
+    auto r = reply.frame->begin();
+    for (const wire::DatagramView d : *request.frame) {
+      if (r == reply.frame->end()) return;
+      const wire::DatagramView got = *r;
+      ++r;
+      if (!matches(selector, d.header)) continue;
+      other_side_reads[k] = got.wkc > 0 && !std::equal(d.data.begin(), d.data.end(),
+                                                       got.data.begin(), got.data.end());
+      return;
+    }
+  }
+
+  wire::Bytes port_copy_of(std::size_t k, wire::Bytes frame, Exchange& e) {
+    const std::uint64_t selector = nop_selector[k].load(std::memory_order_acquire);
+    if ((selector & kSelectorActive) == 0) return frame;
+    if ((selector & kSelectorWhileOtherReads) != 0) {
+      // Only while the other side reads it, and has not gone silent (a cut cable).
+      std::lock_guard lock(mutex);
+      if (!other_side_reads[k] || silent[other(k)] > 0) return frame;
+    }
+    const auto decoded = wire::decode_frame(frame);
+    if (!decoded) return frame;
+    bool copied = false;
+    std::array<Masked, kMaxMasked> found{};
+    std::size_t count = 0;
+    for (const wire::DatagramView d : *decoded.frame) {
+      if (count == kMaxMasked) break;
+      if (!matches(selector, d.header)) continue;
+      if (!copied) {
+        std::memcpy(port_copy.data(), frame.data(), frame.size());
+        copied = true;
+      }
+      const auto offset =
+          static_cast<std::size_t>(d.data.data() - frame.data()) - wire::kDatagramHeaderSize;
+      port_copy[offset] = static_cast<std::uint8_t>(wire::Command::nop);
+      found[count++] = Masked{static_cast<std::uint16_t>(offset), frame[offset]};
+    }
+    if (!copied) return frame;
+    std::lock_guard lock(mutex);
+    for (std::size_t i = 0; i < count && e.masked_count < kMaxMasked; ++i) {
+      bool known = false;
+      for (std::size_t j = 0; j < e.masked_count; ++j)
+        known = known || e.masked[j].offset == found[i].offset;
+      if (!known) e.masked[e.masked_count++] = found[i];
+    }
+    return wire::Bytes(port_copy.data(), frame.size());
   }
 
   void leg_failed(std::size_t s) { legs[s].healthy.store(false, std::memory_order_relaxed); }
@@ -401,13 +526,15 @@ Result<void> RedundantLink::send(wire::Bytes ethercat_frame) {
     e->arrived = {};
     e->has_bounce = {};
     e->last_arrival_ns = 0;
+    e->masked_count = 0;
   }
   std::optional<Error> first_error;
   std::array<bool, 2> sent{};
   for (std::size_t k = 0; k < 2; ++k) {
     Leg& leg = s.legs[k];
     s.maybe_reopen(k, now);
-    auto result = leg.link->send(ethercat_frame);
+    const wire::Bytes copy = e != nullptr ? s.port_copy_of(k, ethercat_frame, *e) : ethercat_frame;
+    auto result = leg.link->send(copy);
     sent[k] = static_cast<bool>(result);
     if (result) {
       leg.frames_sent.fetch_add(1, std::memory_order_relaxed);
@@ -515,6 +642,16 @@ Result<void> RedundantLink::reopen() {
   if (s.any_healthy()) return {};
   return error ? error->context(error->code(), fmt::format("reopening {}", s.name))
                : Error(Errc::io_error, fmt::format("reopening {}: no port works", s.name));
+}
+
+Result<void> RedundantLink::set_port_nop(Port port, std::optional<DatagramSelector> selector) {
+  const std::size_t k = port == Port::primary ? 0 : 1;
+  {
+    std::lock_guard lock(impl_->mutex);
+    impl_->other_side_reads[k] = false;
+  }
+  impl_->nop_selector[k].store(selector ? pack(*selector) : 0, std::memory_order_release);
+  return {};
 }
 
 std::string RedundantLink::name() const {

@@ -467,6 +467,92 @@ exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, 
   co_return result;
 }
 
+exec::Task<Result<DcRestepResult>> restep_dc_slaves(exec::EventLoop& loop, bus::Bus& bus,
+                                                    DcPlan plan,
+                                                    std::vector<std::uint16_t> free_ran,
+                                                    DcInitOptions options) {
+  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
+  const bus::TransactOptions reliable{options.transaction_timeout, 2};
+  const std::string who = "DC re-step after the ring healed";
+  if (plan.slaves.empty()) co_return Error(Errc::invalid_argument, who + ": no slaves");
+
+  // 1. Latch, then what plan_dc needs and every DC slave's offset, one transaction.
+  auto latched =
+      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
+  if (!latched) co_return std::move(latched).error();
+  constexpr std::size_t kReads = 5;
+  bus::Transaction tx;
+  tx.reserve(plan.slaves.size() * kReads, plan.slaves.size() * 36);
+  for (const auto& p : plan.slaves) {
+    tx.fprd(p.station, reg::kDlStatus, 2);
+    tx.fprd(p.station, reg::kDcReceiveTimePort0, 16);
+    tx.fprd(p.station, reg::kDcReceiveTimeEpu, 8);
+    tx.fprd(p.station, reg::kDcSpeedCounterStart, 2);
+    tx.fprd(p.station, reg::kDcSystemTimeOffset, 8);
+  }
+  auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
+  if (!reply) co_return reply.error().context(who + ": reading receive times");
+  std::vector<DcSlaveSnapshot> snapshots(plan.slaves.size());
+  std::vector<std::uint64_t> offsets(plan.slaves.size());
+  for (std::size_t i = 0; i < plan.slaves.size(); ++i) {
+    const std::size_t base = i * kReads;
+    const auto& p = plan.slaves[i];
+    auto& s = snapshots[i];
+    s.station = p.station;
+    if (reply->wkc(base) != 1) {
+      co_return wkc_error("read of DL status 0x0110", p.station, reply->wkc(base)).context(who);
+    }
+    s.dl_status = wire::load_le16(reply->data(base).data());
+    s.receive_times_valid = reply->wkc(base + 1) == 1;
+    if (s.receive_times_valid) {
+      for (std::size_t k = 0; k < 4; ++k)
+        s.port_time[k] = wire::load_le32(reply->data(base + 1).data() + 4 * k);
+    }
+    s.dc_supported = p.dc && reply->wkc(base + 2) == 1 && reply->wkc(base + 4) == 1;
+    if (reply->wkc(base + 2) == 1) s.epu_time = wire::load_le64(reply->data(base + 2).data());
+    if (reply->wkc(base + 3) == 1)
+      s.speed_counter_start = wire::load_le16(reply->data(base + 3).data());
+    if (reply->wkc(base + 4) == 1) offsets[i] = wire::load_le64(reply->data(base + 4).data());
+  }
+  auto measured = plan_dc(snapshots, *latched, options.plan);
+  if (!measured) co_return measured.error().context(who);
+  if (measured->reference_station != plan.reference_station) {
+    co_return Error(Errc::invalid_argument,
+                    fmt::format("{}: the measured ring has reference 0x{:04X}, the session's is "
+                                "0x{:04X}",
+                                who, measured->reference_station, plan.reference_station));
+  }
+
+  // 2. The reference's system time at the latch (its delay is 0): what every other DC slave's
+  //    reads plus its delay.
+  const std::size_t ref = measured->reference_position;
+  const std::uint64_t reference_time = snapshots[ref].epu_time + offsets[ref];
+  DcRestepResult result;
+  bus::Transaction writes;
+  for (std::size_t i = 0; i < plan.slaves.size(); ++i) {
+    auto& old = plan.slaves[i];
+    const auto& now = measured->slaves[i];
+    if (!old.dc || !now.dc || i == ref) continue;
+    const bool stepped = std::find(free_ran.begin(), free_ran.end(), old.station) != free_ran.end();
+    if (now.delay_ns != old.delay_ns) {
+      writes.fpwr(old.station, reg::kDcSystemTimeDelay, le32(now.delay_ns), 1);
+      result.delays_changed.push_back(old.station);
+      old.delay_ns = now.delay_ns;
+    }
+    if (!stepped) continue;
+    const std::uint64_t offset = reference_time + now.delay_ns - snapshots[i].epu_time;
+    writes.fpwr(old.station, reg::kDcSystemTimeOffset, le64(offset), 1);
+    old.offset_ns = static_cast<std::int64_t>(offset);
+    result.stepped.push_back({old.station, static_cast<std::int64_t>(offset - offsets[i])});
+  }
+  if (!writes.empty()) {
+    auto written = co_await exec::transact(loop, bus, std::move(writes), reliable);
+    if (!written) co_return written.error().context(who + ": writing offsets and delays");
+  }
+  result.plan = std::move(plan);
+  co_return result;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -511,6 +597,9 @@ DcMaintainer::DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
   status_.slaves.resize(stations_.size());
   for (std::size_t i = 0; i < stations_.size(); ++i)
     status_.slaves[i].station = stations_[i];
+  membership_.assign(stations_.size(), kInLock);
+  rejoin_samples_.assign(stations_.size(), 0);
+  rejoin_good_.assign(stations_.size(), 0);
   status_.history.assign(options_.history, 0);
   status_.phase_history.assign(options_.history, 0);
   status_.follows_reference = options_.follow_reference;
@@ -537,6 +626,43 @@ void DcMaintainer::note_reinitialised(std::uint16_t station) {
   for (auto& s : status_.slaves) {
     if (s.station == station) ++s.reinitialised;
   }
+}
+
+void DcMaintainer::set_free_running(std::span<const std::uint16_t> stations) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    const bool behind = std::find(stations.begin(), stations.end(), stations_[i]) != stations.end();
+    if (behind && membership_[i] != kFreeRunning) {
+      membership_[i] = kFreeRunning;
+      ++status_.slaves[i].free_runs;
+    } else if (!behind && membership_[i] == kFreeRunning) {
+      // The break moved: back in reach without its offset stepped (the ring did not heal).
+      membership_[i] = kRejoining;
+      rejoin_samples_[i] = 0;
+      rejoin_good_[i] = 0;
+    }
+  }
+  update_membership_locked();
+}
+
+void DcMaintainer::rejoin_free_running() {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (membership_[i] != kFreeRunning) continue;
+    membership_[i] = kRejoining;
+    rejoin_samples_[i] = 0;
+    rejoin_good_[i] = 0;
+  }
+  update_membership_locked();
+}
+
+void DcMaintainer::update_membership_locked() {
+  std::size_t outside = 0;
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    status_.slaves[i].free_running = membership_[i] != kInLock;
+    if (membership_[i] != kInLock) ++outside;
+  }
+  status_.free_running = outside;
 }
 
 namespace {
@@ -743,17 +869,35 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
     if (with_reads && replied) {
       std::int64_t worst = 0;
       bool all_answered = true;
+      bool membership_changed = false;
       for (std::size_t i = 0; i < stations_.size(); ++i) {
-        if (rt.wkc(i + 1) != 1) {
+        const bool answered = rt.wkc(i + 1) == 1;
+        const auto d = answered ? decode_dc_difference(wire::load_le32(rt.input(i + 1).data())) : 0;
+        if (membership_[i] == kRejoining) {
+          // Back once within the threshold for lock_samples samples in a row (or at the limit).
+          const bool in = answered && std::abs(d) < options_.threshold.count();
+          rejoin_good_[i] = in ? rejoin_good_[i] + 1 : 0;
+          rejoin_samples_[i] = std::min(rejoin_samples_[i] + 1, kRejoinSamples);
+          if (rejoin_good_[i] >= options_.lock_samples || rejoin_samples_[i] >= kRejoinSamples) {
+            membership_[i] = kInLock;
+            membership_changed = true;
+          }
+        }
+        if (membership_[i] != kInLock) {
+          // Outside the lock: its difference is shown, not counted.
+          if (answered) status_.slaves[i].difference_ns = d;
+          continue;
+        }
+        if (!answered) {
           all_answered = false;
           continue;
         }
-        const auto d = decode_dc_difference(wire::load_le32(rt.input(i + 1).data()));
         auto& s = status_.slaves[i];
         s.difference_ns = d;
         s.max_abs_difference_ns = std::max(s.max_abs_difference_ns, std::abs(d));
         worst = std::max(worst, std::abs(d));
       }
+      if (membership_changed) update_membership_locked();
       ++status_.samples;
       status_.max_difference_ns = worst;
       status_.history[history_head_] = worst;

@@ -130,6 +130,10 @@ Json dc_json(Master& master) {
            {"lock_count", dc->lock_count},
            {"unlock_count", dc->unlock_count},
            {"slaves", dc->slaves.size()}};
+  Json free_running = Json::array();
+  for (const auto& s : dc->slaves)
+    if (s.free_running) free_running.push_back(s.station);
+  out["free_running"] = std::move(free_running);
   if (auto reference = master.reference_clock()) out["reference"] = reference->slave;
   return out;
 }

@@ -1002,6 +1002,19 @@ struct Master::Impl : DomainObserver {
         if (auto sp = weak.lock()) on_dc_runtime(sp, healthy);
       });
     });
+    if (s.bus->info().redundancy) {
+      // Cable redundancy: the secondary's copy of the reference-time FRMW is a NOP whenever the
+      // primary's side reads it (the reference is there) and answers; the link decides it frame
+      // by frame, so a break takes effect from the next frame (see apply_dc_reach).
+      const link::DatagramSelector frmw{static_cast<std::uint8_t>(wire::Command::frmw),
+                                        s.dc_init->reference_station, wire::reg::kDcSystemTime,
+                                        false, true};
+      if (auto armed = s.bus->set_port_nop(link::Port::secondary, frmw); !armed) {
+        std::lock_guard lock(mutex);
+        s.dc_error = armed.error().context("starting the distributed-clock runtime");
+        return;
+      }
+    }
     if (auto added = s.cycler->add(*dc, Cycler::kPriorityDc); !added) {
       std::lock_guard lock(mutex);
       s.dc_error = added.error().context("starting the distributed-clock runtime");
@@ -1307,6 +1320,10 @@ struct Master::Impl : DomainObserver {
     bool locating = false;
     std::optional<exec::Clock::time_point> located_at;
     std::optional<link::RingBreak> reported;  // the break the last event named
+    // DC across a break (apply_dc_reach): the DC slaves the reference's time cannot reach (the
+    // secondary's copy of the FRMW is a NOP meanwhile), and a re-step after the heal running.
+    std::vector<std::uint16_t> dc_unreached;
+    bool dc_restepping = false;
   };
   static constexpr std::chrono::milliseconds kLocatePeriod{200};
   std::optional<link::RingBreak> ring_break;  // guarded by `mutex`; for status()
@@ -1371,6 +1388,7 @@ struct Master::Impl : DomainObserver {
             ring_break.reset();
           }
           w.reported.reset();
+          apply_dc_reach(s, std::nullopt);
           events.publish(make_event(EventKind::link_redundancy, {},
                                     fmt::format("{}, ring {}", link::to_string(seen.first),
                                                 link::to_string(seen.second))));
@@ -1443,6 +1461,7 @@ struct Master::Impl : DomainObserver {
       std::lock_guard lock(mutex);
       ring_break = found;
     }
+    if (found) apply_dc_reach(s, found);
     if (!announce && found == w.reported) co_return;
     w.reported = found;
     std::string where;
@@ -1456,6 +1475,85 @@ struct Master::Impl : DomainObserver {
     events.publish(
         make_event(EventKind::link_redundancy, {},
                    fmt::format("{}, ring broken{}", link::to_string(w.redundancy->first), where)));
+  }
+
+  // Distributed clocks across a break of a redundant ring. With the ring broken between slaves
+  // and the reference on the primary's side, the slaves behind the break see only the
+  // secondary's copy of the reference-time FRMW, which carries the master's host-clock
+  // prediction (no reference reads it on that side): tens of microseconds of host jitter that no
+  // measurement can remove. So that copy goes out as a NOP (Link::set_port_nop) and those slaves
+  // free-run on their last drift correction, outside the lock (DcSlaveStatus::free_running), the
+  // others locked. The link applies the NOP from the next frame after the break (armed in
+  // start_dc: only while the primary's side reads the FRMW); here the master learns which slaves
+  // it cut off, once the break is located. A reference behind the break is reached by the
+  // secondary's frame first, as on a whole ring: nothing to do. When the ring is whole again (or
+  // cut at a master port, where one port's frame passes every slave in ring order), the mask ends,
+  // the delays are measured again and the slaves that free-ran are stepped back onto the
+  // reference's time (restep_dc_slaves); they rejoin the lock once within the threshold. `found`:
+  // where the ring is open now (none: whole).
+  void apply_dc_reach(const std::shared_ptr<Session>& s,
+                      const std::optional<link::RingBreak>& found) {
+    if (!s->dc || !s->dc_init || session != s || s->stopping) return;
+    LinkWatch& w = link_watch;
+    const DcPlan& plan = s->dc_init->plan;
+    std::vector<std::uint16_t> unreached;
+    if (found && found->where == link::RingBreak::Where::between_slaves &&
+        plan.reference_position <= found->before_position) {
+      for (const auto& p : plan.slaves)
+        if (p.dc && p.position >= found->after_position) unreached.push_back(p.station);
+    }
+    if (unreached == w.dc_unreached) return;
+    if (!unreached.empty()) {
+      s->dc->set_free_running(unreached);
+      std::string list;
+      for (const std::uint16_t st : unreached)
+        list += fmt::format("{}0x{:04X}", list.empty() ? "" : ", ", st);
+      events.publish(make_event(
+          EventKind::recovery_step, "dc",
+          fmt::format("ring broken {}: DC slaves {} free-run on their last drift correction, "
+                      "outside the lock (the reference 0x{:04X} cannot reach them)",
+                      link::describe(*found), list, plan.reference_station)));
+      w.dc_unreached = std::move(unreached);
+      return;
+    }
+    std::vector<std::uint16_t> free_ran = std::move(w.dc_unreached);
+    w.dc_unreached.clear();
+    if (!w.dc_restepping) {
+      w.dc_restepping = true;
+      exec::spawn(loop, restep_dc(s, std::move(free_ran)));
+    }
+  }
+
+  exec::Task<void> restep_dc(std::shared_ptr<Session> s, std::vector<std::uint16_t> free_ran) {
+    DcInitOptions options;
+    options.threshold = s->config.dc->lock_threshold;
+    options.plan.ring_returns_to_master = true;
+    auto result = co_await restep_dc_slaves(loop, *s->bus, s->dc_init->plan, free_ran, options);
+    if (session != s || s->stopping) co_return;
+    link_watch.dc_restepping = false;
+    if (!result) {
+      // Left outside the lock: their time is not known to be right.
+      events.publish(
+          make_event(EventKind::recovery_step, "dc",
+                     "distributed clocks after the ring healed: " + result.error().describe()));
+      co_return;
+    }
+    {
+      std::lock_guard lock(mutex);
+      s->dc_init->plan = std::move(result->plan);
+    }
+    // Broken again meanwhile: they stay outside the lock (apply_dc_reach named them again).
+    if (link_watch.dc_unreached.empty()) s->dc->rejoin_free_running();
+    std::string steps;
+    for (const auto& step : result->stepped)
+      steps +=
+          fmt::format("{}0x{:04X} by {} ns", steps.empty() ? "" : ", ", step.station, step.step_ns);
+    events.publish(
+        make_event(EventKind::recovery_step, "dc",
+                   fmt::format("ring whole again: delays measured again ({} changed), {}",
+                               result->delays_changed.size(),
+                               steps.empty() ? std::string("no slave had free-run")
+                                             : "offsets stepped: " + steps)));
   }
 
   // A fatal subsystem exit: the session ends and the master goes idle with last_failure saying

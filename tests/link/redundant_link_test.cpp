@@ -51,8 +51,11 @@ struct ToyRing {
     }
   }
 
+  std::array<std::vector<ByteVector>, 2> sent_by;  // what each port sent, in order
+
   void on_send(std::size_t port, wire::Bytes sent) {
     ByteVector frame(sent.begin(), sent.end());
+    sent_by[port].push_back(frame);
     wire::MacAddress source = port == 0 ? kPrimaryMac : kSecondaryMac;
     source[0] |= 0x02;
     switch (shape) {
@@ -213,6 +216,63 @@ TEST(RedundantLink, BreakAnywhereGivesTheWholeRingsReply) {
     EXPECT_EQ(f.link->status().ring, RingState::whole);
     EXPECT_EQ(f.link->status().ring_heals, 1u);
   }
+}
+
+// Per-port frame contents: the datagrams a port's selector matches go out on that port as NOPs
+// (the other port's copy unchanged), and the reply is still the frame that was sent, with only the
+// other side's part of those datagrams.
+TEST(RedundantLink, APortsNopCopyLeavesThoseDatagramsToTheOtherSide) {
+  Fixture f;
+  const std::uint8_t brd = static_cast<std::uint8_t>(wire::Command::brd);
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, DatagramSelector{brd, 0, 0}));
+  const auto command_of = [](const ByteVector& frame, std::size_t datagram) {
+    auto decoded = wire::decode_frame(frame);
+    auto it = decoded.frame->begin();
+    for (std::size_t k = 0; k < datagram; ++k)
+      ++it;
+    return (*it).header.command;
+  };
+  // Whole: the secondary's copy (a passthrough) carries the BRD as a NOP; the reply is the
+  // primary's forward cross.
+  auto r = exchange(*f.link, 0x50);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->brd_wkc, 4);
+  EXPECT_EQ(command_of(f.ring.sent_by[0].back(), 1), wire::Command::brd);
+  EXPECT_EQ(command_of(f.ring.sent_by[1].back(), 1), wire::Command::nop);
+  EXPECT_EQ(command_of(f.ring.sent_by[1].back(), 0), wire::Command::lrw);
+  EXPECT_EQ(f.link->status().passthrough_copies, 1u);
+  // Broken after slave 1: the BRD counts the primary's side only, the LRW both; the reply has
+  // the request's commands.
+  f.ring.shape = ToyRing::Shape::break_after;
+  f.ring.break_after = 1;
+  r = exchange(*f.link, 0x52);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->brd_wkc, 1);
+  EXPECT_EQ(r->lrw_wkc, 4);
+  EXPECT_EQ(r->data, kWhole);
+  EXPECT_EQ(f.link->status().merged, 1u);
+  EXPECT_EQ(f.link->status().stale, 0u);
+  // Every LRW (any address) a NOP on the primary's copy: only the secondary's side maps.
+  ASSERT_TRUE(f.link->set_port_nop(
+      Port::primary, DatagramSelector{static_cast<std::uint8_t>(wire::Command::lrw), 0, 0, true}));
+  r = exchange(*f.link, 0x54);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->lrw_wkc, 3);
+  EXPECT_EQ(r->brd_wkc, 1);
+  EXPECT_EQ(r->data, (ByteVector{0x5A, 0x00, 0x00, 0x81, 0x82, 0x83, 0x00, 0x00}));
+  // Ended: both sides again.
+  ASSERT_TRUE(f.link->set_port_nop(Port::primary, std::nullopt));
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, std::nullopt));
+  r = exchange(*f.link, 0x56);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->lrw_wkc, 4);
+  EXPECT_EQ(r->brd_wkc, 4);
+  EXPECT_EQ(command_of(f.ring.sent_by[1].back(), 1), wire::Command::brd);
+  // A link with one port has no per-port contents.
+  auto [one, other_end] = make_memory_link_pair();
+  auto refused = one->set_port_nop(Port::secondary, DatagramSelector{brd, 0, 0});
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code(), Errc::unsupported);
 }
 
 TEST(RedundantLink, CableCutAtTheMasterWaitsOnceThenNotAgain) {

@@ -121,6 +121,24 @@ struct RedundancyStatus {
   std::optional<RingBreak> break_location;
 };
 
+// A redundant link's two ports (wire::RedundantPort in the pure part; this header keeps the
+// frame codecs out of the application's headers).
+enum class Port : std::uint8_t { primary, secondary };
+
+// One datagram of a frame, picked out by its command and address, for a redundant link's
+// per-port frame contents (Link::set_port_nop).
+struct DatagramSelector {
+  std::uint8_t command = 0;  // a wire::Command
+  std::uint16_t adp = 0;     // position or station
+  std::uint16_t ado = 0;     // register
+  bool any_adp = false;      // every position or station: `adp` is not compared
+  // Only while the other port's copy of the last matching datagram came back with its data
+  // changed (a reader on that side: for the DC FRMW, the reference clock) and that side is not
+  // silent; otherwise this port's copy carries the datagram as it is.
+  bool while_other_side_reads = false;
+  bool operator==(const DatagramSelector&) const = default;
+};
+
 class Link {
  public:
   virtual ~Link() = default;
@@ -162,6 +180,18 @@ class Link {
   // The state of the two ports and the ring for a redundant link; none for every other link
   // (wrappers forward their inner link's). Any thread.
   virtual std::optional<RedundancyStatus> redundancy() const { return std::nullopt; }
+
+  // Cable redundancy, per-port frame contents: while set, the copy of every frame that leaves
+  // through `port` carries each datagram matching `selector` as a NOP (command 0: no slave
+  // processes it, its working counter stays 0); the other port's copy is the frame as sent. The
+  // reply handed back is still the frame the bus sent (the NOP copy's datagram adds nothing to
+  // it). The master uses it to keep the secondary's copy of the DC reference-time FRMW from the
+  // slaves behind a ring break (they would take the master's prediction for the reference's
+  // time), and to send a frame through one port only (every datagram a NOP on the other: the
+  // startup's station assignment on a ring already broken, where position addressing counts
+  // from each side's first slave). std::nullopt ends it. Any thread, allocation-free; applies
+  // from the next send(). Errc::unsupported for a link with one port (the default).
+  virtual Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector);
 
   // Largest EtherCAT frame send() accepts.
   virtual std::size_t max_frame_size() const;  // wire::kMaxFrameSize unless the link says less

@@ -70,6 +70,9 @@ class RedundantLink final : public Link {
   // frames_sent: frames the bus sent; frames_received: replies handed to the bus.
   LinkStats stats() const override;
   std::size_t max_frame_size() const override;
+  // The datagrams matching `selector` go out as NOP on `port`'s copy only (Link::set_port_nop);
+  // an arrival's are given back the request's command before it is classified and merged.
+  Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector) override;
 
   RedundancyStatus status() const;
   std::optional<RedundancyStatus> redundancy() const override { return status(); }

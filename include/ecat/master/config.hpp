@@ -309,13 +309,21 @@ struct DcSlaveStatus {
   std::int64_t difference_ns = 0;          // last 0x092C
   std::int64_t max_abs_difference_ns = 0;  // since start
   std::uint64_t reinitialised = 0;         // re-initialisations after a reconnect
+  // Outside the lock: the redundant ring is broken between it and the reference clock, so no
+  // reference time reaches it and it runs on its last drift correction; and after the ring
+  // healed and its offset was stepped again, until its difference is back below the threshold.
+  // Its difference (0x092C, not updated without reference times) counts for neither the lock
+  // nor max_difference_ns meanwhile.
+  bool free_running = false;
+  std::uint64_t free_runs = 0;  // times the ring broke between it and the reference
 };
 
 struct DcStatus {
   std::uint16_t reference_station = 0;
   bool locked = false;
-  std::int64_t max_difference_ns = 0;  // max |difference| of the last sample
+  std::int64_t max_difference_ns = 0;  // max |difference| of the last sample (slaves in the lock)
   std::vector<DcSlaveStatus> slaves;
+  std::size_t free_running = 0;       // slaves outside the lock (DcSlaveStatus::free_running)
   std::vector<std::int64_t> history;  // max |difference| per sample, oldest first
   std::uint64_t samples = 0;
   std::uint64_t lock_count = 0;    // unlocked -> locked

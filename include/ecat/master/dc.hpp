@@ -171,6 +171,27 @@ exec::Task<Result<DcReinitResult>> reinitialize_dc_slave(exec::EventLoop& loop, 
                                                          const DcPlan& plan, std::uint16_t station,
                                                          DcInitOptions options = {});
 
+// After a redundant ring healed (cable redundancy): the propagation delays measured again for
+// the whole ring (a latch and plan_dc, as at startup, on the slaves of `plan`) and the DC slaves
+// in `free_ran`, which ran on their own while the ring was broken between them and the reference,
+// put back on the reference's time: each gets the offset that makes its system time at the latch
+// the reference's plus its delay. Their filters are not reset (their drift correction was right
+// before the break and is still). A DC slave whose measured delay differs from `plan`'s gets the
+// new one. Errors name the step and the station.
+struct DcRestepResult {
+  DcPlan plan;  // `plan` with the delays measured now
+  struct Step {
+    std::uint16_t station = 0;
+    std::int64_t step_ns = 0;  // how far its system time was moved (how far it had drifted)
+  };
+  std::vector<Step> stepped;
+  std::vector<std::uint16_t> delays_changed;  // stations given a new delay
+};
+exec::Task<Result<DcRestepResult>> restep_dc_slaves(exec::EventLoop& loop, bus::Bus& bus,
+                                                    DcPlan plan,
+                                                    std::vector<std::uint16_t> free_ran,
+                                                    DcInitOptions options = {});
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -231,6 +252,16 @@ class DcMaintainer final : public CyclicParticipant {
   void reset_lock();
   // Counts a re-initialisation of `station` (reinitialize_dc_slave) in its status. Any thread.
   void note_reinitialised(std::uint16_t station);
+  // Cable redundancy: the ring is broken between the reference and `stations` (the master no
+  // longer sends them reference times), so they free-run on their last drift correction: outside
+  // the lock, which the others keep. Any thread, allocation-free.
+  void set_free_running(std::span<const std::uint16_t> stations);
+  // The ring healed and the free-running slaves' offsets were stepped again (restep_dc_slaves):
+  // each rejoins the lock once its difference is below the threshold on lock_samples
+  // consecutive samples, or after kRejoinSamples samples whatever it is (then counted as it is).
+  // Any thread, allocation-free.
+  void rejoin_free_running();
+  static constexpr std::uint32_t kRejoinSamples = 200;
   const DcRuntimeOptions& options() const noexcept { return options_; }
 
  private:
@@ -268,6 +299,14 @@ class DcMaintainer final : public CyclicParticipant {
   std::atomic<bool> locked_{false};
   std::atomic<bool> lock_lost_{false};
   std::atomic<bool> reset_requested_{false};
+  // Per DC slave (as stations_): in the lock, free-running, or rejoining. Under mutex_.
+  static constexpr std::uint32_t kInLock = 0;
+  static constexpr std::uint32_t kFreeRunning = 1;
+  static constexpr std::uint32_t kRejoining = 2;
+  std::vector<std::uint32_t> membership_;
+  std::vector<std::uint32_t> rejoin_samples_;  // samples since rejoining began
+  std::vector<std::uint32_t> rejoin_good_;     // consecutive samples within the threshold
+  void update_membership_locked();
   std::function<void(bool)> lock_callback_;
   std::function<void(bool)> health_callback_;
 
