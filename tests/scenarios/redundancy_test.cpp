@@ -575,54 +575,6 @@ TEST(RedundantLinkFaults, LinkDownAndReplyFaultsOverTwoVethPairs) {
   });
   expect_never_recovered(*ring);
   EXPECT_EQ(ring->redundant_ports->stats().send_errors, 0u);
-// ---- a start on a ring already broken ----------------------------------------------------------
-
-// The ring is served broken (`cabling`) before the master starts. Position addressing behind a
-// break counts from the first slave after it, so each position reaches a slave on each side:
-// the stations are assigned side by side through one port at a time. Every slave gets its ring
-// position's station, the session reaches OP with the whole ring's working counter and the
-// break is located; healed, the same process data flows through the whole ring.
-void starts_broken(const RedundantTopology& cabling, const link::RingBreak& expected_break) {
-  SCOPED_TRACE(sim::describe(cabling));
-  auto spec = redundant_spec();
-  spec.redundant_cabling = cabling;
-  auto ring = ScenarioRing::operational(spec);
-  ASSERT_TRUE(ring);
-  ASSERT_NE(ring->redundant_link, nullptr);
-  EXPECT_EQ(ring->redundant_link->status().ring, RingState::broken);
-  const auto slaves = ring->master->status().slaves;
-  ASSERT_EQ(slaves.size(), 3u);
-  for (std::size_t i = 0; i < slaves.size(); ++i) {
-    EXPECT_EQ(slaves[i].position, i);
-    EXPECT_EQ(slaves[i].station, 0x1000 + i) << slaves[i].name;
-  }
-  // Each ESC holds its ring position's station (the simulator's own view).
-  ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
-    for (std::size_t i = 0; i < segment.size(); ++i)
-      EXPECT_EQ(segment.esc(i).station_address(), 0x1000 + i) << "slave " << i;
-  });
-  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
-  EXPECT_TRUE(ring->loopback(false)) << ring->describe();
-  EXPECT_TRUE(eventually([&] {
-    const auto r = ring->master->status().redundancy;
-    return r && r->break_location && *r->break_location == expected_break;
-  })) << ring->describe();
-  expect_flows_through(*ring, RedundantTopology::whole_ring());
-  EXPECT_EQ(ring->redundant_link->status().ring, RingState::whole);
-  expect_never_recovered(*ring);
-}
-
-TEST(Scenario00, RedundantRingStartsBrokenBetweenSlaves) {
-  using Where = link::RingBreak::Where;
-  starts_broken(RedundantTopology::broken_after(1), {Where::between_slaves, 0, 0x1000, 1, 0x1001});
-  starts_broken(RedundantTopology::broken_after(2), {Where::between_slaves, 1, 0x1001, 2, 0x1002});
-}
-
-TEST(Scenario00, RedundantRingStartsWithTheSecondaryCut) {
-  starts_broken(RedundantTopology::cut_at(RedundantPort::secondary),
-                {link::RingBreak::Where::secondary_cable, 2, 0x1002, 2, 0x1002});
-}
-
 // ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
 
 // The default ring served with two master ports and a bus on a RedundantLink, no master.

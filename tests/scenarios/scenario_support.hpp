@@ -131,8 +131,6 @@ struct RingSpec {
   std::function<void()> before_start;
   // Wraps the master's end of the link before the master starts (e.g. to log its frames).
   std::function<std::unique_ptr<link::Link>(std::unique_ptr<link::Link>)> wrap_link;
-  // Transport::redundant: the cabling the ring is served with (broken before the master starts).
-  std::optional<sim::RedundantTopology> redundant_cabling;
 };
 
 inline std::string ring_yaml(RingKind kind) {
@@ -599,7 +597,6 @@ class ScenarioRing {
         return server->serve_memory();
       case Transport::redundant: {
         sim::RedundantPortsOptions options;
-        if (spec_.redundant_cabling) options.topology = *spec_.redundant_cabling;
         auto ports = sim::RedundantPorts::create(*server, options);
         if (!ports) return ports.error();
         redundant_ports = std::move(*ports);

@@ -187,9 +187,8 @@ class Link {
   // reply handed back is still the frame the bus sent (the NOP copy's datagram adds nothing to
   // it). The master uses it to keep the secondary's copy of the DC reference-time FRMW from the
   // slaves behind a ring break (they would take the master's prediction for the reference's
-  // time), and to send a frame through one port only (every datagram a NOP on the other: the
-  // startup's station assignment on a ring already broken, where position addressing counts
-  // from each side's first slave). std::nullopt ends it. Any thread, allocation-free; applies
+  // time), or to send datagrams through one port only (a NOP on the other: where position
+  // addressing counts from each side's first slave, behind a break). std::nullopt ends it. Any thread, allocation-free; applies
   // from the next send(). Errc::unsupported for a link with one port (the default).
   virtual Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector);
 

@@ -45,16 +45,8 @@ exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus:
 // stay within 0xFFFF; station 0 is never assigned).
 Result<void> check_addressing(std::uint16_t count, std::uint16_t base_station);
 
-// On a redundant link: how many slaves the primary port's frame processes (BRD 0x0000 with the
-// secondary's copy a NOP): the whole ring's count when it is whole, the slaves before the break
-// when it is broken, 0 when the primary's cable is cut.
-exec::Task<Result<std::uint16_t>> count_primary_side(exec::EventLoop& loop, bus::Bus& bus);
-
 // Writes station = base + position to every slave (one APWR each, in one transaction) and reads
-// them back by station. Errors name the position and station. On a redundant link (a ring that
-// may be broken already, where position addressing counts from each side's first slave) the
-// primary's side is assigned through the primary port alone and the rest through the
-// secondary's (Link::set_port_nop), so every slave gets its ring position's station.
+// them back by station. Errors name the position and station.
 exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
                                          std::uint16_t base_station);
 
