@@ -188,8 +188,9 @@ class Link {
   // it). The master uses it to keep the secondary's copy of the DC reference-time FRMW from the
   // slaves behind a ring break (they would take the master's prediction for the reference's
   // time), or to send datagrams through one port only (a NOP on the other: where position
-  // addressing counts from each side's first slave, behind a break). std::nullopt ends it. Any thread, allocation-free; applies
-  // from the next send(). Errc::unsupported for a link with one port (the default).
+  // addressing counts from each side's first slave, behind a break). std::nullopt ends it. Any
+  // thread, allocation-free; applies from the next send(). Errc::unsupported for a link with one
+  // port (the default).
   virtual Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector);
 
   // Largest EtherCAT frame send() accepts.
