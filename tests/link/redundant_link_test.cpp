@@ -254,7 +254,7 @@ TEST(RedundantLink, APortsNopCopyLeavesThoseDatagramsToTheOtherSide) {
   EXPECT_EQ(f.link->status().stale, 0u);
   // Every LRW (any address) a NOP on the primary's copy: only the secondary's side maps.
   ASSERT_TRUE(f.link->set_port_nop(
-      Port::primary, DatagramSelector{static_cast<std::uint8_t>(wire::Command::lrw), 0, 0, true}));
+      Port::primary, DatagramSelector{static_cast<std::uint8_t>(wire::Command::lrw), 0, 1, true}));
   r = exchange(*f.link, 0x54);
   ASSERT_TRUE(r);
   EXPECT_EQ(r->lrw_wkc, 3);
