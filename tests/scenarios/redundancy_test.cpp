@@ -575,6 +575,8 @@ TEST(RedundantLinkFaults, LinkDownAndReplyFaultsOverTwoVethPairs) {
   });
   expect_never_recovered(*ring);
   EXPECT_EQ(ring->redundant_ports->stats().send_errors, 0u);
+}
+
 // ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
 
 // The default ring served with two master ports and a bus on a RedundantLink, no master.
