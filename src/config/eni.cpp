@@ -272,6 +272,11 @@ class Reader {
         auto dc = distributed_clocks(child);
         if (!dc) return dc.error();
         s.dc = *dc;
+      } else if (name == "HotConnect") {
+        if (s.hot_connect) return fail(child, "a second <HotConnect> in one <Slave>");
+        auto hc = hot_connect(child);
+        if (!hc) return hc.error();
+        s.hot_connect = std::move(*hc);
       }
     }
     return s;
@@ -574,6 +579,68 @@ class Reader {
       out.push_back(std::move(c));
     }
     return ok();
+  }
+
+  // ---- hot connect (Slave/HotConnect) ---------------------------------------------------------
+
+  Result<EniHotConnect> hot_connect(const pugi::xml_node& node) {
+    EniHotConnect hc;
+    hc.line = line(node);
+    // GroupName is text, or (as other names in the schema) a <Name> inside it.
+    const pugi::xml_node name = node.child("GroupName");
+    std::string_view raw = name.child_value();
+    if (trim(raw).empty() && name.child("Name")) raw = name.child("Name").child_value();
+    hc.group_name = label(trim(raw));
+    auto count = optional_number<std::uint32_t>(node, "GroupMemberCnt");
+    if (!count) return count.error();
+    hc.member_count = *count;
+    for (const auto& cmd : node.children("IdentifyCmd")) {
+      if (hc.identify.size() >= 16) return fail(cmd, "more than 16 <IdentifyCmd>");
+      EniIdentifyCmd c;
+      c.line = line(cmd);
+      auto op = child_number<std::uint8_t>(cmd, "Cmd", std::nullopt);
+      if (!op) return op.error();
+      c.cmd = *op;
+      auto adp = child_number<std::uint16_t>(cmd, "Adp", std::uint16_t{0}, 16);
+      if (!adp) return adp.error();
+      c.adp = *adp;
+      auto ado = child_number<std::uint16_t>(cmd, "Ado", std::nullopt);
+      if (!ado) return ado.error();
+      c.ado = *ado;
+      std::vector<std::uint8_t> data;
+      if (const auto d = cmd.child("Data")) {
+        auto bytes = hex(d);
+        if (!bytes) return bytes.error();
+        data = std::move(*bytes);
+      }
+      auto length =
+          child_number<std::uint32_t>(cmd, "DataLength", static_cast<std::uint32_t>(data.size()));
+      if (!length) return length.error();
+      if (*length > kMaxEniDataBytes) {
+        return fail(cmd.child("DataLength"),
+                    fmt::format("{} bytes is more than a datagram carries", *length));
+      }
+      c.data_length = *length;
+      if (const auto v = cmd.child("Validate")) {
+        if (const auto d = v.child("Data")) {
+          auto bytes = hex(d);
+          if (!bytes) return bytes.error();
+          c.expected = std::move(*bytes);
+        }
+        if (const auto m = v.child("DataMask")) {
+          auto bytes = hex(m);
+          if (!bytes) return bytes.error();
+          c.mask = std::move(*bytes);
+        }
+        if (c.expected.empty()) return fail(v, "<Data> (the value expected) is missing");
+        if (!c.mask.empty() && c.mask.size() != c.expected.size()) {
+          return fail(v, fmt::format("<DataMask> has {} bytes, <Data> {}", c.mask.size(),
+                                     c.expected.size()));
+        }
+      }
+      hc.identify.push_back(std::move(c));
+    }
+    return hc;
   }
 
   Result<EniDc> distributed_clocks(const pugi::xml_node& node) {

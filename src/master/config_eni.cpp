@@ -118,6 +118,7 @@ class Mapper {
     }
     base_station(config);
     distributed_clocks(config, period);
+    if (auto r = hot_connect_groups(config); !r) return r.error();
     whole_file_notes();
     if (auto valid = validate(config); !valid) {
       return valid.error().context(
@@ -435,6 +436,123 @@ class Mapper {
     DcConfig dc;
     dc.cycle = dc_cycle ? *dc_cycle : period;
     config.dc = dc;
+  }
+
+  // Slave/HotConnect (ETG.2100; element names as public ENI readers parse them: HotConnect under
+  // <Slave> with GroupName, GroupMemberCnt and IdentifyCmd, an EtherCAT command whose
+  // Validate/Data is the expected value; identification by the station alias 0x0012 or an
+  // explicit device ID 0x0134, as Beckhoff's and VIPA's hot-connect documentation describe):
+  // the head slave and the GroupMemberCnt - 1 after it in the file become a MasterConfig
+  // hot-connect group (docs/MASTER-CONFIG.md "Hot connect") and leave the fixed slaves.
+  Result<void> hot_connect_groups(MasterConfig& config) {
+    const std::size_t n = eni_.slaves.size();
+    std::vector<std::optional<std::size_t>> group_of(n);  // slave -> the group it belongs to
+    std::vector<HotConnectGroup> groups;
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto& e = eni_.slaves[i];
+      if (!e.hot_connect) continue;
+      const auto& hc = *e.hot_connect;
+      const auto where = fmt::format("{}: {}: HotConnect (line {})", source_, who(e), hc.line);
+      auto bad = [&](std::string what) {
+        return Error(Errc::invalid_argument, fmt::format("{}: {}", where, what));
+      };
+      if (group_of[i]) {
+        return bad(
+            fmt::format("starts a group inside group \"{}\" (its GroupMemberCnt "
+                        "reaches this slave)",
+                        groups[*group_of[i]].name));
+      }
+      if (!hc.member_count) return bad("GroupMemberCnt (how many slaves the group has) is missing");
+      if (*hc.member_count == 0 || *hc.member_count > n - i) {
+        return bad(
+            fmt::format("GroupMemberCnt {}: the group must hold 1..{} slaves (this one "
+                        "and those after it in the file)",
+                        *hc.member_count, n - i));
+      }
+      HotConnectGroup g;
+      g.name = sanitise(hc.group_name);
+      if (g.name.empty()) {
+        g.name = config.slaves[i].name;
+        note(fmt::format("{}: HotConnect (line {}): no GroupName; the group is named \"{}\"",
+                         who(e), hc.line, g.name));
+      }
+      for (const auto& other : groups) {
+        if (other.name == g.name) {
+          return bad(fmt::format("GroupName \"{}\" is used by another group", g.name));
+        }
+      }
+      for (const auto& cmd : hc.identify) {
+        if (cmd.ado == 0x0012 && cmd.expected.size() >= 2) {
+          std::uint16_t value = static_cast<std::uint16_t>(cmd.expected[0] | cmd.expected[1] << 8);
+          if (cmd.mask.size() >= 2) {
+            value = static_cast<std::uint16_t>(value & (cmd.mask[0] | cmd.mask[1] << 8));
+          }
+          if (value == 0) return bad(fmt::format("IdentifyCmd (line {}): alias 0", cmd.line));
+          if (g.alias && *g.alias != value) {
+            return bad(fmt::format("IdentifyCmd (line {}): alias 0x{:04X}, another says 0x{:04X}",
+                                   cmd.line, value, *g.alias));
+          }
+          g.alias = value;
+        } else {
+          note(fmt::format(
+              "{}: HotConnect IdentifyCmd (line {}) reads register 0x{:04X}{}: not used; ecat "
+              "recognises the group by its head's station alias (0x0012) or identity",
+              who(e), cmd.line, cmd.ado, cmd.expected.empty() ? " without a value to expect" : ""));
+        }
+      }
+      if (!g.alias && config.slaves[i].alias)
+        g.alias = config.slaves[i].alias;  // Info/Identification
+      for (std::size_t k = i; k < i + *hc.member_count; ++k) {
+        if (k != i && eni_.slaves[k].hot_connect) {
+          return Error(Errc::invalid_argument,
+                       fmt::format("{}: {}: HotConnect (line {}): starts a group inside group "
+                                   "\"{}\" (GroupMemberCnt {} at line {})",
+                                   source_, who(eni_.slaves[k]), eni_.slaves[k].hot_connect->line,
+                                   g.name, *hc.member_count, hc.line));
+        }
+        group_of[k] = groups.size();
+        SlaveConfig s = config.slaves[k];
+        s.position.reset();  // found where the group sits
+        s.alias.reset();     // the group's alias identifies it
+        if (s.sync && s.sync->mode != SyncMode::free_run) {
+          note(
+              fmt::format("{}: DC SYNC settings not used: ecat runs hot-connect slaves without "
+                          "distributed clocks",
+                          who(eni_.slaves[k])));
+          s.sync.reset();
+        }
+        g.slaves.push_back(std::move(s));
+      }
+      groups.push_back(std::move(g));
+    }
+    if (groups.empty()) return ok();
+    // The fixed slaves' positions (AutoIncAddr, or the file's order) count the groups' slaves in
+    // front of them; the master starts with the groups absent, so they are taken out.
+    std::vector<SlaveConfig> fixed;
+    std::uint16_t in_front = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (group_of[i]) {
+        ++in_front;
+        continue;
+      }
+      SlaveConfig s = config.slaves[i];
+      if (s.position && in_front > 0) {
+        s.position = static_cast<std::uint16_t>(*s.position >= in_front ? *s.position - in_front
+                                                                        : *s.position);
+      }
+      fixed.push_back(std::move(s));
+    }
+    std::string listed;
+    for (const auto& g : groups) {
+      listed += fmt::format("{}{} ({} slave(s), by {})", listed.empty() ? "" : ", ", g.name,
+                            g.slaves.size(),
+                            g.alias ? fmt::format("alias 0x{:04X}", *g.alias) : "identity");
+    }
+    note(fmt::format("HotConnect: {} group(s) may be absent and come and go: {}", groups.size(),
+                     listed));
+    config.slaves = std::move(fixed);
+    config.hot_connect = std::move(groups);
+    return ok();
   }
 
   void whole_file_notes() {

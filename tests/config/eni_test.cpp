@@ -181,6 +181,49 @@ TEST(Eni, SoeInitCmdsAndUnknownElementsAreKept) {
   EXPECT_EQ(eni->slaves[0].unrecognised[0], "<Wobble> (line 8)");
 }
 
+TEST(Eni, HotConnectGroupNameMemberCountAndIdentifyCmds) {
+  auto eni = parse_eni(wrap_slave("<HotConnect><GroupName>tool</GroupName><GroupMemberCnt>3</"
+                                  "GroupMemberCnt><IdentifyCmd><Cmd>1</Cmd><Adp>0</Adp><Ado>#x12"
+                                  "</Ado><DataLength>2</DataLength><Validate><Data>4200</Data>"
+                                  "<DataMask>ffff</DataMask><Timeout>100</Timeout></Validate></"
+                                  "IdentifyCmd>\n<IdentifyCmd><Cmd>1</Cmd><Ado>308</Ado></"
+                                  "IdentifyCmd></HotConnect>\n"),
+                       "hc.xml");
+  ASSERT_TRUE(eni) << eni.error().describe();
+  const auto& s = eni->slaves[0];
+  EXPECT_TRUE(s.unrecognised.empty());
+  ASSERT_TRUE(s.hot_connect);
+  EXPECT_EQ(s.hot_connect->group_name, "tool");
+  EXPECT_EQ(s.hot_connect->member_count, 3u);
+  EXPECT_EQ(s.hot_connect->line, 7);
+  ASSERT_EQ(s.hot_connect->identify.size(), 2u);
+  const auto& alias = s.hot_connect->identify[0];
+  EXPECT_EQ(alias.cmd, 1);
+  EXPECT_EQ(alias.ado, 0x0012);
+  EXPECT_EQ(alias.data_length, 2u);
+  EXPECT_EQ(alias.expected, (std::vector<std::uint8_t>{0x42, 0x00}));
+  EXPECT_EQ(alias.mask, (std::vector<std::uint8_t>{0xFF, 0xFF}));
+  EXPECT_EQ(s.hot_connect->identify[1].ado, 0x0134);
+  EXPECT_TRUE(s.hot_connect->identify[1].expected.empty());
+  EXPECT_EQ(s.hot_connect->identify[1].line, 8);
+  // Without a count the reader keeps what it has (the importer decides).
+  auto bare =
+      parse_eni(wrap_slave("<HotConnect><GroupName><Name>t</Name></GroupName>"
+                           "</HotConnect>\n"));
+  ASSERT_TRUE(bare) << bare.error().describe();
+  EXPECT_EQ(bare->slaves[0].hot_connect->group_name, "t");
+  EXPECT_FALSE(bare->slaves[0].hot_connect->member_count);
+  expect_error(wrap_slave("<HotConnect><GroupMemberCnt>-1</GroupMemberCnt></HotConnect>\n"),
+               "bad.xml:7: <GroupMemberCnt>: -1 is out of range");
+  expect_error(wrap_slave("<HotConnect><IdentifyCmd><Ado>18</Ado></IdentifyCmd></HotConnect>\n"),
+               "bad.xml:7: <IdentifyCmd>: <Cmd> is missing");
+  expect_error(wrap_slave("<HotConnect><IdentifyCmd><Cmd>1</Cmd><Ado>18</Ado><Validate><Data>"
+                          "4200</Data><DataMask>ff</DataMask></Validate></IdentifyCmd>"
+                          "</HotConnect>\n"),
+               "<Validate>: <DataMask> has 1 bytes, <Data> 2");
+  expect_error(wrap_slave("<HotConnect/><HotConnect/>\n"), "a second <HotConnect>");
+}
+
 TEST(Eni, SignedAndHexadecimalForms) {
   auto eni =
       parse_eni(wrap_config("<Slave><Info><Name>s</Name><AutoIncAddr>-1</AutoIncAddr>"

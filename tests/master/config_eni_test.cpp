@@ -219,6 +219,199 @@ TEST(ConfigEni, LoadMasterConfigTellsEniFromRingFileByContent) {
   ASSERT_TRUE(plain) << plain.error().describe();
 }
 
+// ---- hot-connect groups (Slave/HotConnect) ------------------------------------------------
+
+// A ring with a group (tool_out, tool_in) on a junction port in the middle, identified by an
+// explicit device ID the master does not read (so by its head's identity). Also an ENI seed of
+// the fuzz corpus.
+const std::string kHotConnectEni = std::string(ECAT_SOURCE_DIR) + "/fuzz/seeds/eni/hot-connect.xml";
+
+// The same ring for the simulator, the group unplugged.
+constexpr const char* kHotConnectRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: junction, profile: EK1122}
+    - {name: tool_out, profile: EL2809, parent: junction, port: 1, hot_connect: {group: tool, plugged: false}}
+    - {name: tool_in, profile: EL1809}
+    - {name: far_coupler, profile: EK1100, parent: junction, port: 2}
+    - {name: far_in, profile: EL1809}
+    - {name: far_out, profile: EL2809}
+  wiring:
+    - {from: tool_out.channel_1, to: tool_in.channel_1}
+)";
+
+TEST(ConfigEni, HotConnectGroupsBecomeMasterGroupsAndLeaveTheFixedSlaves) {
+  auto imported = import_eni(read_text(kHotConnectEni), kHotConnectEni);
+  ASSERT_TRUE(imported) << imported.error().describe();
+  const MasterConfig& c = imported->config;
+  ASSERT_EQ(c.slaves.size(), 7u);
+  std::vector<std::string> fixed;
+  for (const auto& s : c.slaves)
+    fixed.push_back(s.name);
+  EXPECT_EQ(fixed, (std::vector<std::string>{"coupler", "inputs", "outputs", "junction",
+                                             "far_coupler", "far_in", "far_out"}));
+  // The fixed slaves' positions are counted without the group (absent when the master starts).
+  EXPECT_EQ(c.slaves[3].position, 3);
+  EXPECT_EQ(c.slaves[4].position, 4);
+  EXPECT_EQ(c.slaves[6].position, 6);
+  ASSERT_EQ(c.hot_connect.size(), 1u);
+  const auto& g = c.hot_connect[0];
+  EXPECT_EQ(g.name, "tool");
+  EXPECT_FALSE(g.alias);
+  ASSERT_EQ(g.slaves.size(), 2u);
+  EXPECT_EQ(g.slaves[0].name, "tool_out");
+  EXPECT_EQ(g.slaves[1].name, "tool_in");
+  EXPECT_EQ(g.slaves[0].vendor_id, 2u);
+  EXPECT_EQ(g.slaves[0].product_code, 0x0AF93052u);
+  EXPECT_EQ(g.slaves[1].product_code, 0x07113052u);
+  for (const auto& s : g.slaves) {
+    EXPECT_FALSE(s.position) << s.name;
+    EXPECT_EQ(s.process_data.kind, ProcessDataRequest::Kind::all) << s.name;
+  }
+  const auto& r = imported->report;
+  EXPECT_TRUE(reported(r, "IdentifyCmd (line 17) reads register 0x0134")) << joined(r);
+  EXPECT_TRUE(reported(r,
+                       "HotConnect: 1 group(s) may be absent and come and go: tool (2 "
+                       "slave(s), by identity)"))
+      << joined(r);
+}
+
+std::string with_hot_connect(std::string_view head_extra, std::string_view hot_connect) {
+  // coupler, then a, b, c: `hot_connect` goes into a's <Slave>, `head_extra` into a's <Info>.
+  std::string out = R"(<EtherCATConfig><Config>
+<Slave><Info><Name>coupler</Name><VendorId>2</VendorId><ProductCode>1</ProductCode></Info></Slave>
+<Slave><Info><Name>a</Name><VendorId>2</VendorId><ProductCode>2</ProductCode>)";
+  out += head_extra;
+  out += "</Info>\n";
+  out += hot_connect;
+  out += R"(</Slave>
+<Slave><Info><Name>b</Name><VendorId>2</VendorId><ProductCode>3</ProductCode></Info></Slave>
+<Slave><Info><Name>c</Name><VendorId>2</VendorId><ProductCode>4</ProductCode></Info></Slave>
+</Config></EtherCATConfig>)";
+  return out;
+}
+
+TEST(ConfigEni, HotConnectByAliasAndMalformedGroupsAreNamed) {
+  // Identified by the station alias: IdentifyCmd at 0x0012 with the value expected.
+  auto alias = import_eni(
+      with_hot_connect("",
+                       "<HotConnect><GroupName>Tool 1</GroupName><GroupMemberCnt>3"
+                       "</GroupMemberCnt><IdentifyCmd><Cmd>1</Cmd><Ado>#x12</Ado><Validate>"
+                       "<Data>4200</Data></Validate></IdentifyCmd></HotConnect>"),
+      "alias.xml");
+  ASSERT_TRUE(alias) << alias.error().describe();
+  ASSERT_EQ(alias->config.hot_connect.size(), 1u);
+  EXPECT_EQ(alias->config.hot_connect[0].name, "Tool_1");
+  EXPECT_EQ(alias->config.hot_connect[0].alias, 0x0042);
+  EXPECT_EQ(alias->config.hot_connect[0].slaves.size(), 3u);
+  EXPECT_EQ(alias->config.slaves.size(), 1u);
+  // Or by Info/Identification's alias; no GroupName: named after its head.
+  auto info = import_eni(
+      with_hot_connect("<Identification><Ado>#x0012</Ado><Value>9</Value></Identification>",
+                       "<HotConnect><GroupMemberCnt>1</GroupMemberCnt></HotConnect>"),
+      "info.xml");
+  ASSERT_TRUE(info) << info.error().describe();
+  ASSERT_EQ(info->config.hot_connect.size(), 1u);
+  EXPECT_EQ(info->config.hot_connect[0].name, "a");
+  EXPECT_EQ(info->config.hot_connect[0].alias, 9);
+  EXPECT_FALSE(info->config.hot_connect[0].slaves[0].alias);
+  EXPECT_EQ(info->config.slaves.size(), 3u);
+  EXPECT_EQ(info->config.slaves[1].name, "b");
+  EXPECT_EQ(info->config.slaves[1].position, 1);  // 2 in the file, the group in front of it
+
+  auto error_of = [](const std::string& xml) {
+    auto r = import_eni(xml, "g.xml");
+    return r ? std::string("accepted") : r.error().describe();
+  };
+  const auto missing = error_of(with_hot_connect("",
+                                                 "<HotConnect><GroupName>t</GroupName>"
+                                                 "</HotConnect>"));
+  EXPECT_NE(missing.find("g.xml: slave \"a\" (line 3): HotConnect (line 4): GroupMemberCnt (how "
+                         "many slaves the group has) is missing"),
+            std::string::npos)
+      << missing;
+  const auto past = error_of(with_hot_connect("",
+                                              "<HotConnect><GroupName>t</GroupName>"
+                                              "<GroupMemberCnt>4</GroupMemberCnt>"
+                                              "</HotConnect>"));
+  EXPECT_NE(past.find("GroupMemberCnt 4: the group must hold 1..3 slaves"), std::string::npos)
+      << past;
+  const auto zero = error_of(with_hot_connect("",
+                                              "<HotConnect><GroupName>t</GroupName>"
+                                              "<GroupMemberCnt>0</GroupMemberCnt>"
+                                              "</HotConnect>"));
+  EXPECT_NE(zero.find("GroupMemberCnt 0"), std::string::npos) << zero;
+  const auto not_number = error_of(with_hot_connect("",
+                                                    "<HotConnect><GroupMemberCnt>two"
+                                                    "</GroupMemberCnt></HotConnect>"));
+  EXPECT_NE(not_number.find("<GroupMemberCnt>: \"two\" is not a number"), std::string::npos)
+      << not_number;
+  const auto no_value = error_of(with_hot_connect("",
+                                                  "<HotConnect><GroupMemberCnt>1"
+                                                  "</GroupMemberCnt><IdentifyCmd><Cmd>1</Cmd>"
+                                                  "<Ado>18</Ado><Validate/></IdentifyCmd>"
+                                                  "</HotConnect>"));
+  EXPECT_NE(no_value.find("<Validate>: <Data> (the value expected) is missing"), std::string::npos)
+      << no_value;
+  const auto alias_zero = error_of(with_hot_connect(
+      "",
+      "<HotConnect><GroupMemberCnt>1</GroupMemberCnt><IdentifyCmd><Cmd>1</Cmd><Ado>18</Ado>"
+      "<Validate><Data>0000</Data></Validate></IdentifyCmd></HotConnect>"));
+  EXPECT_NE(alias_zero.find("IdentifyCmd (line 4): alias 0"), std::string::npos) << alias_zero;
+  // A group whose GroupMemberCnt reaches another group's head.
+  std::string nested = with_hot_connect(
+      "", "<HotConnect><GroupName>t</GroupName><GroupMemberCnt>2</GroupMemberCnt></HotConnect>");
+  const std::string b = "<Name>b</Name><VendorId>2</VendorId><ProductCode>3</ProductCode></Info>";
+  nested.replace(nested.find(b), b.size(),
+                 b + "<HotConnect><GroupName>u</GroupName><GroupMemberCnt>1</GroupMemberCnt>"
+                     "</HotConnect>");
+  const auto inside = error_of(nested);
+  EXPECT_NE(inside.find("slave \"b\" (line 5): HotConnect (line 5): starts a group inside group "
+                        "\"t\""),
+            std::string::npos)
+      << inside;
+  // Two groups of one name.
+  std::string twice = with_hot_connect(
+      "", "<HotConnect><GroupName>t</GroupName><GroupMemberCnt>1</GroupMemberCnt></HotConnect>");
+  twice.replace(twice.find(b), b.size(),
+                b + "<HotConnect><GroupName>t</GroupName><GroupMemberCnt>1</GroupMemberCnt>"
+                    "</HotConnect>");
+  const auto same = error_of(twice);
+  EXPECT_NE(same.find("GroupName \"t\" is used by another group"), std::string::npos) << same;
+  const auto second = error_of(with_hot_connect(
+      "", "<HotConnect><GroupMemberCnt>1</GroupMemberCnt></HotConnect><HotConnect/>"));
+  EXPECT_NE(second.find("a second <HotConnect>"), std::string::npos) << second;
+}
+
+// The ENI's group, on a junction port in the middle of a simulated ring: absent at start, then
+// plugged and brought to OP by a master configured from the ENI only.
+TEST(ConfigEni, AnEniHotConnectGroupJoinsOnTheSimulatedRing) {
+  auto imported = import_eni(read_text(kHotConnectEni), kHotConnectEni);
+  ASSERT_TRUE(imported) << imported.error().describe();
+  imported->config.hot_connect_poll = 10ms;
+  auto server = test::make_sim_server(kHotConnectRing);
+  ASSERT_TRUE(server);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  Master master(std::move(imported->config));
+  ASSERT_TRUE(master.start(std::move(*link)));
+  auto op = master.await_operational(20s);
+  ASSERT_TRUE(op) << op.error().describe();
+  ASSERT_TRUE(server->plug("tool", true));
+  EXPECT_TRUE(eventually([&] {
+    const auto st = master.status();
+    return !st.hot_connect.empty() && st.hot_connect[0].state == HotConnectState::present;
+  })) << (master.status().hot_connect.empty() ? "" : master.status().hot_connect[0].detail);
+  auto in = master.slave("tool_in");
+  ASSERT_TRUE(in);
+  EXPECT_EQ((*in)->state(), SlaveState::op);
+  EXPECT_EQ(master.state(), MasterState::operational);
+  (void)master.stop();
+}
+
 // The simulated ring of examples/default.yaml, driven by a master configured from the ENI only.
 TEST(ConfigEni, TheDefaultRingReachesOpFromItsEni) {
   auto imported = import_eni(read_text(kExample), kExample);

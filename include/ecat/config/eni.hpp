@@ -159,14 +159,39 @@ struct EniSlaveInfo {
   std::optional<std::uint32_t> serial_no{};
 };
 
+// Slave/HotConnect/IdentifyCmd: a command that reads what tells a hot-connect group apart, and
+// the value expected (Validate/Data, under Validate/DataMask): Ado 0x0012 is the configured
+// station alias, 0x0134 an explicit device ID (AL status code after an ID request).
+struct EniIdentifyCmd {
+  std::uint8_t cmd = 0;
+  std::uint16_t adp = 0;
+  std::uint16_t ado = 0;
+  std::uint32_t data_length = 0;
+  std::vector<std::uint8_t> expected{};  // Validate/Data; empty when there is no <Validate>
+  std::vector<std::uint8_t> mask{};      // Validate/DataMask; empty: every bit counts
+  int line = 0;
+};
+
+// Slave/HotConnect: this slave heads a hot-connect group, GroupMemberCnt slaves (itself and the
+// ones after it in the file, in ring order) that may be absent at start and come and go (ETG.2100;
+// the same structure as the HotConnect type of public ENI readers: GroupName, GroupMemberCnt,
+// IdentifyCmd*).
+struct EniHotConnect {
+  std::string group_name{};
+  std::optional<std::uint32_t> member_count{};  // absent: the file did not say
+  std::vector<EniIdentifyCmd> identify{};
+  int line = 0;
+};
+
 struct EniSlave {
   EniSlaveInfo info{};
   std::optional<EniProcessData> process_data{};
   std::optional<EniMailbox> mailbox{};
   std::vector<EniEscInitCmd> init_cmds{};
   std::optional<EniDc> dc{};
-  // Child elements of <Slave> this reader does not know (PreviousPort, HotConnect ... are known
-  // and skipped): "Name (line N)".
+  std::optional<EniHotConnect> hot_connect{};
+  // Child elements of <Slave> this reader does not know (PreviousPort, Boot ... are known and
+  // skipped): "Name (line N)".
   std::vector<std::string> unrecognised{};
   int line = 0;
 };

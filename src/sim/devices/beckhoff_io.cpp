@@ -95,6 +95,21 @@ Result<std::unique_ptr<Esc>> make_ek1100(const DeviceConfig& config) {
                       std::make_unique<StandardApplication>(std::move(cfg)));
 }
 
+// An EK1122-like 2-port junction: an E-bus terminal (port 0 in, port 3 on to the next terminal)
+// with two EtherCAT junction ports (1 and 2) for branches or hot-connect groups; no process data.
+Result<std::unique_ptr<Esc>> make_ek1122(const DeviceConfig& config) {
+  if (auto ok = check_options(config, {}); !ok) return ok.error();
+  auto sii = beckhoff_sii(0x04622C52, 0x00120000, "EK1122", "SystemBk", "System Couplers",
+                          "EK1122 2 port EtherCAT junction", 220, 0x3113, 0x0D00);
+  StandardConfig cfg = sii_only_config(std::move(sii));
+  if (auto ok = apply_common_options(config, cfg); !ok) return ok.error();
+  const wire::SiiImage image = cfg.sii;
+  EscHardware hw = coupler_hardware();
+  hw.ports = wire::PortDescriptor{
+      {wire::PortType::ebus, wire::PortType::mii, wire::PortType::mii, wire::PortType::ebus}};
+  return build_device(config, hw, image, std::make_unique<StandardApplication>(std::move(cfg)));
+}
+
 Result<std::unique_ptr<Esc>> make_el1809(const DeviceConfig& config) {
   if (auto ok = check_options(config, {}); !ok) return ok.error();
   auto sii =

@@ -91,6 +91,7 @@ OdObject make_restore_defaults(std::vector<std::uint16_t> objects);
 
 // ---- Profiles --------------------------------------------------------------------------------
 Result<std::unique_ptr<Esc>> make_ek1100(const DeviceConfig& config);
+Result<std::unique_ptr<Esc>> make_ek1122(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_el1809(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_el2809(const DeviceConfig& config);
 Result<std::unique_ptr<Esc>> make_el3202(const DeviceConfig& config);
