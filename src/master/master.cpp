@@ -7,6 +7,7 @@
 #include <set>
 #include <string_view>
 #include <thread>
+#include <unordered_map>
 #include <vector>
 
 #include <fmt/format.h>
@@ -648,27 +649,138 @@ struct Master::Impl : DomainObserver {
     return out;
   }
 
+  // The station address at every position of the ring (APRD 0x0010), in ring order; nullopt when
+  // a position does not answer (the ring changed under the read) or the frame was lost.
+  exec::Task<std::optional<std::vector<std::uint16_t>>> read_station_map(Session& s,
+                                                                         std::uint16_t n) {
+    if (n == 0 || n > 0x8000) co_return std::nullopt;  // auto-increment addresses 0..-0x8000
+    bus::Transaction tx;
+    for (std::uint32_t pos = 0; pos < n; ++pos)
+      tx.aprd(static_cast<std::uint16_t>(pos), wire::reg::kStationAddress, 2);
+    auto reply = co_await exec::transact(loop, *s.bus, std::move(tx), {50ms, 1});
+    if (!reply) co_return std::nullopt;
+    std::vector<std::uint16_t> map;
+    map.reserve(n);
+    for (std::uint32_t pos = 0; pos < n; ++pos) {
+      if (reply->wkc(pos) != 1) co_return std::nullopt;
+      map.push_back(wire::load_le16(reply->data(pos).data()));
+    }
+    co_return map;
+  }
+
+  // Where the ring's slaves are now. A group may hang on a junction port in the middle of the
+  // ring: position addressing counts in ring order, so plugging it shifts the positions of the
+  // fixed slaves behind it. Their stations do not change, so the stations read by position say
+  // which slave is where: the fixed slaves' and the present groups' positions follow them, a
+  // present group whose stations are no longer all in the ring, in its order, is lost, and the
+  // first position holding a station nobody has (a device that came up at 0, or one left with a
+  // refused group's or the scratch station) is where something new begins. Returns that
+  // position and how many new slaves follow it in a row (none: nothing new); nullopt when the
+  // read failed or a fixed slave is missing (the session's own recovery: a power-cycled fixed
+  // slave, back at station 0, must not be taken for a new device).
+  struct NewRun {
+    std::uint16_t at = 0;
+    std::uint16_t length = 0;
+    std::string after;  // the slave in front of it in ring order (for the reports)
+  };
+  exec::Task<std::optional<NewRun>> locate_slaves(std::shared_ptr<Session> s, std::uint16_t n) {
+    auto map = co_await read_station_map(*s, n);
+    if (!map || s->stopping || session != s) co_return std::nullopt;
+    std::unordered_map<std::uint16_t, std::uint16_t> where;  // station -> position
+    for (std::uint16_t pos = 0; pos < map->size(); ++pos)
+      where.emplace((*map)[pos], pos);
+    for (auto& g : s->hot_connect) {
+      if (!g.position || g.state == HotConnectState::absent) continue;
+      const auto first = where.find(g.slaves.front()->station());
+      bool whole = first != where.end() && first->second + g.slaves.size() <= map->size();
+      for (std::size_t k = 0; whole && k < g.slaves.size(); ++k)
+        whole = (*map)[first->second + k] == g.slaves[k]->station();
+      if (!whole) {
+        group_lost(s, g, fmt::format("its stations are no longer in the ring ({} slaves)", n));
+        continue;
+      }
+      if (first->second != *g.position) {
+        std::lock_guard lock(mutex);
+        g.position = first->second;
+      }
+      for (std::size_t k = 0; k < g.slaves.size(); ++k)
+        SlaveAccess::move_to(*g.slaves[k], static_cast<std::uint16_t>(first->second + k));
+    }
+    std::unordered_map<std::uint16_t, Slave*> fixed;  // station -> fixed slave
+    for (auto& slave : s->slaves) {
+      if (group_of(*s, *slave) == nullptr) fixed.emplace(slave->station(), slave.get());
+    }
+    bool fixed_missing = false;
+    for (std::uint16_t pos = 0; pos < s->fixed_end; ++pos) {
+      const auto station = static_cast<std::uint16_t>(s->config.base_station + pos);
+      const auto it = where.find(station);
+      if (it == where.end()) {
+        fixed_missing = true;
+        continue;
+      }
+      if (auto f = fixed.find(station); f != fixed.end() && f->second->position() != it->second)
+        SlaveAccess::move_to(*f->second, it->second);
+    }
+    if (fixed_missing) co_return std::nullopt;
+    auto known = [&](std::uint16_t station) {
+      if (station >= s->config.base_station && station - s->config.base_station < s->fixed_end)
+        return true;
+      for (const auto& g : s->hot_connect) {
+        if (!g.position || g.state == HotConnectState::absent) continue;
+        for (const Slave* slave : g.slaves) {
+          if (slave->station() == station) return true;
+        }
+      }
+      return false;
+    };
+    for (std::uint16_t pos = 0; pos < map->size(); ++pos) {
+      if (known((*map)[pos])) continue;
+      NewRun run;
+      run.at = pos;
+      while (pos < map->size() && !known((*map)[pos])) {
+        ++run.length;
+        ++pos;
+      }
+      if (run.at > 0) {
+        const auto before = (*map)[run.at - 1];
+        for (const auto& slave : s->slaves) {
+          if (slave->station() == before) run.after = slave->name();
+        }
+      }
+      co_return run;
+    }
+    co_return NewRun{};
+  }
+
   exec::Task<void> hot_connect_scan(std::shared_ptr<Session> s) {
     auto& bus = *s->bus;
     auto count = co_await count_slaves(loop, bus, {50ms, 0});
     if (!count || s->stopping || session != s) co_return;  // a lost frame says nothing
     const std::uint16_t n = *count;
-    // Groups reaching past the end of the ring are gone (and everything behind them with them).
-    for (auto& g : s->hot_connect) {
-      if (g.position && *g.position + g.slaves.size() > n && g.state != HotConnectState::absent) {
-        group_lost(s, g, fmt::format("the ring has {} slaves", n));
-      }
-    }
-    if (n < s->fixed_end) co_return;  // fixed slaves missing: the session's own recovery
-    std::uint16_t end = s->fixed_end;
-    for (const auto& g : s->hot_connect) {
-      if (g.position && g.state != HotConnectState::absent)
-        end =
-            std::max<std::uint16_t>(end, static_cast<std::uint16_t>(*g.position + g.slaves.size()));
-    }
-    if (n <= end) {
+    if (n != s->hot_connect_seen_count) {
+      // The ring changed: a refused group or device may have been swapped for the right one, so
+      // the retry waits start afresh (the next look is now, not retry_interval after the refusal).
+      s->hot_connect_seen_count = n;
       for (auto& g : s->hot_connect)
-        g.short_since.reset();  // nothing behind the known part: no group is short
+        g.retry_after = {};
+      s->hot_connect_refused_at = {};
+    }
+    if (n < s->fixed_end) {
+      // Fixed slaves missing (the session's own recovery); present groups behind the end are gone.
+      for (auto& g : s->hot_connect) {
+        if (g.position && *g.position + g.slaves.size() > n) {
+          group_lost(s, g, fmt::format("the ring has {} slaves", n));
+        }
+      }
+      co_return;
+    }
+    std::size_t expected = s->fixed_end;
+    for (const auto& g : s->hot_connect) {
+      if (g.position && g.state != HotConnectState::absent) expected += g.slaves.size();
+    }
+    if (n == expected && n == s->hot_connect_located_count) {
+      for (auto& g : s->hot_connect)
+        g.short_since.reset();  // nothing new in the ring: no group is short
       co_return;
     }
     // A refused device is looked at again when the ring changes, and after retry_interval (a
@@ -677,8 +789,19 @@ struct Master::Impl : DomainObserver {
         exec::Clock::now() - s->hot_connect_refused_at < s->config.retry_interval) {
       co_return;
     }
-    // The first slave behind the known part: at the scratch station, its alias and identity.
-    const std::uint16_t at = end;
+    auto located = co_await locate_slaves(s, n);
+    if (!located || s->stopping || session != s) co_return;  // looked at again at the next poll
+    s->hot_connect_located_count = n;
+    if (located->length == 0) {
+      for (auto& g : s->hot_connect)
+        g.short_since.reset();  // nothing new in the ring: no group is short
+      co_return;
+    }
+    const std::uint16_t new_slaves = located->length;
+    const std::string behind =
+        located->after.empty() ? std::string() : fmt::format(" (behind {})", located->after);
+    // The first new slave: at the scratch station, its alias and identity.
+    const std::uint16_t at = located->at;
     const std::uint16_t scratch = s->hot_connect_scratch;
     const bus::TransactOptions quick{50ms, 1};
     bus::Transaction assign;
@@ -704,21 +827,22 @@ struct Master::Impl : DomainObserver {
       const auto& first = cfg.slaves.front();
       if (cfg.alias) {
         if (alias != *cfg.alias) continue;
-        how = fmt::format("alias 0x{:04x} at position {}", alias, at);
+        how = fmt::format("alias 0x{:04x} at position {}{}", alias, at, behind);
       } else {
         const auto v = cfg.vendor_id ? cfg.vendor_id : first.vendor_id;
         const auto p = cfg.product_code ? cfg.product_code : first.product_code;
         if (vendor != v.value_or(~0u) || product != p.value_or(~0u)) continue;
-        how = fmt::format("vendor 0x{:08x} product 0x{:08x} at position {}", vendor, product, at);
+        how = fmt::format("vendor 0x{:08x} product 0x{:08x} at position {}{}", vendor, product, at,
+                          behind);
       }
       match = &g;
       break;
     }
     if (!match) {
       auto why = fmt::format(
-          "position {}: alias 0x{:04x}, vendor 0x{:08x} product 0x{:08x}: "
+          "position {}{}: alias 0x{:04x}, vendor 0x{:08x} product 0x{:08x}: "
           "matches no absent hot-connect group; not configured",
-          at, alias, vendor, product);
+          at, behind, alias, vendor, product);
       const bool again = why == s->hot_connect_refused;  // reported once while it lasts
       {
         std::lock_guard lock(mutex);
@@ -742,11 +866,11 @@ struct Master::Impl : DomainObserver {
       if (&g != match) g.short_since.reset();
     }
     if (exec::Clock::now() < match->retry_after) co_return;
-    if (n - at < static_cast<int>(match->slaves.size())) {
+    if (new_slaves < match->slaves.size()) {
       // Short of slaves: the rest may still be powering up. Refused (reported once) when it
       // lasts retry_interval; joined as soon as they are all there.
-      auto why = fmt::format("{}: {} of its {} slaves in the ring so far ({} missing)", how, n - at,
-                             match->slaves.size(), match->slaves[n - at]->name());
+      auto why = fmt::format("{}: {} of its {} slaves in the ring so far ({} missing)", how,
+                             new_slaves, match->slaves.size(), match->slaves[new_slaves]->name());
       const auto now = exec::Clock::now();
       if (!match->short_since) match->short_since = now;
       if (now - *match->short_since >= s->config.retry_interval) {

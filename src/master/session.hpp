@@ -82,6 +82,8 @@ struct Session : std::enable_shared_from_this<Session> {
   std::string hot_connect_refused;                   // the last device that matched no group
   std::uint16_t hot_connect_refused_count = 0;       // ... at this slave count
   exec::Clock::time_point hot_connect_refused_at{};  // looked at again after retry_interval
+  std::uint16_t hot_connect_seen_count = 0;          // the slave count at the last poll
+  std::uint16_t hot_connect_located_count = 0;  // ... when the stations were last read by position
   std::atomic<bool> stopping{false};
   // What the cycle thread's CycleThreadOptions came to (written once by the bus thread), and
   // what it holds for the session (cpu_dma_latency, the memory lock; written by the bus thread at

@@ -37,6 +37,10 @@ bool SlaveAccess::absent(const Slave& slave) noexcept {
   return slave.impl().absent.load(std::memory_order_acquire);
 }
 
+void SlaveAccess::move_to(Slave& slave, std::uint16_t position) noexcept {
+  slave.position_.store(position, std::memory_order_relaxed);
+}
+
 void SlaveAccess::place(Slave& slave, std::uint16_t position) {
   slave.position_.store(position, std::memory_order_relaxed);
   auto& impl = slave.impl();

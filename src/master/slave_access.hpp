@@ -62,6 +62,9 @@ class SlaveAccess {
   // The group appeared at `position`: the slave is there now, any unit of its identity (the serial
   // number seen before is forgotten).
   static void place(Slave& slave, std::uint16_t position);
+  // The slave is still there, at another position (a group plugged or pulled in front of it on a
+  // junction port): only its position changes.
+  static void move_to(Slave& slave, std::uint16_t position) noexcept;
   // The group went: DOWN when it was in PREOP or above, with `why` as its fault.
   static void lose(Slave& slave, std::string why);
 

@@ -423,6 +423,187 @@ slaves: [{name: coupler}]
       << unknown_key.error().describe();
 }
 
+// ---- groups on a junction port in the middle of the ring -----------------------------------
+
+// coupler -> inputs -> outputs -> junction (EK1122); on the junction's port 1 the group `tool`
+// (tool_out -> tool_in), on its port 2 the rest of the ring (far_coupler -> far_in -> far_out).
+// A frame leaves the junction by port 1 before port 2, so the group plugged sits at positions
+// 4..5 and shifts the far slaves from 4..6 to 6..8. With `stranger`, a second group on the
+// junction's port 2 (then the far slaves are left out): an EL2809 like tool_out followed by an
+// EL3202 where tool_in should be, so that it takes tool's place in the ring when tool is out.
+std::string junction_ring(bool stranger = false) {
+  std::string yaml = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: junction, profile: EK1122}
+    - {name: tool_out, profile: EL2809, parent: junction, port: 1, hot_connect: {group: tool, plugged: false}}
+    - {name: tool_in, profile: EL1809}
+)";
+  if (stranger) {
+    yaml +=
+        R"(    - {name: bad_out, profile: EL2809, parent: junction, port: 2, hot_connect: {group: stranger, plugged: false}}
+    - {name: bad_in, profile: EL3202}
+)";
+  } else {
+    yaml += R"(    - {name: far_coupler, profile: EK1100, parent: junction, port: 2}
+    - {name: far_in, profile: EL1809}
+    - {name: far_out, profile: EL2809}
+)";
+  }
+  yaml += R"(  wiring:
+    - {from: outputs.channel_1, to: inputs.channel_1}
+    - {from: tool_out.channel_1, to: tool_in.channel_1}
+)";
+  if (!stranger) yaml += "    - {from: far_out.channel_1, to: far_in.channel_1}\n";
+  return yaml;
+}
+
+RingSpec junction_spec(bool stranger = false, std::optional<std::uint16_t> alias = std::nullopt) {
+  RingSpec spec;
+  spec.ring_yaml = junction_ring(stranger);
+  spec.adjust = [alias, stranger](master::MasterConfig& c) {
+    std::vector<std::pair<const char*, bool>> fixed{{"junction", false}};
+    if (!stranger)
+      fixed.insert(fixed.end(), {{"far_coupler", false}, {"far_in", true}, {"far_out", true}});
+    for (const auto& [name, process_data] : fixed) {
+      master::SlaveConfig s;
+      s.name = name;
+      if (process_data) s.process_data = master::ProcessDataRequest::all("main");
+      s.health_poll = 20ms;
+      c.slaves.push_back(std::move(s));
+    }
+    c.hot_connect.push_back(tool_group(alias));
+    c.hot_connect_poll = 10ms;
+  };
+  return spec;
+}
+
+// far_out.channel_1 -> far_in.channel_1, the slaves behind the junction's port 2.
+bool far_loop_follows(master::Master& m, bool value) {
+  auto out = m.slave("far_out");
+  auto in = m.slave("far_in");
+  if (!out || !in) return false;
+  if (!(*out)->write_output("channel_1", master::Value(value))) return false;
+  return eventually(
+      [&] {
+        auto v = (*in)->read_input("channel_1");
+        return v && master::as_bool(*v) == value;
+      },
+      2s);
+}
+
+std::uint16_t position_of(master::Master& m, const char* name) {
+  auto s = m.slave(name);
+  return s ? (*s)->position() : 0xFFFF;
+}
+
+TEST(HotConnect, AGroupOnAJunctionPortInTheMiddleComesAndGoesTheOthersUntouched) {
+  auto ring = ScenarioRing::operational(junction_spec());
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  Monitor monitor(m);
+  EXPECT_EQ(position_of(m, "far_coupler"), 4);
+  EXPECT_EQ(position_of(m, "far_out"), 6);
+  const auto before = ring->domain_stats();
+  for (int round = 0; round < 2; ++round) {
+    ASSERT_TRUE(ring->server->plug("tool", true));
+    ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+        << group_status(m).detail << "\n"
+        << ring->describe();
+    const auto g = group_status(m);
+    EXPECT_EQ(g.position, 4);
+    EXPECT_NE(g.detail.find("at position 4 (behind junction)"), std::string::npos) << g.detail;
+    // The far slaves moved two places down the ring and are still addressed by their stations.
+    EXPECT_EQ(position_of(m, "tool_out"), 4);
+    EXPECT_EQ(position_of(m, "far_coupler"), 6);
+    EXPECT_EQ(position_of(m, "far_out"), 8);
+    auto out = m.slave("tool_out");
+    auto in = m.slave("tool_in");
+    ASSERT_TRUE(out && in);
+    ASSERT_TRUE((*out)->write_output("channel_1", master::Value(round == 0)));
+    EXPECT_TRUE(eventually([&] {
+      auto v = (*in)->read_input("channel_1");
+      return v && master::as_bool(*v) == (round == 0);
+    })) << ring->describe();
+    EXPECT_TRUE(fixed_loop_follows(m, round == 0));
+    EXPECT_TRUE(far_loop_follows(m, round == 0));
+    ASSERT_TRUE(ring->server->plug("tool", false));
+    ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }))
+        << group_status(m).detail;
+    EXPECT_TRUE(eventually([&] { return position_of(m, "far_out") == 6; }))
+        << position_of(m, "far_out");
+    EXPECT_FALSE((*in)->read_input("channel_1"));
+    EXPECT_TRUE(far_loop_follows(m, round != 0));
+  }
+  // The fixed slaves' cycles were never short: not one cycle lost its working counter, and
+  // none of them was taken for a new device or went down.
+  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count) << ring->describe();
+  EXPECT_EQ(m.state(), MasterState::operational);
+  EXPECT_FALSE(ring->saw(MasterState::recovering));
+  EXPECT_TRUE(m.status().hot_connect_refused.empty()) << m.status().hot_connect_refused;
+  EXPECT_EQ(group_status(m).appearances, 2u);
+  EXPECT_EQ(group_status(m).losses, 2u);
+  monitor.stop();
+  for (const char* name : {"junction", "far_coupler", "far_in", "far_out"}) {
+    EXPECT_TRUE(monitor.matching(fmt::format("state:{}:down", name)).empty()) << monitor.seen();
+  }
+  EXPECT_TRUE(monitor.matching("master:recovering").empty()) << monitor.seen();
+}
+
+TEST(HotConnect, AWrongDeviceOnAJunctionPortIsRefusedTheOthersUntouched) {
+  // The group is known by alias 0x0777; what is plugged on the junction has alias 0.
+  auto ring = ScenarioRing::operational(junction_spec(false, 0x0777));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  const auto before = ring->domain_stats();
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return !m.status().hot_connect_refused.empty(); }));
+  const auto refused = m.status().hot_connect_refused;
+  EXPECT_NE(refused.find("position 4 (behind junction)"), std::string::npos) << refused;
+  EXPECT_NE(refused.find("not configured"), std::string::npos) << refused;
+  EXPECT_EQ(group_status(m).state, HotConnectState::absent);
+  EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 100ms));
+  auto sim = ring->server->status();
+  EXPECT_EQ(sim.slaves.at(4).al_state, wire::AlState::init);  // tool_out: nothing brought up
+  EXPECT_EQ(sim.slaves.at(5).al_state, wire::AlState::init);
+  // The far slaves, shifted behind it, are not new devices: still operational, still cycling.
+  EXPECT_EQ(position_of(m, "far_out"), 8);
+  EXPECT_EQ(sim.slaves.at(8).al_state, wire::AlState::op);
+  EXPECT_TRUE(far_loop_follows(m, true));
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count) << ring->describe();
+}
+
+TEST(HotConnect, TheRightGroupInARefusedGroupsPlaceJoinsWithoutWaitingTheRetryInterval) {
+  // stranger (EL2809 + EL3202) looks like tool by its first slave and is refused by its second;
+  // pulled out and replaced by tool, tool joins at once: the slave count changed, so the retry
+  // wait (a minute here) starts afresh.
+  auto spec = junction_spec(true);
+  const auto adjust = spec.adjust;
+  spec.adjust = [adjust](master::MasterConfig& c) {
+    adjust(c);
+    c.retry_interval = 60s;
+  };
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(ring->server->plug("stranger", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::failed); }))
+      << group_status(m).detail;
+  EXPECT_NE(group_status(m).detail.find("slave tool_in at position 5"), std::string::npos)
+      << group_status(m).detail;
+  ASSERT_TRUE(ring->server->plug("stranger", false));
+  std::this_thread::sleep_for(100ms);  // some polls see the ring without it
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }, 5s))
+      << group_status(m).detail;
+  EXPECT_EQ(group_status(m).position, 4);
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
 TEST(HotConnectConfig, SimulatorRingErrorsNameWhatIsWrong) {
   auto first = sim::parse_ring(R"(simulator:
   slaves:
