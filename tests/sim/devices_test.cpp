@@ -54,8 +54,8 @@ TEST(Factory, ListsEveryProfileAndRefusesUnknownOnes) {
     names.push_back(p.name);
     EXPECT_FALSE(p.description.empty());
   }
-  EXPECT_EQ(names, (std::vector<std::string>{"generic", "EK1100", "EL1809", "EL2809", "EL3202",
-                                             "EL4102", "servo", "mailbox", "soe_drive",
+  EXPECT_EQ(names, (std::vector<std::string>{"generic", "EK1100", "EK1122", "EL1809", "EL2809",
+                                             "EL3202", "EL4102", "servo", "mailbox", "soe_drive",
                                              "eoe_device", "eeprom", "esi"}));
   auto unknown = make_device(test::profile("EL9999"));
   ASSERT_FALSE(unknown.ok());
