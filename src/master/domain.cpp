@@ -82,6 +82,17 @@ void load_bytes(const std::atomic<std::uint64_t>* words, std::size_t offset, std
   }
 }
 
+// The `bit_length` (1..64) bits starting at bit `shift` (0..7) of `n` (<= 9) bytes, LSB first.
+std::uint64_t extract_bits(const std::uint8_t* p, std::size_t n, unsigned shift,
+                           std::size_t bit_length) noexcept {
+  std::uint8_t low[8] = {};
+  std::memcpy(low, p, std::min<std::size_t>(n, 8));
+  std::uint64_t v = wire::load_le64(low) >> shift;
+  if (n == 9 && shift != 0) v |= std::uint64_t{p[8]} << (64 - shift);
+  if (bit_length < 64) v &= (std::uint64_t{1} << bit_length) - 1;
+  return v;
+}
+
 // The seqlocked copy of `n` published input bytes at `offset` (retried while the bus thread
 // publishes); returns the last valid cycle's time (0: none yet) and, when asked, `changed_src`
 // read in the same section.
@@ -1106,7 +1117,7 @@ Result<const Domain::Entry*> Domain::lookup(PdoKey key) const {
 
 Result<const Domain::Entry*> Domain::lookup(PdoHandle handle) const {
   const std::uint32_t count = entry_count_.load(std::memory_order_acquire);
-  if (handle.index >= count) {
+  if (handle.index >= count) [[unlikely]] {
     return error(Errc::not_found, fmt::format("no registration with handle {} ({} registered)",
                                               handle.index, count));
   }
@@ -1134,11 +1145,11 @@ void Domain::unlock_staging() const noexcept {
 }
 
 Result<void> Domain::write_entry(const Entry& e, wire::Bytes data) {
-  if (e.direction != PdoDirection::output) {
+  if (e.direction != PdoDirection::output) [[unlikely]] {
     return error(Errc::invalid_argument,
                  fmt::format("cannot write {}: it is an input", to_string(e.key)));
   }
-  if (data.size() != e.size) {
+  if (data.size() != e.size) [[unlikely]] {
     return error(Errc::invalid_argument,
                  fmt::format("cannot write {}: {} bytes given, the SM image has {}",
                              to_string(e.key), data.size(), e.size));
@@ -1150,9 +1161,17 @@ Result<void> Domain::write_entry(const Entry& e, wire::Bytes data) {
   const std::int64_t now = tick != 0 ? tick : to_ns(Clock::now());
   lock_staging();
   std::uint8_t* target = staging_.get() + e.offset;
-  const bool changed = std::memcmp(target, data.data(), data.size()) != 0 ||
-                       e.output_written_ns.load(std::memory_order_relaxed) == 0;
-  std::memcpy(target, data.data(), data.size());
+  bool changed = e.output_written_ns.load(std::memory_order_relaxed) == 0;
+  if (data.size() <= 16) {
+    // A few bytes (most SM images): compared and copied in one pass, no library calls.
+    for (std::size_t i = 0; i < data.size(); ++i) {
+      changed = changed || target[i] != data[i];
+      target[i] = data[i];
+    }
+  } else {
+    changed = changed || std::memcmp(target, data.data(), data.size()) != 0;
+    std::memcpy(target, data.data(), data.size());
+  }
   ++staging_version_;
   e.output_written_ns.store(now, std::memory_order_relaxed);
   if (changed) e.output_changed_ns.store(now, std::memory_order_relaxed);
@@ -1191,16 +1210,22 @@ Result<void> Domain::write_bits_entry(const Entry& e, std::size_t bit_offset,
       state() == DomainState::cycling ? counters_->tick_ns.load(std::memory_order_relaxed) : 0;
   const std::int64_t now = tick != 0 ? tick : to_ns(Clock::now());
   lock_staging();
-  std::uint8_t* image = staging_.get() + e.offset;
+  std::uint8_t* p = staging_.get() + e.offset + bit_offset / 8;
   bool changed = e.output_written_ns.load(std::memory_order_relaxed) == 0;
-  for (std::size_t i = 0; i < bit_length; ++i) {
-    const std::size_t bit = bit_offset + i;
-    const auto mask = static_cast<std::uint8_t>(1u << (bit % 8));
-    const bool on = ((value >> i) & 1u) != 0;
-    std::uint8_t& byte = image[bit / 8];
-    const auto next = static_cast<std::uint8_t>(on ? (byte | mask) : (byte & ~mask));
-    changed = changed || next != byte;
-    byte = next;
+  // A byte at a time: the field's bits of each byte it covers, the others kept.
+  unsigned bit = static_cast<unsigned>(bit_offset % 8);
+  std::size_t consumed = 0;
+  for (std::size_t i = 0; consumed < bit_length; ++i) {
+    const unsigned take =
+        static_cast<unsigned>(std::min<std::size_t>(8 - bit, bit_length - consumed));
+    const auto mask = static_cast<std::uint8_t>(((1u << take) - 1u) << bit);
+    const auto bits =
+        static_cast<std::uint8_t>(static_cast<std::uint8_t>((value >> consumed) << bit) & mask);
+    const auto next = static_cast<std::uint8_t>((p[i] & ~mask) | bits);
+    changed = changed || next != p[i];
+    p[i] = next;
+    consumed += take;
+    bit = 0;
   }
   ++staging_version_;
   e.output_written_ns.store(now, std::memory_order_relaxed);
@@ -1326,6 +1351,30 @@ Result<std::vector<std::uint8_t>> Domain::read(PdoKey key) const {
   return value;
 }
 
+// read_fresh's verdict on a copy made at `refreshed` (the last valid cycle's time, 0: none): a
+// valid cycle, the entry's reservation present, not older than stale_after (one clock read).
+Result<void> Domain::check_fresh(const Entry& e, std::int64_t refreshed) const {
+  if (refreshed == 0) [[unlikely]] {
+    return error(Errc::not_ready,
+                 fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
+  }
+  if (reservation_absent(e)) [[unlikely]] {
+    // A hot-connect group's input while the group is absent or still joining (as sample_entry).
+    return error(Errc::stale,
+                 fmt::format("{} (input) is stale: it belongs to {}, which is not present",
+                             to_string(e.key), reservations_[e.reservation]->name));
+  }
+  const std::int64_t age = std::max<std::int64_t>(0, to_ns(Clock::now()) - refreshed);
+  const nanoseconds limit = stale_after();
+  if (age > limit.count()) [[unlikely]] {
+    return error(Errc::stale,
+                 fmt::format("{} (input) is stale: last valid cycle {} us ago, stale after {} us",
+                             to_string(e.key), age / 1000,
+                             std::chrono::duration_cast<std::chrono::microseconds>(limit).count()));
+  }
+  return ok();
+}
+
 Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out) const {
   auto found = lookup(handle);
   if (!found) return std::move(found).error();
@@ -1343,25 +1392,39 @@ Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out)
   // SampleInfo: one clock read against stale_after().
   const std::int64_t refreshed =
       copy_published(input_seq_, refreshed_ns_, input_words_, e.offset, out.data(), e.size);
-  if (refreshed == 0) {
-    return error(Errc::not_ready,
-                 fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
-  }
-  if (reservation_absent(e)) {
-    // A hot-connect group's input while the group is absent or still joining (as sample_entry).
-    return error(Errc::stale,
-                 fmt::format("{} (input) is stale: it belongs to {}, which is not present",
-                             to_string(e.key), reservations_[e.reservation]->name));
-  }
-  const std::int64_t age = std::max<std::int64_t>(0, to_ns(Clock::now()) - refreshed);
-  const nanoseconds limit = stale_after();
-  if (age > limit.count()) {
-    return error(Errc::stale,
-                 fmt::format("{} (input) is stale: last valid cycle {} us ago, stale after {} us",
-                             to_string(e.key), age / 1000,
-                             std::chrono::duration_cast<std::chrono::microseconds>(limit).count()));
-  }
+  if (auto fresh = check_fresh(e, refreshed); !fresh) return std::move(fresh).error();
   return std::size_t{e.size};
+}
+
+Result<std::uint64_t> Domain::read_fresh_bits(PdoHandle handle, std::size_t bit_offset,
+                                              std::size_t bit_length) const {
+  auto found = lookup(handle);
+  if (!found) [[unlikely]] {
+    return std::move(found).error();
+  }
+  const Entry& e = **found;
+  if (e.direction != PdoDirection::input) [[unlikely]] {
+    return error(Errc::invalid_argument,
+                 fmt::format("read_fresh_bits({}): outputs have no freshness", to_string(e.key)));
+  }
+  if (bit_length == 0 || bit_length > 64 || bit_offset + bit_length > std::size_t{e.size} * 8)
+      [[unlikely]] {
+    return error(Errc::invalid_argument,
+                 fmt::format("cannot read bits {}..{} of {}: the SM image has {} bits and at "
+                             "most 64 bits are read at once",
+                             bit_offset, bit_offset + bit_length, to_string(e.key),
+                             std::size_t{e.size} * 8));
+  }
+  // Only the bytes the field covers (at most 9), from one cycle.
+  const std::size_t first = bit_offset / 8;
+  const std::size_t bytes = (bit_offset % 8 + bit_length + 7) / 8;
+  std::uint8_t field[9];
+  const std::int64_t refreshed =
+      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset + first, field, bytes);
+  if (auto fresh = check_fresh(e, refreshed); !fresh) [[unlikely]] {
+    return std::move(fresh).error();
+  }
+  return extract_bits(field, bytes, static_cast<unsigned>(bit_offset % 8), bit_length);
 }
 
 Result<std::size_t> Domain::read_fresh(PdoKey key, wire::MutableBytes out) const {

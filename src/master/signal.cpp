@@ -434,46 +434,28 @@ Result<std::uint64_t> integer_bits(const Signal& s, const Value& value) {
   return *v;
 }
 
-}  // namespace
-
-Result<Value> decode(const Signal& s, std::span<const std::uint8_t> image) {
-  if (!usable(s, image.size())) return unusable(s, image.size());
-  const std::uint8_t* data = image.data();
+// A scalar field's value from its raw bits (the low bit_length bits of `raw`; the caller has
+// checked the signal).
+Value scalar_value(const Signal& s, std::uint64_t raw) noexcept {
   switch (s.type) {
     case SignalType::boolean:
-      return Value(read_bits(data, s.bit_offset, s.bit_length) != 0);
+      return Value(raw != 0);
     case SignalType::int8:
     case SignalType::int16:
     case SignalType::int32:
     case SignalType::int64:
-      return Value(sign_extend(read_bits(data, s.bit_offset, s.bit_length), s.bit_length));
-    case SignalType::uint8:
-    case SignalType::uint16:
-    case SignalType::uint32:
-    case SignalType::uint64:
-      return Value(read_bits(data, s.bit_offset, s.bit_length));
+      return Value(sign_extend(raw, s.bit_length));
     case SignalType::real32:
-      return Value(static_cast<double>(
-          std::bit_cast<float>(static_cast<std::uint32_t>(read_bits(data, s.bit_offset, 32)))));
+      return Value(static_cast<double>(std::bit_cast<float>(static_cast<std::uint32_t>(raw))));
     case SignalType::real64:
-      return Value(std::bit_cast<double>(read_bits(data, s.bit_offset, 64)));
-    case SignalType::bytes: {
-      std::vector<std::uint8_t> out((s.bit_length + 7u) / 8u);
-      for (std::size_t i = 0; i < out.size(); ++i) {
-        const auto take =
-            static_cast<std::uint16_t>(std::min<std::size_t>(8, s.bit_length - 8 * i));
-        out[i] = static_cast<std::uint8_t>(
-            read_bits(data, s.bit_offset + static_cast<std::uint32_t>(8 * i), take));
-      }
-      return Value(std::move(out));
-    }
+      return Value(std::bit_cast<double>(raw));
+    default:
+      return Value(raw);
   }
-  return Error(Errc::internal, fmt::format("signal '{}': unknown signal type", s.name));
 }
 
-Result<void> encode(const Signal& s, const Value& value, std::span<std::uint8_t> image) {
-  if (!usable(s, image.size())) return unusable(s, image.size());
-  std::uint8_t* data = image.data();
+// The raw bits of a scalar (not bytes) field for `value`, range-checked.
+Result<std::uint64_t> scalar_bits(const Signal& s, const Value& value) {
   switch (s.type) {
     case SignalType::real32: {
       const auto d = as_double(value);
@@ -483,47 +465,89 @@ Result<void> encode(const Signal& s, const Value& value, std::span<std::uint8_t>
                      fmt::format("signal '{}' (real32): value {} out of range ±{}", s.name, *d,
                                  std::numeric_limits<float>::max()));
       }
-      write_bits(data, s.bit_offset, 32, std::bit_cast<std::uint32_t>(static_cast<float>(*d)));
-      return ok();
+      return std::uint64_t{std::bit_cast<std::uint32_t>(static_cast<float>(*d))};
     }
     case SignalType::real64: {
       const auto d = as_double(value);
       if (!d) return wrong_kind(s, value, "a number");
-      write_bits(data, s.bit_offset, 64, std::bit_cast<std::uint64_t>(*d));
-      return ok();
-    }
-    case SignalType::bytes: {
-      const auto* bytes = std::get_if<std::vector<std::uint8_t>>(&value);
-      if (bytes == nullptr) return wrong_kind(s, value, "bytes");
-      const std::size_t need = (s.bit_length + 7u) / 8u;
-      if (bytes->size() != need) {
-        return Error(Errc::invalid_argument,
-                     fmt::format("signal '{}' (bytes, {} bits): {} bytes given, {} needed", s.name,
-                                 s.bit_length, bytes->size(), need));
-      }
-      for (std::size_t i = 0; i < need; ++i) {
-        const auto take =
-            static_cast<std::uint16_t>(std::min<std::size_t>(8, s.bit_length - 8 * i));
-        if (take < 8 && ((*bytes)[i] >> take) != 0) {
-          return Error(Errc::out_of_range,
-                       fmt::format("signal '{}' (bytes, {} bits): last byte 0x{:02x} has bits "
-                                   "beyond the field",
-                                   s.name, s.bit_length, (*bytes)[i]));
-        }
-      }
-      for (std::size_t i = 0; i < need; ++i) {
-        const auto take =
-            static_cast<std::uint16_t>(std::min<std::size_t>(8, s.bit_length - 8 * i));
-        write_bits(data, s.bit_offset + static_cast<std::uint32_t>(8 * i), take, (*bytes)[i]);
-      }
-      return ok();
+      return std::bit_cast<std::uint64_t>(*d);
     }
     default:
-      break;
+      return integer_bits(s, value);
   }
-  auto bits = integer_bits(s, value);
+}
+
+// Why a signal is not a scalar field of 1..64 bits whose type holds its length (what
+// decode_field / encode_field / store_field carry).
+Error not_a_field(const Signal& s) {
+  auto valid = validate_signal(s);
+  if (!valid) return std::move(valid).error();
+  return Error(Errc::unsupported,
+               fmt::format("signal '{}' ({}, {} bits): not a scalar field of 1..64 bits", s.name,
+                           to_string(s.type), s.bit_length));
+}
+
+bool field_usable(const Signal& s) noexcept {
+  if (s.type == SignalType::bytes || s.bit_length == 0) return false;
+  const std::uint16_t max = max_bit_length(s.type);
+  if (s.bit_length > max) return false;
+  return (s.type != SignalType::real32 && s.type != SignalType::real64) || s.bit_length == max;
+}
+
+}  // namespace
+
+Result<Value> decode(const Signal& s, std::span<const std::uint8_t> image) {
+  if (!usable(s, image.size())) return unusable(s, image.size());
+  const std::uint8_t* data = image.data();
+  if (s.type == SignalType::bytes) {
+    std::vector<std::uint8_t> out((s.bit_length + 7u) / 8u);
+    for (std::size_t i = 0; i < out.size(); ++i) {
+      const auto take = static_cast<std::uint16_t>(std::min<std::size_t>(8, s.bit_length - 8 * i));
+      out[i] = static_cast<std::uint8_t>(
+          read_bits(data, s.bit_offset + static_cast<std::uint32_t>(8 * i), take));
+    }
+    return Value(std::move(out));
+  }
+  return scalar_value(s, read_bits(data, s.bit_offset, s.bit_length));
+}
+
+Result<void> encode(const Signal& s, const Value& value, std::span<std::uint8_t> image) {
+  if (!usable(s, image.size())) return unusable(s, image.size());
+  std::uint8_t* data = image.data();
+  if (s.type == SignalType::bytes) {
+    const auto* bytes = std::get_if<std::vector<std::uint8_t>>(&value);
+    if (bytes == nullptr) return wrong_kind(s, value, "bytes");
+    const std::size_t need = (s.bit_length + 7u) / 8u;
+    if (bytes->size() != need) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("signal '{}' (bytes, {} bits): {} bytes given, {} needed", s.name,
+                               s.bit_length, bytes->size(), need));
+    }
+    for (std::size_t i = 0; i < need; ++i) {
+      const auto take = static_cast<std::uint16_t>(std::min<std::size_t>(8, s.bit_length - 8 * i));
+      if (take < 8 && ((*bytes)[i] >> take) != 0) {
+        return Error(Errc::out_of_range,
+                     fmt::format("signal '{}' (bytes, {} bits): last byte 0x{:02x} has bits "
+                                 "beyond the field",
+                                 s.name, s.bit_length, (*bytes)[i]));
+      }
+    }
+    for (std::size_t i = 0; i < need; ++i) {
+      const auto take = static_cast<std::uint16_t>(std::min<std::size_t>(8, s.bit_length - 8 * i));
+      write_bits(data, s.bit_offset + static_cast<std::uint32_t>(8 * i), take, (*bytes)[i]);
+    }
+    return ok();
+  }
+  auto bits = scalar_bits(s, value);
   if (!bits) return std::move(bits).error();
   write_bits(data, s.bit_offset, s.bit_length, *bits);
+  return ok();
+}
+
+Result<void> store_field(const Signal& s, std::uint64_t raw, std::span<std::uint8_t> image) {
+  if (!field_usable(s)) return not_a_field(s);
+  if (!usable(s, image.size())) return unusable(s, image.size());
+  write_bits(image.data(), s.bit_offset, s.bit_length, raw);
   return ok();
 }
 
@@ -571,6 +595,27 @@ Result<void> encode_scaled(const Signal& s, const Value& value, std::span<std::u
                                             s.unit.empty() ? "" : " ", s.unit));
   }
   return ok();
+}
+
+Result<Value> decode_field(const Signal& s, std::uint64_t raw) {
+  if (!field_usable(s)) return not_a_field(s);
+  if (s.bit_length < 64) raw &= (std::uint64_t{1} << s.bit_length) - 1;
+  Value value = scalar_value(s, raw);
+  if (!s.scale || s.type == SignalType::boolean) return value;
+  return Value(*as_double(value) * s.scale->factor + s.scale->offset);
+}
+
+Result<std::uint64_t> encode_field(const Signal& s, const Value& value) {
+  if (!field_usable(s)) return not_a_field(s);
+  if (!s.scale) return scalar_bits(s, value);
+  auto raw = from_engineering(s, value);
+  if (!raw) return std::move(raw).error();
+  auto bits = scalar_bits(s, *raw);
+  if (!bits) {
+    return bits.error().context(fmt::format("signal '{}': writing {}{}{}", s.name, to_string(value),
+                                            s.unit.empty() ? "" : " ", s.unit));
+  }
+  return bits;
 }
 
 // ---- text -------------------------------------------------------------------------------------

@@ -68,6 +68,14 @@ Result<Value> SignalHandle::read() const {
     return Error(Errc::not_ready, "read() of an unbound signal handle (SignalHandle::resolve)");
   }
   const Target& t = targets_.front();
+  if (signal_.direction == PdoDirection::input) {
+    // Only the field's own bytes, from one cycle, with read_fresh's checks.
+    auto raw = t.domain->read_fresh_bits(t.pdo, signal_.bit_offset, signal_.bit_length);
+    if (!raw) [[unlikely]] {
+      return raw.error().context(fmt::format("input \"{}\" of slave {}", signal_.name, slave_));
+    }
+    return decode_field(signal_, *raw);
+  }
   wire::MutableBytes image(image_.data(), image_.size());
   auto got = signal_.direction == PdoDirection::input ? t.domain->read_fresh(t.pdo, image)
                                                       : t.domain->read(t.pdo, image);

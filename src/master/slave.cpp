@@ -1,6 +1,8 @@
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <chrono>
+#include <cstring>
 #include <map>
 #include <set>
 
@@ -714,10 +716,33 @@ Result<void> Slave::Impl::check_mailbox() const {
   return ok();
 }
 
+// A cheap hash of a short name: its length and its first and last eight bytes (they overlap
+// below 16), mixed by multiplication. Names are compared in full after it.
+std::uint64_t Slave::Impl::name_hash(std::string_view name) noexcept {
+  std::uint64_t head = 0;
+  std::uint64_t tail = 0;
+  const std::size_t n = name.size();
+  if (n >= 8) {
+    std::memcpy(&head, name.data(), 8);
+    std::memcpy(&tail, name.data() + n - 8, 8);
+  } else {
+    std::memcpy(&head, name.data(), n);
+  }
+  std::uint64_t h = (head * 0x9E3779B97F4A7C15ull) ^ (tail * 0xC2B2AE3D27D4EB4Full) ^ n;
+  h ^= h >> 29;
+  h *= 0xBF58476D1CE4E5B9ull;
+  return h ^ (h >> 32);
+}
+
 const Signal* Slave::Impl::find_signal(std::string_view name) const noexcept {
-  if (signal_index.size() == signals.size()) {
-    const auto it = signal_index.find(name);
-    return it == signal_index.end() ? nullptr : &signals[it->second];
+  if (!signal_index.empty()) {
+    const std::size_t mask = signal_index.size() - 1;
+    for (std::size_t i = name_hash(name) & mask;; i = (i + 1) & mask) {
+      const std::uint32_t slot = signal_index[i];
+      if (slot == 0) return nullptr;  // the table is at most half full: an empty slot ends it
+      const Signal& s = signals[slot - 1];
+      if (s.name == name) return &s;
+    }
   }
   for (const auto& s : signals) {
     if (s.name == name) return &s;
@@ -742,10 +767,22 @@ void Slave::Impl::index_routes() {
     routes.push_back(Route{a.sync_manager, a.size, domain, *handle});
   }
   signal_index.clear();
-  for (std::size_t i = 0; i < signals.size(); ++i)
-    signal_index.emplace(signals[i].name, i);
-  // Duplicate names (none expected): the walk in find_signal keeps the first one.
-  if (signal_index.size() != signals.size()) signal_index.clear();
+  if (signals.empty()) return;
+  signal_index.assign(std::bit_ceil(signals.size() * 2), 0);
+  const std::size_t mask = signal_index.size() - 1;
+  for (std::size_t k = 0; k < signals.size(); ++k) {
+    for (std::size_t i = name_hash(signals[k].name) & mask;; i = (i + 1) & mask) {
+      if (signal_index[i] == 0) {
+        signal_index[i] = static_cast<std::uint32_t>(k + 1);
+        break;
+      }
+      if (signals[signal_index[i] - 1].name == signals[k].name) {
+        // Duplicate names (none expected): the walk in find_signal keeps the first one.
+        signal_index.clear();
+        return;
+      }
+    }
+  }
 }
 
 const SmAttachment* Slave::Impl::attachment_for(std::uint8_t sm) const noexcept {
@@ -1183,6 +1220,17 @@ Result<Value> Slave::read_input(std::string_view name) const {
   if (!sig) {
     return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
   }
+  // A routed input of a scalar field (a route is made from an attachment): only its own bytes,
+  // from one cycle, with the domain's freshness checks.
+  const Impl::Route* route = impl_->route_for(sig->sync_manager);
+  if (sig->direction == PdoDirection::input && route != nullptr &&
+      Impl::is_field(*sig, route->size)) {
+    auto raw = route->domain->read_fresh_bits(route->handle, sig->bit_offset, sig->bit_length);
+    if (!raw) [[unlikely]] {
+      return raw.error().context(fmt::format("input \"{}\" of slave {}", name, name_));
+    }
+    return decode_field(*sig, *raw);
+  }
   const SmAttachment* a = impl_->attachment_for(sig->sync_manager);
   if (!a) {
     return Error(Errc::not_found,
@@ -1203,7 +1251,6 @@ Result<Value> Slave::read_input(std::string_view name) const {
     large.resize(a->size);
     buffer = wire::MutableBytes(large.data(), large.size());
   }
-  const Impl::Route* route = impl_->route_for(sig->sync_manager);
   auto got = route ? route->domain->read_fresh(route->handle, buffer)
                    : impl_->session.find_domain(a->domain)->read_fresh(
                          PdoKey{station_, sig->sync_manager}, buffer);
@@ -1227,6 +1274,25 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
   if (it == impl_->output_images.end()) {
     return Error(Errc::not_found,
                  fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
+  }
+  if (Impl::is_field(*sig, it->second.size()) &&
+      impl_->routes.size() == impl_->attachments.size()) {
+    // A scalar field: encoded once into its raw bits and staged as those bits only (under each
+    // domain's staging lock, so a multi-byte value leaves whole in one cycle); the retained image
+    // takes them when every domain did.
+    auto raw = encode_field(*sig, value);
+    if (!raw) [[unlikely]] {
+      return raw.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
+    }
+    for (const auto& r : impl_->routes) {
+      if (r.sync_manager != sig->sync_manager) continue;
+      if (auto w = r.domain->write_bits(r.handle, sig->bit_offset, sig->bit_length, *raw); !w)
+          [[unlikely]] {
+        return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,
+                                             name_, r.domain->id()));
+      }
+    }
+    return store_field(*sig, *raw, it->second);
   }
   // Encoded into a scratch image kept between calls (its capacity stays), so a write does not
   // allocate; it replaces the retained image only when every domain took it.

@@ -8,7 +8,6 @@
 #include <mutex>
 #include <optional>
 #include <string>
-#include <unordered_map>
 #include <vector>
 
 #include <ecat/config/esi.hpp>
@@ -77,7 +76,11 @@ struct Slave::Impl {
     PdoHandle handle{};
   };
   std::vector<Route> routes;
-  std::unordered_map<std::string_view, std::size_t> signal_index;  // views into `signals`
+  // The signals by name: open addressing over a power-of-two table of signal index + 1 (0:
+  // empty), at most half full, probed linearly from name_hash(name); empty when two signals share
+  // a name (find_signal then walks `signals`, keeping the first).
+  std::vector<std::uint32_t> signal_index;
+  static std::uint64_t name_hash(std::string_view name) noexcept;
   // SM1's status mapped into a domain (mailbox status in the cyclic frame), when it is.
   std::optional<detail::MailboxStatusMapping> mailbox_status;
   // The retained output image of each output SyncManager: what write_output staged; written to
@@ -127,6 +130,14 @@ struct Slave::Impl {
   const Signal* find_signal(std::string_view name) const noexcept;
   const SmAttachment* attachment_for(std::uint8_t sm) const noexcept;
   const Route* route_for(std::uint8_t sm) const noexcept;
+  // A signal the hot path reads and stages as its own bits (Domain::read_fresh_bits /
+  // write_bits, decode_field / encode_field): a scalar of 1..64 bits inside an SM image of
+  // `image_bytes`. Others (bytes, a field outside its image) take the whole-image path, whose
+  // codecs name what is wrong.
+  static bool is_field(const Signal& s, std::size_t image_bytes) noexcept {
+    return s.type != SignalType::bytes && s.bit_length != 0 && s.bit_length <= 64 &&
+           std::uint64_t{s.bit_offset} + s.bit_length <= std::uint64_t{image_bytes} * 8;
+  }
   // Rebuilds `routes` and `signal_index` from `attachments` and `signals` (under `mutex`).
   void index_routes();
   // Engineering values of every signal: inputs from `inputs` (per SM image), outputs as staged;

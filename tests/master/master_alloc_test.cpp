@@ -76,12 +76,15 @@ TEST(MasterAllocations, SteadyOpCycleAndHotPathAllocateNothing) {
   ASSERT_TRUE(master.await_operational(20s));
   auto outputs = master.slave("outputs");
   auto inputs = master.slave("inputs");
-  ASSERT_TRUE(outputs && inputs);
+  auto drive = master.slave("drive");
+  ASSERT_TRUE(outputs && inputs && drive);
 
   // Warm up: the first writes size the scratch buffers.
   for (int i = 0; i < 10; ++i) {
     ASSERT_TRUE((*outputs)->write_output("channel_2", Value(i % 2 == 0)));
     (void)(*inputs)->read_input("channel_2");
+    ASSERT_TRUE((*drive)->write_output("target_position", Value(std::int64_t{i})));
+    (void)(*drive)->read_input("statusword");
   }
   while (cycles.load() < 20)
     std::this_thread::sleep_for(1ms);
@@ -95,9 +98,15 @@ TEST(MasterAllocations, SteadyOpCycleAndHotPathAllocateNothing) {
     const bool on = (i / 100) % 2 == 0;
     auto w = (*outputs)->write_output("channel_2", Value(on));
     auto r = (*inputs)->read_input("channel_2");
-    if (!w || !r) {
+    // Multi-byte signals too: a 32-bit output, a 16-bit input.
+    auto w32 = (*drive)->write_output("target_position", Value(std::int64_t{-100'000 + i}));
+    auto r16 = (*drive)->read_input("statusword");
+    if (!w || !r || !w32 || !r16) {
       allocs::count_this_thread = false;
-      FAIL() << (!w ? w.error().describe() : r.error().describe());
+      FAIL() << (!w     ? w.error().describe()
+                 : !r   ? r.error().describe()
+                 : !w32 ? w32.error().describe()
+                        : r16.error().describe());
     }
     if (i % 20 == 0) std::this_thread::sleep_for(1ms);
   }

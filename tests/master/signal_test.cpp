@@ -1,4 +1,5 @@
 #include <atomic>
+#include <bit>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
@@ -225,6 +226,102 @@ TEST(SignalCodec, ScalarCodecsDoNotAllocate) {
     if (!encode_scaled(t, Value(k * 0.1), image).ok()) std::abort();
     sum += *as_double(*decode(u, image)) + *as_double(*decode(i, image)) +
            *as_double(*decode(r, image)) + *as_double(*decode_scaled(t, image));
+  }
+  EXPECT_EQ(allocs::total.load() - before, 0u);
+  EXPECT_GT(sum, 0);
+}
+
+// The field codecs (the hot path's) agree with the image codecs for every scalar type, length
+// and offset: encode_field + store_field writes what encode_scaled writes, decode_field of the
+// field's bits reads what decode_scaled reads, and they round-trip.
+TEST(SignalFieldCodec, AgreesWithTheImageCodecsAndRoundTrips) {
+  std::mt19937_64 rng(17);
+  const SignalType types[] = {SignalType::boolean, SignalType::int8,   SignalType::int16,
+                              SignalType::int32,   SignalType::int64,  SignalType::uint8,
+                              SignalType::uint16,  SignalType::uint32, SignalType::uint64,
+                              SignalType::real32,  SignalType::real64};
+  for (const SignalType type : types) {
+    const std::uint16_t max = max_bit_length(type);
+    const bool real = type == SignalType::real32 || type == SignalType::real64;
+    for (std::uint16_t bits = real ? max : 1; bits <= max; ++bits) {
+      for (std::uint32_t off : {0u, 3u, 8u, 13u}) {
+        for (bool scaled : {false, true}) {
+          // Scaled: not booleans (a scale does not apply to them), and only as wide as a double
+          // holds exactly.
+          if (scaled && (type == SignalType::boolean || (!real && bits > 48))) continue;
+          Signal s = field(type, off, bits);
+          if (scaled) s.scale = LinearScale{0.5, -2.0, std::nullopt, std::nullopt};
+          auto image = noise(12, rng);
+          auto expected = image;
+          const std::uint64_t mask =
+              bits >= 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << bits) - 1;
+          // A raw pattern the field holds, read back through both codecs.
+          const std::uint64_t raw_pattern =
+              real ? (type == SignalType::real32
+                          ? std::uint64_t{std::bit_cast<std::uint32_t>(
+                                static_cast<float>(rng() % 1000) / 4)}
+                          : std::bit_cast<std::uint64_t>(static_cast<double>(rng() % 1000) / 4))
+                   : rng() & mask;
+          // A boolean reads any non-zero field as true and writes true as 1: round-trips 0/1.
+          const std::uint64_t raw_in = type == SignalType::boolean ? raw_pattern & 1u : raw_pattern;
+          ASSERT_TRUE(store_field(s, raw_in, expected).ok());
+          EXPECT_EQ(reference_read(expected, off, bits), raw_in);
+          EXPECT_EQ(outside(expected, off, bits), outside(image, off, bits));
+          auto via_image = decode_scaled(s, expected);
+          auto via_field = decode_field(s, raw_in | (bits < 64 ? ~mask : 0));  // high bits ignored
+          ASSERT_TRUE(via_image.ok() && via_field.ok()) << to_string(type) << bits;
+          EXPECT_EQ(*via_image, *via_field) << to_string(type) << " " << bits << "@" << off;
+          // Round trip: the value read encodes to the same bits, as encode_scaled writes them.
+          auto back = encode_field(s, *via_field);
+          ASSERT_TRUE(back.ok()) << to_string(type) << bits << " " << back.error().describe();
+          EXPECT_EQ(*back, raw_in) << to_string(type) << " " << bits << "@" << off;
+          auto written = image;
+          ASSERT_TRUE(encode_scaled(s, *via_field, written).ok());
+          EXPECT_EQ(written, expected);
+        }
+      }
+    }
+  }
+}
+
+TEST(SignalFieldCodec, ErrorsAsTheImageCodecs) {
+  std::vector<std::uint8_t> image(4, 0);
+  const Signal u8 = field(SignalType::uint8, 0, 8, "channel_3.level");
+  auto big = encode_field(u8, Value(std::int64_t{256}));
+  ASSERT_FALSE(big.ok());
+  auto big_image = encode(u8, Value(std::int64_t{256}), image);
+  EXPECT_EQ(big.error().message(), big_image.error().message());
+  EXPECT_EQ(big.error().code(), Errc::out_of_range);
+  EXPECT_FALSE(encode_field(u8, Value(std::string("x"))).ok());
+  Signal v = field(SignalType::int16, 0, 16, "channel_1.output");
+  v.unit = "V";
+  v.scale = LinearScale{10.0 / 32767.0, 0.0, 0.0, 10.0};
+  auto high = encode_field(v, Value(10.5));
+  ASSERT_FALSE(high.ok());
+  EXPECT_EQ(high.error().message(), "signal 'channel_1.output': value 10.5 V out of range 0..10 V");
+  // Not scalar fields: bytes, too long for the type, outside the image.
+  auto bytes = decode_field(field(SignalType::bytes, 0, 16, "blob"), 0);
+  ASSERT_FALSE(bytes.ok());
+  EXPECT_EQ(bytes.error().code(), Errc::unsupported);
+  EXPECT_NE(bytes.error().message().find("blob"), std::string::npos);
+  EXPECT_FALSE(encode_field(field(SignalType::uint8, 0, 9), Value(std::uint64_t{1})).ok());
+  EXPECT_FALSE(decode_field(field(SignalType::real32, 0, 16), 0).ok());
+  EXPECT_FALSE(store_field(field(SignalType::uint16, 24, 16), 1, image).ok());
+  EXPECT_EQ(image, std::vector<std::uint8_t>(4, 0));
+}
+
+TEST(SignalFieldCodec, DoesNotAllocate) {
+  Signal t = field(SignalType::int16, 40, 16);
+  t.scale = LinearScale{0.1, 0.0, std::nullopt, std::nullopt};
+  const Signal u = field(SignalType::uint32, 3, 27);
+  std::vector<std::uint8_t> image(16, 0);
+  const auto before = allocs::total.load();
+  double sum = 0;
+  for (int k = 0; k < 1000; ++k) {
+    auto a = encode_field(t, Value(k * 0.1));
+    auto b = encode_field(u, Value(std::uint64_t(k)));
+    if (!a || !b || !store_field(u, *b, image)) std::abort();
+    sum += *as_double(*decode_field(t, *a)) + *as_double(*decode_field(u, *b));
   }
   EXPECT_EQ(allocs::total.load() - before, 0u);
   EXPECT_GT(sum, 0);

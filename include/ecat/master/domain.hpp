@@ -239,6 +239,11 @@ class Domain final : public CyclicParticipant {
   // stale_after.
   Result<std::size_t> read_fresh(PdoHandle handle, wire::MutableBytes out) const;
   Result<std::size_t> read_fresh(PdoKey key, wire::MutableBytes out) const;
+  // read_fresh of `bit_length` (1..64) bits at `bit_offset` within an input image only (LSB
+  // first, the mirror of write_bits): the bytes they cover, from one cycle, with read_fresh's
+  // checks and errors (Errc::invalid_argument for an output or bits outside the image).
+  Result<std::uint64_t> read_fresh_bits(PdoHandle handle, std::size_t bit_offset,
+                                        std::size_t bit_length) const;
   // Value plus timestamps and freshness.
   Result<SampleInfo> sample(PdoHandle handle, wire::MutableBytes out) const;
   Result<SampleInfo> sample(PdoKey key, wire::MutableBytes out) const;
@@ -296,6 +301,7 @@ class Domain final : public CyclicParticipant {
   Result<void> write_bits_entry(const Entry& e, std::size_t bit_offset, std::size_t bit_length,
                                 std::uint64_t value);
   Result<SampleInfo> sample_entry(const Entry& e, wire::MutableBytes out, bool fail_stale) const;
+  Result<void> check_fresh(const Entry& e, std::int64_t refreshed) const;
   Result<void> build_exchanges_locked();
   std::vector<DomainDatagram> plan_locked() const;
 

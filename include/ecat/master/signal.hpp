@@ -129,6 +129,21 @@ Result<Value> decode_scaled(const Signal& signal, std::span<const std::uint8_t> 
 Result<void> encode_scaled(const Signal& signal, const Value& value,
                            std::span<std::uint8_t> sm_image);
 
+// The same codecs for a field already taken out of its image (the hot path reads and stages only
+// a signal's own bits: Domain::read_fresh_bits / write_bits). Scalar signals of 1..64 bits only
+// (not bytes): others fail with validate_signal's error or Errc::unsupported.
+//   decode_field: the engineering value of the field whose raw bits are the low bit_length bits
+//                 of `raw` (higher bits are ignored), as decode_scaled would read it.
+//   encode_field: the raw bits (in the low bit_length bits) for an engineering value, checked
+//                 and failing as encode_scaled would.
+//   store_field:  writes raw bits (as encode_field made them) into the signal's place in an
+//                 image, leaving every other bit as it was; fails like encode for a field that
+//                 does not lie inside the image.
+// decode_field(s, encode_field(s, v)) gives v back for every v the field holds exactly.
+Result<Value> decode_field(const Signal& signal, std::uint64_t raw);
+Result<std::uint64_t> encode_field(const Signal& signal, const Value& value);
+Result<void> store_field(const Signal& signal, std::uint64_t raw, std::span<std::uint8_t> sm_image);
+
 // Parses text (a command line, a configuration file) into a value for the signal: "true" /
 // "false" / "1" / "0" for booleans, decimal or 0x-hexadecimal integers, decimal reals, hex byte
 // strings ("0a0b" or "0a 0b") for bytes. A scaled signal takes a real in engineering units.

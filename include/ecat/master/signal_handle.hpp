@@ -9,9 +9,9 @@
 // Resolution (control side, on a running session whose slaves have their PREOP configuration)
 // looks the slave and the signal up once and keeps where the signal lives: the domain(s) its
 // SyncManager is registered in and its registration there. read() and write() then go straight to
-// the domains' process images (Domain::read_fresh / read / write_bits): they never take a mutex,
-// never wait for the control thread and allocate nothing on success (scalar signals; errors build
-// a message). Values are in engineering units, as Slave::read_input / write_output use them.
+// the domains' process images (Domain::read_fresh_bits / read / write_bits): they never take a
+// mutex, never wait for the control thread and allocate nothing on success (scalar signals; errors
+// build a message). Values are in engineering units, as Slave::read_input / write_output use them.
 //
 // Threads: a handle is used by one thread at a time (it owns a scratch copy of its SyncManager
 // image); copy it for another thread. It refers to the session's domains, so it is valid until
@@ -19,10 +19,10 @@
 // unbound and its calls fail with Errc::not_ready.
 //
 // Writes change only the signal's own bits of the staged output image (Domain::write_bits): two
-// handles of one SyncManager do not disturb each other. Slave::write_output and driver commands
-// restage the slave's whole SyncManager image from the slave's own retained copy, which does not
-// see handle writes: write one SyncManager's outputs either through handles or through the
-// Slave, not both.
+// handles of one SyncManager do not disturb each other. Slave::write_output stages a scalar
+// signal's own bits too, but the slave keeps a retained copy of each SyncManager image that does
+// not see handle writes and restages it whole (after a reconnect, and for a `bytes` signal's
+// write): write one SyncManager's outputs either through handles or through the Slave, not both.
 #pragma once
 
 #include <cstdint>

@@ -1,0 +1,199 @@
+// Slave::read_input / write_output on a running master: a scalar signal is read and staged as its
+// own bits (Domain::read_fresh_bits / write_bits) and must say what the whole SM image says, fail
+// closed when stale with the error naming the signal, and stage a multi-byte value whole.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include <ecat/master/master.hpp>
+
+#include "master/master_test_support.hpp"
+
+namespace ecat::master {
+namespace {
+
+using namespace std::chrono_literals;
+
+constexpr const char* kRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: drive, profile: servo}
+  wiring:
+    - {from: outputs.channel_2, to: inputs.channel_2}
+)";
+
+template <class F>
+bool eventually(F&& f, std::chrono::milliseconds limit = 5s) {
+  const auto end = std::chrono::steady_clock::now() + limit;
+  while (std::chrono::steady_clock::now() < end) {
+    if (f()) return true;
+    std::this_thread::sleep_for(1ms);
+  }
+  return f();
+}
+
+struct Running {
+  std::unique_ptr<sim::SimServer> server;
+  std::unique_ptr<Master> master;
+
+  Running() {
+    server = test::make_sim_server(kRing);
+    if (!server) return;
+    MasterConfig config = test::quick_config(2ms);
+    config.frame_timeout = 1s;  // no spurious loss on a loaded machine
+    config.domains[0].recovery_threshold = 1'000'000;
+    config.domains[0].miss_threshold = 1'000'000;
+    config.domains[0].stale_after = 2s;
+    config.slaves.push_back(test::quick_slave("drive"));
+    for (auto& s : config.slaves)
+      s.health_poll.reset();
+    master = std::make_unique<Master>(config);
+    auto link = server->serve_memory();
+    if (!link || !master->start(std::move(*link)) || !master->await_operational(20s)) {
+      master.reset();
+    }
+  }
+  ~Running() {
+    if (master) (void)master->stop();
+  }
+  Slave& slave(std::string_view name) { return **master->slave(name); }
+  Domain& domain() { return **master->domain("main"); }
+  // The SM image a signal lies in, as the domain holds it now.
+  std::vector<std::uint8_t> image_of(Slave& s, const Signal& sig) {
+    const SlaveInfo info = s.info();
+    for (const auto& a : info.attachments) {
+      if (a.sync_manager != sig.sync_manager) continue;
+      auto bytes = domain().read(PdoKey{info.station, a.sync_manager});
+      if (bytes) return *bytes;
+    }
+    return {};
+  }
+};
+
+const Signal* find(const std::vector<Signal>& signals, std::string_view name) {
+  const auto it =
+      std::find_if(signals.begin(), signals.end(), [&](const Signal& s) { return s.name == name; });
+  return it == signals.end() ? nullptr : &*it;
+}
+
+TEST(SlaveHotPath, FieldReadsSayWhatTheImageSaysAndStaleInputsFail) {
+  Running r;
+  ASSERT_TRUE(r.master);
+  Slave& in = r.slave("inputs");
+  Slave& out = r.slave("outputs");
+  ASSERT_TRUE(out.write_output("channel_2", Value(true)));
+  ASSERT_TRUE(eventually([&] {
+    auto v = in.read_input("channel_2");
+    return v && *v == Value(true);
+  }));
+  // Every input signal of the EL1809 and the drive reads as the whole image decodes (the image
+  // is read before and after: equal, nothing changed in between).
+  for (Slave* s : {&in, &r.slave("drive")}) {
+    const auto signals = s->signals();
+    std::size_t compared = 0;
+    for (const auto& sig : signals) {
+      if (sig.direction != PdoDirection::input) continue;
+      bool same = false;
+      for (int attempt = 0; attempt < 100 && !same; ++attempt) {
+        const auto before = r.image_of(*s, sig);
+        auto value = s->read_input(sig.name);
+        const auto after = r.image_of(*s, sig);
+        ASSERT_TRUE(value.ok()) << sig.name << ": " << value.error().describe();
+        if (before != after || before.empty()) continue;
+        auto expected = decode_scaled(sig, before);
+        ASSERT_TRUE(expected.ok());
+        EXPECT_EQ(*value, *expected) << s->name() << " " << sig.name;
+        same = true;
+      }
+      EXPECT_TRUE(same) << sig.name << " kept changing";
+      ++compared;
+    }
+    EXPECT_GT(compared, 0u) << s->name();
+  }
+  // Errors as before: unknown signals and inputs written are named.
+  auto unknown = in.read_input("channel_99");
+  ASSERT_FALSE(unknown.ok());
+  EXPECT_EQ(unknown.error().code(), Errc::not_found);
+  EXPECT_EQ(unknown.error().message(), "slave inputs has no signal \"channel_99\"");
+  auto to_input = in.write_output("channel_1", Value(true));
+  ASSERT_FALSE(to_input.ok());
+  EXPECT_EQ(to_input.error().code(), Errc::invalid_argument);
+  auto too_big = r.slave("drive").write_output("target_position", Value(std::int64_t{1} << 40));
+  ASSERT_FALSE(too_big.ok());
+  EXPECT_EQ(too_big.error().code(), Errc::out_of_range);
+  EXPECT_NE(too_big.error().message().find("output \"target_position\" of slave drive"),
+            std::string::npos);
+
+  // The domain stops: after stale_after the read fails closed, naming the signal and the slave.
+  ASSERT_TRUE(r.domain().stop_cycling());
+  std::this_thread::sleep_for(2500ms);
+  auto stale = in.read_input("channel_2");
+  ASSERT_FALSE(stale.ok());
+  EXPECT_EQ(stale.error().code(), Errc::stale);
+  EXPECT_EQ(stale.error().message(), "input \"channel_2\" of slave inputs");
+  ASSERT_NE(stale.error().cause(), nullptr);
+  EXPECT_NE(stale.error().cause()->message().find("(input) is stale"), std::string::npos);
+}
+
+// A writer alternates a 32-bit output between two values whose every byte differs while a reader
+// takes the staged image as a cycle would (under the staging lock): each image holds one of the
+// values whole, never bytes of both. The slave's retained copy (read_input of an output) too.
+TEST(SlaveHotPath, MultiByteOutputsAreStagedWhole) {
+  Running r;
+  ASSERT_TRUE(r.master);
+  Slave& drive = r.slave("drive");
+  const auto signals = drive.signals();
+  const Signal* target = find(signals, "target_position");
+  ASSERT_NE(target, nullptr);
+  ASSERT_GE(target->bit_length, 32);
+  const Value a(std::int64_t{0x11223344});
+  const Value b(std::int64_t{-0x55667788});
+  ASSERT_TRUE(drive.write_output("target_position", a));
+  std::atomic<bool> stop{false};
+  std::atomic<int> write_errors{0};
+  std::thread writer([&] {
+    for (std::uint64_t i = 0; !stop.load(); ++i) {
+      if (!drive.write_output("target_position", (i & 1) != 0 ? a : b)) write_errors.fetch_add(1);
+      if (i % 256 == 0) std::this_thread::yield();
+    }
+  });
+  std::size_t seen_a = 0, seen_b = 0, torn = 0;
+  const auto end = std::chrono::steady_clock::now() + 300ms;
+  while (std::chrono::steady_clock::now() < end) {
+    const auto image = r.image_of(drive, *target);
+    auto staged = decode_scaled(*target, image);
+    auto retained = drive.read_input("target_position");
+    ASSERT_TRUE(staged.ok() && retained.ok());
+    for (const Value& v : {*staged, *retained}) {
+      if (v == a) {
+        ++seen_a;
+      } else if (v == b) {
+        ++seen_b;
+      } else {
+        ++torn;
+      }
+    }
+  }
+  stop.store(true);
+  writer.join();
+  EXPECT_EQ(write_errors.load(), 0);
+  EXPECT_EQ(torn, 0u);
+  EXPECT_GT(seen_a + seen_b, 0u);
+  // The last value written is what the domain and the slave hold.
+  ASSERT_TRUE(drive.write_output("target_position", b));
+  EXPECT_EQ(*decode_scaled(*target, r.image_of(drive, *target)), b);
+  EXPECT_EQ(*drive.read_input("target_position"), b);
+}
+
+}  // namespace
+}  // namespace ecat::master
