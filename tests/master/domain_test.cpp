@@ -350,6 +350,18 @@ TEST(DomainCycleTest, OutputsAppearAsInputsWithExactWkc) {
   ASSERT_TRUE(d.write_bits(PdoKey{kOutputs, 1}, 7, 1, 1).ok());
   ASSERT_TRUE(d.write_bits(PdoKey{kOutputs, 0}, 0, 1, 0).ok());
   ASSERT_TRUE(lb.inputs_become({0xA4, 0xBC}));
+  // A field across the two input bytes (bits 4..11: 0xCA), read alone; outputs have no freshness.
+  const auto in_handle = d.find(PdoKey{kInputs, 0});
+  const auto out_handle = d.find(PdoKey{kOutputs, 0});
+  ASSERT_TRUE(in_handle.ok() && out_handle.ok());
+  auto across = d.read_fresh_bits(*in_handle, 4, 8);
+  for (int retry = 0; retry < 1000 && !across && across.error().code() == Errc::stale; ++retry) {
+    std::this_thread::sleep_for(kPeriod);  // a starved bus thread on a loaded machine
+    across = d.read_fresh_bits(*in_handle, 4, 8);
+  }
+  ASSERT_TRUE(across.ok()) << across.error().describe();
+  EXPECT_EQ(*across, 0xCAu);
+  EXPECT_EQ(d.read_fresh_bits(*out_handle, 0, 1).error().code(), Errc::invalid_argument);
 
   // Sample: value, timestamps, freshness.
   auto s = d.sample(PdoKey{kInputs, 0});
@@ -406,6 +418,16 @@ TEST(DomainCycleTest, FreshnessNotReadyFreshStale) {
   EXPECT_EQ(domain->read(*handle, small).error().code(), Errc::invalid_argument);
   EXPECT_EQ(domain->read_fresh(*handle, small).error().code(), Errc::invalid_argument);
   EXPECT_EQ(domain->read(PdoHandle{99}, buffer).error().code(), Errc::not_found);
+  // read_fresh_bits: the same answers, and its own argument checks.
+  EXPECT_EQ(domain->read_fresh_bits(*handle, 0, 16).error().code(), Errc::not_ready);
+  EXPECT_EQ(domain->read_fresh_bits(PdoHandle{99}, 0, 1).error().code(), Errc::not_found);
+  auto outside = domain->read_fresh_bits(*handle, 9, 8);  // bits 9..16 of a 16-bit image
+  ASSERT_FALSE(outside.ok());
+  EXPECT_EQ(outside.error().code(), Errc::invalid_argument);
+  EXPECT_EQ(outside.error().message(),
+            "domain \"main\": cannot read bits 9..17 of station 0x1002 SM0: the SM image has 16 "
+            "bits and at most 64 bits are read at once");
+  EXPECT_EQ(domain->read_fresh_bits(*handle, 0, 0).error().code(), Errc::invalid_argument);
 
   ASSERT_TRUE(domain->start_cycling().ok());
   rig->all_to(wire::AlState::safeop);
@@ -418,6 +440,21 @@ TEST(DomainCycleTest, FreshnessNotReadyFreshStale) {
   auto got = domain->read_fresh(*handle, buffer);
   ASSERT_TRUE(got.ok());
   EXPECT_EQ(*got, 2u);
+  // The bits of the image just read, at every offset and length (the inputs do not change here:
+  // nothing drives them).
+  const std::uint64_t image = std::uint64_t{buffer[0]} | (std::uint64_t{buffer[1]} << 8);
+  for (std::size_t off = 0; off < 16; ++off) {
+    for (std::size_t len = 1; off + len <= 16; ++len) {
+      auto bits = domain->read_fresh_bits(*handle, off, len);
+      // A loaded machine may starve the bus thread past stale_after: that read is retried.
+      for (int retry = 0; retry < 1000 && !bits && bits.error().code() == Errc::stale; ++retry) {
+        std::this_thread::sleep_for(kPeriod);
+        bits = domain->read_fresh_bits(*handle, off, len);
+      }
+      ASSERT_TRUE(bits.ok()) << off << "+" << len;
+      EXPECT_EQ(*bits, (image >> off) & ((std::uint64_t{1} << len) - 1)) << off << "+" << len;
+    }
+  }
   EXPECT_EQ(domain->read(*handle, buffer).value(), 2u);
 
   ASSERT_TRUE(domain->stop_cycling().ok());
@@ -430,6 +467,11 @@ TEST(DomainCycleTest, FreshnessNotReadyFreshStale) {
   ASSERT_FALSE(fresh.ok());
   EXPECT_EQ(fresh.error().code(), Errc::stale);
   EXPECT_NE(fresh.error().message().find("station 0x1002 SM0 (input) is stale"), std::string::npos);
+  auto stale_bits = domain->read_fresh_bits(*handle, 3, 5);
+  ASSERT_FALSE(stale_bits.ok());
+  EXPECT_EQ(stale_bits.error().code(), Errc::stale);
+  EXPECT_NE(stale_bits.error().message().find("station 0x1002 SM0 (input) is stale"),
+            std::string::npos);
   EXPECT_TRUE(domain->read(PdoKey{kInputs, 0}, buffer).ok());  // the image stays readable
   (void)cycler.stop();
 }
