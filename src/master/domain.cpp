@@ -1605,7 +1605,7 @@ void Domain::on_exchange_done(Exchange& x) noexcept {
       if (present != 0) lo += share(present, slot);
       const std::uint32_t hi = joining != 0 ? lo + share(joining, slot) : lo;
       // A joining group's slaves switch their shares on one by one (an input slave counts from
-      // SAFEOP, an output slave's write only from OP): any part of the joining share is whole.
+      // SAFEOP, an output slave's write only from OP): any part of the joining share is valid.
       if (wkc < lo || wkc > hi) first_bad = static_cast<std::uint16_t>(slot);
     }
     c.last_wkc.store(actual, std::memory_order_relaxed);
