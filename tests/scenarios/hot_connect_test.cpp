@@ -388,39 +388,24 @@ slaves: [{name: coupler}]
   EXPECT_EQ(ok->hot_connect[0].alias, 0x0042);
   EXPECT_EQ(ok->hot_connect[0].reserve_bytes, 32u);
   EXPECT_EQ(ok->hot_connect[0].slaves[0].revision, 0x00110000u);
-  auto bad_revision =
-      parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: a, revision: -1}]}]\n");
-  ASSERT_FALSE(bad_revision);
-  EXPECT_NE(bad_revision.error().describe().find("slaves[0].revision"), std::string::npos)
-      << bad_revision.error().describe();
-
-  auto unnamed = parse("hot_connect: [{alias: 1, slaves: [{name: a}]}]\n");
-  ASSERT_FALSE(unnamed);
-  EXPECT_NE(unnamed.error().describe().find("hot_connect[0]"), std::string::npos)
-      << unnamed.error().describe();
-  auto unrecognisable = parse("hot_connect: [{group: tool, slaves: [{name: a}]}]\n");
-  ASSERT_FALSE(unrecognisable);
-  EXPECT_NE(unrecognisable.error().describe().find("cannot be recognised"), std::string::npos)
-      << unrecognisable.error().describe();
-  auto positioned =
-      parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: a, position: 4}]}]\n");
-  ASSERT_FALSE(positioned);
-  EXPECT_NE(positioned.error().describe().find("hot_connect[0].slaves[0].position"),
-            std::string::npos)
-      << positioned.error().describe();
-  auto twice = parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: coupler}]}]\n");
-  ASSERT_FALSE(twice);
-  EXPECT_NE(twice.error().describe().find("used twice"), std::string::npos)
-      << twice.error().describe();
-  auto domain =
-      parse("hot_connect: [{group: tool, alias: 1, slaves: [{name: a, process_data: nowhere}]}]\n");
-  ASSERT_FALSE(domain);
-  EXPECT_NE(domain.error().describe().find("unknown domain"), std::string::npos)
-      << domain.error().describe();
-  auto unknown_key = parse("hot_connect: [{group: tool, alias: 1, where: 3, slaves: []}]\n");
-  ASSERT_FALSE(unknown_key);
-  EXPECT_NE(unknown_key.error().describe().find("where"), std::string::npos)
-      << unknown_key.error().describe();
+  // Each refused, naming what is wrong.
+  const std::pair<const char*, const char*> refused[] = {
+      {"hot_connect: [{group: tool, alias: 1, slaves: [{name: a, revision: -1}]}]\n",
+       "slaves[0].revision"},
+      {"hot_connect: [{alias: 1, slaves: [{name: a}]}]\n", "hot_connect[0]"},
+      {"hot_connect: [{group: tool, slaves: [{name: a}]}]\n", "cannot be recognised"},
+      {"hot_connect: [{group: tool, alias: 1, slaves: [{name: a, position: 4}]}]\n",
+       "hot_connect[0].slaves[0].position"},
+      {"hot_connect: [{group: tool, alias: 1, slaves: [{name: coupler}]}]\n", "used twice"},
+      {"hot_connect: [{group: tool, alias: 1, slaves: [{name: a, process_data: nowhere}]}]\n",
+       "unknown domain"},
+      {"hot_connect: [{group: tool, alias: 1, where: 3, slaves: []}]\n", "where"},
+  };
+  for (const auto& [tail, named] : refused) {
+    auto bad = parse(tail);
+    ASSERT_FALSE(bad) << tail;
+    EXPECT_NE(bad.error().describe().find(named), std::string::npos) << bad.error().describe();
+  }
 }
 
 // ---- groups on a junction port in the middle of the ring -----------------------------------
