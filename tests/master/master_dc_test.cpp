@@ -417,18 +417,10 @@ void power_cycle_and_heal(Master& master, sim::SimServer& server, const char* vi
 TEST(MasterDcRedundant, LocksOnARedundantRing) {
   auto server = test::make_sim_server(kRing);
   ASSERT_TRUE(server);
-  sim::RedundantPortsOptions options;
-  auto ports = sim::RedundantPorts::create(*server, options);
-  ASSERT_TRUE(ports) << ports.error().describe();
-  link::RedundantLinkOptions link_options;
-  link_options.primary_mac = options.primary_mac;
-  link_options.secondary_mac = options.secondary_mac;
-  auto link =
-      link::RedundantLink::open((*ports)->take_link(wire::RedundantPort::primary),
-                                (*ports)->take_link(wire::RedundantPort::secondary), link_options);
-  ASSERT_TRUE(link) << link.error().describe();
+  auto [ports, link] = test::open_redundant_link(*server);
+  ASSERT_TRUE(ports && link);
   Master master(dc_config());
-  ASSERT_TRUE(master.start(std::move(*link)));
+  ASSERT_TRUE(master.start(std::move(link)));
   auto op = master.await_operational(20s);
   ASSERT_TRUE(op) << op.error().describe();
   auto locked = master.await_dc_locked(20s);
@@ -461,14 +453,14 @@ TEST(MasterDcRedundant, LocksOnARedundantRing) {
   // The primary's cable cut: the secondary's frame passes every slave unprocessed and is
   // processed on its way back in ring order, reference first, so the FRMW still carries the
   // reference's time to every slave and the delays between them are those of the whole ring.
-  ASSERT_TRUE((*ports)->set_topology(sim::RedundantTopology::cut_at(wire::RedundantPort::primary)));
+  ASSERT_TRUE(ports->set_topology(sim::RedundantTopology::cut_at(wire::RedundantPort::primary)));
   std::this_thread::sleep_for(300ms);
   EXPECT_LT(spread(), 1000);
   EXPECT_TRUE(eventually([&] {
     auto s = master.dc_status();
     return s && s->locked && s->reference_station == 0x1000;
   }));
-  ASSERT_TRUE((*ports)->set_topology(sim::RedundantTopology::whole_ring()));
+  ASSERT_TRUE(ports->set_topology(sim::RedundantTopology::whole_ring()));
   std::this_thread::sleep_for(300ms);
   EXPECT_LT(spread(), 1000);
 
@@ -483,16 +475,8 @@ TEST(MasterDcRedundant, LocksOnARedundantRing) {
 TEST(MasterDcRedundant, SlavesBehindABreakFreeRunOutsideTheLockAndRejoinWhenItHeals) {
   auto server = test::make_sim_server(kRing);
   ASSERT_TRUE(server);
-  sim::RedundantPortsOptions options;
-  auto ports = sim::RedundantPorts::create(*server, options);
-  ASSERT_TRUE(ports) << ports.error().describe();
-  link::RedundantLinkOptions link_options;
-  link_options.primary_mac = options.primary_mac;
-  link_options.secondary_mac = options.secondary_mac;
-  auto link =
-      link::RedundantLink::open((*ports)->take_link(wire::RedundantPort::primary),
-                                (*ports)->take_link(wire::RedundantPort::secondary), link_options);
-  ASSERT_TRUE(link) << link.error().describe();
+  auto [ports, link] = test::open_redundant_link(*server);
+  ASSERT_TRUE(ports && link);
   Master master(dc_config());
   std::mutex events_mutex;
   std::vector<std::string> dc_steps;
@@ -502,7 +486,7 @@ TEST(MasterDcRedundant, SlavesBehindABreakFreeRunOutsideTheLockAndRejoinWhenItHe
     if (e.kind == EventKind::dc_lost) ++dc_lost;
     if (e.kind == EventKind::recovery_step && e.name() == "dc") dc_steps.emplace_back(e.detail());
   });
-  ASSERT_TRUE(master.start(std::move(*link)));
+  ASSERT_TRUE(master.start(std::move(link)));
   auto op = master.await_operational(20s);
   ASSERT_TRUE(op) << op.error().describe();
   ASSERT_TRUE(master.await_dc_locked(20s));
@@ -538,7 +522,7 @@ TEST(MasterDcRedundant, SlavesBehindABreakFreeRunOutsideTheLockAndRejoinWhenItHe
   // What they free-run on is their rate correction: let it settle past the first lock.
   std::this_thread::sleep_for(2s);
 
-  ASSERT_TRUE((*ports)->set_topology(sim::RedundantTopology::broken_after(kBreakAfter)));
+  ASSERT_TRUE(ports->set_topology(sim::RedundantTopology::broken_after(kBreakAfter)));
   ASSERT_TRUE(eventually([&] {
     auto s = master.dc_status();
     return s && outside(*s) == behind;
@@ -567,7 +551,7 @@ TEST(MasterDcRedundant, SlavesBehindABreakFreeRunOutsideTheLockAndRejoinWhenItHe
   EXPECT_EQ(master.state(), MasterState::operational);
 
   // Healed: the delays measured again, the free-running slaves stepped back, all locked.
-  ASSERT_TRUE((*ports)->set_topology(sim::RedundantTopology::whole_ring()));
+  ASSERT_TRUE(ports->set_topology(sim::RedundantTopology::whole_ring()));
   EXPECT_TRUE(eventually([&] {
     auto s = master.dc_status();
     return s && s->locked && s->free_running == 0 && outside(*s).empty();

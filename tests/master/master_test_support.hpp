@@ -34,11 +34,13 @@
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
 #include <ecat/exec/transact.hpp>
+#include <ecat/link/redundant_link.hpp>
 #include <ecat/master/events.hpp>
 #include <ecat/master/mailbox.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/sii_reader.hpp>
 #include <ecat/sim/device.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/ring.hpp>
 #include <ecat/sim/segment.hpp>
 #include <ecat/sim/server.hpp>
@@ -117,6 +119,33 @@ inline std::unique_ptr<sim::SimServer> make_sim_server(std::string_view ring_yam
     return nullptr;
   }
   return std::move(*server);
+}
+
+// The server's ring with a second master port (sim::RedundantPorts, in process) and a
+// RedundantLink on both ports. `ports` must outlive `link`; both null after a failure (reported).
+struct RedundantRig {
+  std::unique_ptr<sim::RedundantPorts> ports;
+  std::unique_ptr<link::RedundantLink> link;
+};
+
+inline RedundantRig open_redundant_link(sim::SimServer& server) {
+  sim::RedundantPortsOptions options;
+  auto ports = sim::RedundantPorts::create(server, options);
+  if (!ports) {
+    ADD_FAILURE() << ports.error().describe();
+    return {};
+  }
+  link::RedundantLinkOptions link_options;
+  link_options.primary_mac = options.primary_mac;
+  link_options.secondary_mac = options.secondary_mac;
+  auto link =
+      link::RedundantLink::open((*ports)->take_link(wire::RedundantPort::primary),
+                                (*ports)->take_link(wire::RedundantPort::secondary), link_options);
+  if (!link) {
+    ADD_FAILURE() << link.error().describe();
+    return {};
+  }
+  return {std::move(*ports), std::move(*link)};
 }
 
 class SimBench {

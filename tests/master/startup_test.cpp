@@ -139,17 +139,9 @@ TEST_F(StartupTest, LinkPictureEndsTheScanEarlyOnlyWhenTheLinksAddUp) {
 TEST(RedundantStartup, TheCableBackToTheSecondPortIsNoMissingSlave) {
   auto server = test::make_sim_server(kRing);
   ASSERT_TRUE(server);
-  sim::RedundantPortsOptions options;
-  auto ports = sim::RedundantPorts::create(*server, options);
-  ASSERT_TRUE(ports) << ports.error().describe();
-  link::RedundantLinkOptions link_options;
-  link_options.primary_mac = options.primary_mac;
-  link_options.secondary_mac = options.secondary_mac;
-  auto link =
-      link::RedundantLink::open((*ports)->take_link(wire::RedundantPort::primary),
-                                (*ports)->take_link(wire::RedundantPort::secondary), link_options);
-  ASSERT_TRUE(link) << link.error().describe();
-  bus::Bus bus(std::move(*link));
+  auto [ports, link] = test::open_redundant_link(*server);
+  ASSERT_TRUE(ports && link);
+  bus::Bus bus(std::move(link));
   ASSERT_TRUE(bus.start());
   exec::EventLoop loop;
   loop.start_thread("test-control");
