@@ -135,6 +135,7 @@ void add_status(Json& out, const SimStatus& st) {
                          {"lost", c.lost},
                          {"malformed", c.malformed},
                          {"delayed", c.delayed},
+                         {"duplicated", c.duplicated},
                          {"send_errors", c.send_errors},
                          {"receive_errors", c.receive_errors},
                          {"idle_advances", c.idle_advances},
@@ -152,6 +153,20 @@ void add_status(Json& out, const SimStatus& st) {
                           {"plugged", g.plugged}});
   }
   out["hot_connect"] = std::move(groups);
+}
+
+// The second master port's counters and cabling (a redundant ring), beside the server's.
+void add_redundant(Json& out, const RedundantPorts& ports) {
+  const RedundantPortsStats p = ports.stats();
+  out["redundant"] = Json{{"topology", describe(ports.topology())},
+                          {"frames", p.frames},
+                          {"crosses", p.crosses},
+                          {"bounces", p.bounces},
+                          {"lost", p.lost},
+                          {"overflowed", p.overflowed},
+                          {"delayed", p.delayed},
+                          {"duplicated", p.duplicated},
+                          {"send_errors", p.send_errors}};
 }
 
 // The id echoed as the client wrote it: a string stays a string, a number a number.
@@ -213,8 +228,8 @@ Result<wire::RedundantPort> master_port(const RequestReader& r, std::string_view
                fmt::format("{}: unknown master port '{}' (known: primary, secondary)", key, *text));
 }
 
-std::string dispatch(SimServer& server, const RequestReader& r, const std::string& op,
-                     const RequestId& id) {
+std::string dispatch(SimServer& server, const RedundantPorts* redundant, const RequestReader& r,
+                     const std::string& op, const RequestId& id) {
   const auto fail = [&](const Error& e) { return error_reply(e.message(), id); };
   const auto reply = [](const Json& out) { return tree::dump_json(out); };
 #define ECAT_CHECK(expr)               \
@@ -229,6 +244,7 @@ std::string dispatch(SimServer& server, const RequestReader& r, const std::strin
     ECAT_CHECK(r.keys({"op", "id"}));
     Json out = ok_reply(id);
     add_status(out, server.status());
+    if (redundant != nullptr) add_redundant(out, *redundant);
     return reply(out);
   }
   if (op == "profiles") {
@@ -435,7 +451,8 @@ std::string status_json(const SimStatus& st) {
   return tree::dump_json(out);
 }
 
-std::string handle_control_request(SimServer& server, std::string_view request) {
+std::string handle_control_request(SimServer& server, std::string_view request,
+                                   const RedundantPorts* redundant) {
   while (!request.empty() && (request.back() == '\n' || request.back() == '\r')) {
     request.remove_suffix(1);
   }
@@ -458,7 +475,7 @@ std::string handle_control_request(SimServer& server, std::string_view request) 
   const SpecNode* op = parsed->find("op");
   if (op == nullptr) return error_reply("op: missing (e.g. {\"op\":\"status\"})", id);
   if (!op->is_scalar()) return error_reply("op: expected a string", id);
-  return dispatch(server, RequestReader(*parsed), op->text, id);
+  return dispatch(server, redundant, RequestReader(*parsed), op->text, id);
 }
 
 // ---- The socket -----------------------------------------------------------------------------
@@ -477,13 +494,14 @@ const std::string& ControlServer::path() const noexcept {
   return impl_->server->path();
 }
 
-Result<std::unique_ptr<ControlServer>> ControlServer::start(SimServer& server, std::string path) {
+Result<std::unique_ptr<ControlServer>> ControlServer::start(SimServer& server, std::string path,
+                                                            const RedundantPorts* redundant) {
   auto impl = std::make_unique<Impl>();
   // Owner only (the default mode): the channel can power-cycle slaves and inject faults.
   auto started = ipc::LineServer::start(
       std::move(path),
-      [&server](std::string_view line, const ipc::Peer&) {
-        return ipc::Reply{handle_control_request(server, line)};
+      [&server, redundant](std::string_view line, const ipc::Peer&) {
+        return ipc::Reply{handle_control_request(server, line, redundant)};
       },
       [](std::string_view message) { return error_reply(message); },
       {.max_line = kMaxControlLine, .what = "simulator"});

@@ -141,6 +141,7 @@ void handle_frame(SimServer::Impl& s, Segment& segment, FaultInjector& injector,
     if (length < s.buffer.size()) s.buffer.resize(length);
   }
   const ReplyPlan plan = injector.shape_reply(s.buffer);
+  s.stats.duplicated += plan.copies > 0 ? plan.copies - 1 : 0;
   if (plan.delay.count() > 0) {
     for (std::size_t i = 0; i < plan.copies; ++i)
       s.schedule(s.buffer, now + plan.delay.count());

@@ -11,8 +11,10 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <ecat/link/link.hpp>
+#include <ecat/sim/control.hpp>
 #include <ecat/sim/faults.hpp>
 #include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/ring.hpp>
@@ -156,6 +158,17 @@ TEST(RedundantFaults, DuplicateActsOnTheNamedPortOrOnBoth) {
             (std::vector<Arrival>{processed(0x10, 3, true), processed(0x10, 3, true)}));
   EXPECT_EQ(ring.take(RedundantPort::primary), (std::vector<Arrival>{passthrough(0x10)}));
   EXPECT_EQ(ring.ports->stats().duplicated, 1u);
+  // The control channel's status shows the two ports' counters when it is given the ports.
+  const auto status = nlohmann::json::parse(
+      handle_control_request(*ring.server, R"({"op":"status"})", ring.ports.get()));
+  ASSERT_TRUE(status.contains("redundant")) << status.dump();
+  EXPECT_EQ(status["redundant"]["duplicated"], 1);
+  EXPECT_EQ(status["redundant"]["frames"], 2);
+  EXPECT_EQ(status["redundant"]["crosses"], 2);  // both copies left by the other end
+  EXPECT_EQ(status["redundant"]["bounces"], 0);
+  EXPECT_EQ(status["redundant"]["topology"], describe(ring.ports->topology()));
+  EXPECT_FALSE(nlohmann::json::parse(handle_control_request(*ring.server, R"({"op":"status"})"))
+                   .contains("redundant"));
   ring.server->clear_faults();
 
   // Without a port: every frame, the secondary's unprocessed copy too (two exchanges).

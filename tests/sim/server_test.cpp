@@ -157,6 +157,8 @@ TEST(SimServerFunctionLink, ReplyFaultsShapeWhatLeaves) {
 
   ASSERT_TRUE(server.inject(fault::next(fault::duplicate_reply(), 1)).ok());
   EXPECT_EQ(server.exchange(brd_frame(1)).size(), 2u);
+  EXPECT_EQ(server.stats().duplicated, 1u);
+  EXPECT_EQ(server.stats().replies, 2u);
 
   ASSERT_TRUE(server.inject(fault::next(fault::drop_responses(), 1)).ok());
   EXPECT_TRUE(server.exchange(brd_frame(2)).empty());

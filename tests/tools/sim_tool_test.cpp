@@ -270,7 +270,10 @@ TEST_F(SimTool, PrintsASummaryEverySecondAndStopsOnSigint) {
       {"--ring", ring_.string(), "--udp", "127.0.0.1:0", "--control", socket_, "--summary"});
   ASSERT_THAT(first, HasSubstr("ecat sim: serving 3 slaves"));
   const std::string summary = read_line(5s);
-  EXPECT_THAT(summary, HasSubstr("frames 0 (+0/s)  replies 0  lost 0  malformed 0  OP 0/3"));
+  EXPECT_THAT(
+      summary,
+      HasSubstr(
+          "frames 0 (+0/s)  replies 0  lost 0  delayed 0  duplicated 0  malformed 0  OP 0/3"));
   ASSERT_EQ(::kill(child_, SIGINT), 0);
   std::string last;
   for (int i = 0; i < 5; ++i) {
@@ -386,6 +389,8 @@ TEST_F(SimTool, ServesARedundantRingOnTwoInterfacesAndBreaksItOnRequest) {
   r = run_tool("status --control '" + socket_ + "'");
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("redundant ring:   break after 1"));
+  EXPECT_THAT(r.out, HasSubstr("master ports:     frames "));
+  EXPECT_THAT(r.out, HasSubstr(" bounced  lost "));
   r = run_tool("fault inject ring_break 3 --control '" + socket_ + "'");
   EXPECT_EQ(r.status, 1);
   EXPECT_THAT(r.err, HasSubstr("cannot break after slave 3 (1..2)"));

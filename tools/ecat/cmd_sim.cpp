@@ -128,19 +128,32 @@ Result<std::unique_ptr<link::Link>> open_served_link(const Options& o) {
   return std::unique_ptr<link::Link>(std::move(*link));
 }
 
-std::string summary_line(const sim::SimStatus& st, std::uint64_t previous_frames) {
+// One line per second: the server's counters, or on a redundant ring the two ports' (frames
+// in, replies out by either port, and how they left: crossed to the other end or bounced back).
+std::string summary_line(const sim::SimStatus& st, const sim::RedundantPortsStats* ports,
+                         std::uint64_t previous_frames) {
   std::size_t op = 0;
   std::size_t errors = 0;
   for (const auto& s : st.slaves) {
     op += s.al_state == wire::AlState::op ? 1 : 0;
     errors += s.al_error ? 1 : 0;
   }
-  return fmt::format(
-      "frames {} (+{}/s)  replies {}  lost {}  malformed {}  OP {}/{}  AL errors {}  faults: {} "
-      "active, {} queued, {} scheduled",
-      st.counters.frames, st.counters.frames - previous_frames, st.counters.replies,
-      st.counters.lost, st.counters.malformed, op, st.slaves.size(), errors,
-      st.faults.active.size(), st.faults.queued.size(), st.faults.scheduled.size());
+  const std::uint64_t frames = ports != nullptr ? ports->frames : st.counters.frames;
+  std::string traffic =
+      ports != nullptr
+          ? fmt::format(
+                "frames {} (+{}/s)  replies {} ({} crossed, {} bounced)  lost {}  "
+                "delayed {}  duplicated {}  overflowed {}",
+                frames, frames - previous_frames, ports->crosses + ports->bounces, ports->crosses,
+                ports->bounces, ports->lost, ports->delayed, ports->duplicated, ports->overflowed)
+          : fmt::format(
+                "frames {} (+{}/s)  replies {}  lost {}  delayed {}  duplicated {}  "
+                "malformed {}",
+                frames, frames - previous_frames, st.counters.replies, st.counters.lost,
+                st.counters.delayed, st.counters.duplicated, st.counters.malformed);
+  return fmt::format("{}  OP {}/{}  AL errors {}  faults: {} active, {} queued, {} scheduled",
+                     traffic, op, st.slaves.size(), errors, st.faults.active.size(),
+                     st.faults.queued.size(), st.faults.scheduled.size());
 }
 
 int serve(const Options& o) {
@@ -212,7 +225,8 @@ int serve(const Options& o) {
     if (auto r = (*server)->serve(std::move(*link)); !r) return fail(2, r.error().describe());
   }
   const std::string control_path = o.control.empty() ? sim::default_control_path() : o.control;
-  auto control = sim::ControlServer::start(**server, control_path);
+  // The control server is stopped before the ports (below), so it may read their counters.
+  auto control = sim::ControlServer::start(**server, control_path, ports.get());
   if (!control) {
     if (ports) ports->stop();
     (*server)->stop();
@@ -228,17 +242,15 @@ int serve(const Options& o) {
     timespec one_second{1, 0};
     received = sigtimedwait(&stop_signals, nullptr, &one_second);
     if (received <= 0 && o.summary) {
-      auto status = (*server)->status();
-      if (ports) {
-        const auto p = ports->stats();
-        status.counters.frames = p.frames;
-        status.counters.replies = p.crosses + p.bounces;
-        status.counters.lost = p.lost;
-      }
-      std::printf("%s%s\n", summary_line(status, previous_frames).c_str(),
-                  status.faults.ring.empty() ? "" : ("  ring: " + status.faults.ring).c_str());
+      const auto status = (*server)->status();
+      std::optional<sim::RedundantPortsStats> port_stats;
+      if (ports) port_stats = ports->stats();
+      std::printf(
+          "%s%s\n",
+          summary_line(status, port_stats ? &*port_stats : nullptr, previous_frames).c_str(),
+          status.faults.ring.empty() ? "" : ("  ring: " + status.faults.ring).c_str());
       std::fflush(stdout);
-      previous_frames = status.counters.frames;
+      previous_frames = port_stats ? port_stats->frames : status.counters.frames;
     }
   }
   (*control)->stop();
@@ -348,9 +360,19 @@ int status(const Options& o) {
                 error ? hex(s.value("al_status_code", 0u), 4).c_str() : "", links.c_str());
   }
   const json& c = b["counters"];
-  std::printf("frames %llu  replies %llu  lost %llu  malformed %llu  delayed %llu\n",
-              c.value("frames", 0ull), c.value("replies", 0ull), c.value("lost", 0ull),
-              c.value("malformed", 0ull), c.value("delayed", 0ull));
+  std::printf(
+      "frames %llu  replies %llu  lost %llu  malformed %llu  delayed %llu  duplicated %llu\n",
+      c.value("frames", 0ull), c.value("replies", 0ull), c.value("lost", 0ull),
+      c.value("malformed", 0ull), c.value("delayed", 0ull), c.value("duplicated", 0ull));
+  if (const auto it = b.find("redundant"); it != b.end() && it->is_object()) {
+    const json& p = *it;
+    std::printf(
+        "master ports:     frames %llu  replies %llu crossed, %llu bounced  lost %llu  "
+        "delayed %llu  duplicated %llu  overflowed %llu  send errors %llu\n",
+        p.value("frames", 0ull), p.value("crosses", 0ull), p.value("bounces", 0ull),
+        p.value("lost", 0ull), p.value("delayed", 0ull), p.value("duplicated", 0ull),
+        p.value("overflowed", 0ull), p.value("send_errors", 0ull));
+  }
   print_faults(b.value("faults", json::object()));
   if (const auto ring = b["faults"].value("ring", std::string()); !ring.empty()) {
     std::printf("redundant ring:   %s\n", ring.c_str());

@@ -20,14 +20,18 @@
 #include <string_view>
 
 #include <ecat/result.hpp>
+#include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/server.hpp>
 
 namespace ecat::sim {
 
 constexpr std::size_t kMaxControlLine = 64 * 1024;
 
-// Executes one request against `server` and returns the reply (JSON, without newline).
-std::string handle_control_request(SimServer& server, std::string_view request);
+// Executes one request against `server` and returns the reply (JSON, without newline). With
+// `redundant` (the server's second master port, which must outlive the call), the status reply
+// also carries the two ports' counters and cabling ("redundant").
+std::string handle_control_request(SimServer& server, std::string_view request,
+                                   const RedundantPorts* redundant = nullptr);
 
 // The status reply as `{"ok":true,...}` (what {"op":"status"} returns).
 std::string status_json(const SimStatus& status);
@@ -36,7 +40,9 @@ std::string status_json(const SimStatus& status);
 // file nobody listens on is replaced; Errc::busy when another process listens there.
 class ControlServer {
  public:
-  static Result<std::unique_ptr<ControlServer>> start(SimServer& server, std::string path);
+  // `redundant`, when given, must outlive the ControlServer (see handle_control_request).
+  static Result<std::unique_ptr<ControlServer>> start(SimServer& server, std::string path,
+                                                      const RedundantPorts* redundant = nullptr);
   ~ControlServer();  // stops and removes the socket file
   ControlServer(const ControlServer&) = delete;
   ControlServer& operator=(const ControlServer&) = delete;

@@ -43,11 +43,12 @@ struct SimServerOptions {
 };
 
 struct SimServerStats {
-  std::uint64_t frames = 0;     // frames received
-  std::uint64_t replies = 0;    // replies sent (a duplicated reply counts twice)
-  std::uint64_t lost = 0;       // frames without a reply: faults, topology, link down
-  std::uint64_t malformed = 0;  // not EtherCAT frames: ignored
-  std::uint64_t delayed = 0;    // replies held back by delay or reorder faults
+  std::uint64_t frames = 0;      // frames received
+  std::uint64_t replies = 0;     // replies sent (a duplicated reply counts twice)
+  std::uint64_t lost = 0;        // frames without a reply: faults, topology, link down
+  std::uint64_t malformed = 0;   // not EtherCAT frames: ignored
+  std::uint64_t delayed = 0;     // replies held back by delay or reorder faults
+  std::uint64_t duplicated = 0;  // extra copies sent by duplicate_reply
   std::uint64_t send_errors = 0;
   std::uint64_t receive_errors = 0;
   std::uint64_t idle_advances = 0;  // advance() calls without a frame
