@@ -103,6 +103,73 @@ TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) 
   (void)cycler.stop();
 }
 
+// A joining group's slaves switch their shares on one at a time (each slave's SyncManagers and
+// FMMUs are configured in its own walk; on many real slaves an output's write counts only from OP):
+// every part of the share on the way is a valid cycle, not a mismatch. Once present, the whole
+// share is expected. The group here is an output slave (a write: 2) and an input slave (a read: 1).
+TEST(DomainReservation, EveryPartOfAJoiningShareIsValid) {
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  DomainConfig c;
+  c.id = "main";
+  c.period = kPeriod;
+  c.logical_base = 0x00010000;
+  auto created = Domain::create(*rig->bus, c);
+  ASSERT_TRUE(created.ok()) << created.error().describe();
+  auto& d = **created;
+  auto r = d.reserve("group", 16, {kOutputs, kInputs2});
+  ASSERT_TRUE(r.ok()) << r.error().describe();
+  const std::uint32_t group = *r;
+  rig->attach(d, kInputs);
+  Cycler cycler(*rig->bus);
+  ASSERT_TRUE(cycler.add(d).ok());
+  ASSERT_TRUE(cycler.start().ok());
+  ASSERT_TRUE(d.start_cycling().ok());
+  rig->all_to(wire::AlState::safeop);
+  rig->all_to(wire::AlState::op);
+  ASSERT_TRUE(eventually([&] { return d.stats().valid_count > 5; }));
+  const auto mismatches = d.stats().wkc_mismatch_count;
+  const auto settle = [&] {
+    const auto valid = d.stats().valid_count;
+    return eventually([&] { return d.stats().valid_count > valid + 5; });
+  };
+
+  // A slave's FMMUs on or off (byte 12 of an FMMU is its activate register): its share counts or
+  // not, while its registrations stay.
+  const auto fmmus = [&](std::uint16_t station, bool on) {
+    for (std::uint8_t n = 0; n < rig->next_fmmu[position_of(station)]; ++n) {
+      rig->write(station, static_cast<std::uint16_t>(wire::reg::fmmu(n) + 12),
+                 {static_cast<std::uint8_t>(on ? 1 : 0)});
+    }
+  };
+
+  ASSERT_TRUE(d.set_reservation_state(group, Reservation::joining).ok());
+  rig->attach(d, kOutputs);
+  rig->attach(d, kInputs2);
+  fmmus(kOutputs, false);
+  fmmus(kInputs2, false);
+  EXPECT_TRUE(settle());  // the whole share registered, none of it counted
+  fmmus(kInputs2, true);
+  EXPECT_TRUE(settle());  // the input slave's read: 1 of the share's 3
+  fmmus(kInputs2, false);
+  fmmus(kOutputs, true);
+  EXPECT_TRUE(settle());  // the output slave's write: 2 of 3
+  fmmus(kInputs2, true);
+  EXPECT_TRUE(settle());  // the whole share
+  EXPECT_EQ(d.stats().wkc_mismatch_count, mismatches);
+  ASSERT_TRUE(d.set_reservation_state(group, Reservation::present).ok());
+  EXPECT_TRUE(settle());
+  EXPECT_EQ(d.stats().wkc_mismatch_count, mismatches);
+
+  // Present, the whole share is expected: the output slave's write gone leaves the cycle short of
+  // part of the share, neither the whole share nor none of it: a mismatch, and the reservation
+  // stays present.
+  fmmus(kOutputs, false);
+  EXPECT_TRUE(eventually([&] { return d.stats().wkc_mismatch_count > mismatches; }));
+  EXPECT_EQ(d.reservation_state(group), Reservation::present);
+  (void)cycler.stop();
+}
+
 TEST(DomainReservation, ReservingIsForAnOpenDomainAndNamesWhatIsWrong) {
   auto rig = make_rig();
   ASSERT_TRUE(rig);
