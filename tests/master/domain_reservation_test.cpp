@@ -28,17 +28,32 @@ class LostObserver : public DomainObserver {
   std::atomic<std::uint32_t> last{0xFFFF};
 };
 
-TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) {
-  auto rig = make_rig();
-  ASSERT_TRUE(rig);
-  LostObserver observer;
+// The domain the cycling tests use: "main", the rig's period, at logical 0x00010000.
+std::unique_ptr<Domain> make_main_domain(Rig& rig, DomainObserver* observer = nullptr) {
   DomainConfig c;
   c.id = "main";
   c.period = kPeriod;
   c.logical_base = 0x00010000;
-  auto created = Domain::create(*rig->bus, c, &observer);
-  ASSERT_TRUE(created.ok()) << created.error().describe();
-  auto& d = **created;
+  auto created = Domain::create(*rig.bus, c, observer);
+  EXPECT_TRUE(created.ok()) << created.error().describe();
+  return created.ok() ? std::move(*created) : nullptr;
+}
+
+// Starts `d` cycling on `cycler` and takes every slave to OP; true once cycles come back valid.
+bool cycle_in_op(Rig& rig, Cycler& cycler, Domain& d) {
+  if (!cycler.add(d).ok() || !cycler.start().ok() || !d.start_cycling().ok()) return false;
+  rig.all_to(wire::AlState::safeop);
+  rig.all_to(wire::AlState::op);
+  return eventually([&] { return d.stats().valid_count > 5; });
+}
+
+TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) {
+  auto rig = make_rig();
+  ASSERT_TRUE(rig);
+  LostObserver observer;
+  auto domain = make_main_domain(*rig, &observer);
+  ASSERT_TRUE(domain);
+  auto& d = *domain;
   auto r = d.reserve("group", 16, {kInputs2});
   ASSERT_TRUE(r.ok()) << r.error().describe();
   const std::uint32_t group = *r;
@@ -46,12 +61,7 @@ TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) 
   rig->attach(d, kOutputs);
   rig->attach(d, kInputs);
   Cycler cycler(*rig->bus);
-  ASSERT_TRUE(cycler.add(d).ok());
-  ASSERT_TRUE(cycler.start().ok());
-  ASSERT_TRUE(d.start_cycling().ok());
-  rig->all_to(wire::AlState::safeop);
-  rig->all_to(wire::AlState::op);
-  ASSERT_TRUE(eventually([&] { return d.stats().valid_count > 5; }));
+  ASSERT_TRUE(cycle_in_op(*rig, cycler, d));
   const auto mismatches = d.stats().wkc_mismatch_count;
   const auto layout = d.layout();
 
@@ -110,24 +120,15 @@ TEST(DomainReservation, JoinsWhileCyclingAndAVanishedShareLeavesTheOthersValid) 
 TEST(DomainReservation, EveryPartOfAJoiningShareIsValid) {
   auto rig = make_rig();
   ASSERT_TRUE(rig);
-  DomainConfig c;
-  c.id = "main";
-  c.period = kPeriod;
-  c.logical_base = 0x00010000;
-  auto created = Domain::create(*rig->bus, c);
-  ASSERT_TRUE(created.ok()) << created.error().describe();
-  auto& d = **created;
+  auto domain = make_main_domain(*rig);
+  ASSERT_TRUE(domain);
+  auto& d = *domain;
   auto r = d.reserve("group", 16, {kOutputs, kInputs2});
   ASSERT_TRUE(r.ok()) << r.error().describe();
   const std::uint32_t group = *r;
   rig->attach(d, kInputs);
   Cycler cycler(*rig->bus);
-  ASSERT_TRUE(cycler.add(d).ok());
-  ASSERT_TRUE(cycler.start().ok());
-  ASSERT_TRUE(d.start_cycling().ok());
-  rig->all_to(wire::AlState::safeop);
-  rig->all_to(wire::AlState::op);
-  ASSERT_TRUE(eventually([&] { return d.stats().valid_count > 5; }));
+  ASSERT_TRUE(cycle_in_op(*rig, cycler, d));
   const auto mismatches = d.stats().wkc_mismatch_count;
   const auto settle = [&] {
     const auto valid = d.stats().valid_count;
