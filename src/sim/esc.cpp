@@ -143,12 +143,15 @@ bool ecat_may_write_register(std::uint16_t address) noexcept {
 
 Esc::Esc(EscHardware hardware, std::vector<std::uint8_t> eeprom,
          std::unique_ptr<Application> application)
-    : hardware_(hardware),
+    : fmmu_count_(
+          static_cast<std::uint8_t>(std::min<std::size_t>(hardware.fmmu_count, reg::kMaxFmmus))),
+      application_(application ? std::move(application) : std::make_unique<BasicApplication>()),
+      hardware_(hardware),
       memory_(kRegisterAreaEnd + static_cast<std::size_t>(hardware.ram_size_kib) * 1024u, 0),
       eeprom_(std::move(eeprom)),
-      sms_(std::min<std::size_t>(hardware.sync_manager_count, reg::kMaxSyncManagers)),
-      fmmus_(std::min<std::size_t>(hardware.fmmu_count, reg::kMaxFmmus)),
-      application_(application ? std::move(application) : std::make_unique<BasicApplication>()) {
+      sms_(std::min<std::size_t>(hardware.sync_manager_count, reg::kMaxSyncManagers)) {
+  ram_ = memory_.data();
+  memory_size_ = static_cast<std::uint32_t>(memory_.size());
   if (hardware_.dc_supported) dc_ = std::make_unique<DcUnit>(*this);
   restore_hardware_refusals();
   reset_registers();
@@ -163,7 +166,7 @@ void Esc::reset_registers() {
   info.type = hardware_.type;
   info.revision = hardware_.revision;
   info.build = hardware_.build;
-  info.fmmu_count = static_cast<std::uint8_t>(fmmus_.size());
+  info.fmmu_count = fmmu_count_;
   info.sync_manager_count = static_cast<std::uint8_t>(sms_.size());
   info.ram_size_kib = hardware_.ram_size_kib;
   info.ports = hardware_.ports;
@@ -176,6 +179,7 @@ void Esc::reset_registers() {
   // Values the ESC loads from the SII EEPROM's configuration area at power-up.
   sii_busy_until_ns_ = 0;
   sii_pending_.reset();
+  sii_running_ = false;
   const bool eeprom_ok = sii_load_configuration(true);
   std::uint16_t sii_status = sii_fixed_bits();
   if (!eeprom_ok) sii_status |= wire::sii_control::kChecksumError;
@@ -277,11 +281,10 @@ void Esc::advance(std::int64_t now_ns) {
   // The segment advances every ESC before each frame: the SII write enable (0x0502 bit 0) is
   // self-clearing at the start of the next frame (ESC datasheet section II, 0x0502).
   // (Stored only when the register or the bit differ: the segment advances every ESC per frame.)
+  // (sii_register_stale_ instead of comparing the register: its cache line stays untouched.)
   const auto sii_status =
       static_cast<std::uint16_t>(sii_status_ & ~wire::sii_control::kWriteEnable);
-  if (sii_status != sii_status_ || wire::load_le16(&memory_[reg::kSiiControl]) != sii_status) {
-    sii_store_status(sii_status);
-  }
+  if (sii_status != sii_status_ || sii_register_stale_) sii_store_status(sii_status);
   // Process-data watchdog: an output SyncManager with the watchdog trigger enabled that sees no
   // complete write for the watchdog time expires (status bit 0 -> 0, counter + 1).
   std::optional<std::int64_t> timeout_ns;  // read when an SM needs it
@@ -304,8 +307,7 @@ void Esc::advance(std::int64_t now_ns) {
 }
 
 bool Esc::advance_due(std::int64_t now_ns) const noexcept {
-  if (sii_pending_ || (sii_status_ & wire::sii_control::kWriteEnable) != 0 ||
-      wire::load_le16(&memory_[reg::kSiiControl]) != sii_status_) {
+  if (sii_running_ || (sii_status_ & wire::sii_control::kWriteEnable) != 0 || sii_register_stale_) {
     return true;
   }
   // A running process-data watchdog (status bit 0 set) that expires by now_ns (as advance()).
@@ -436,7 +438,12 @@ Esc::AccessResult Esc::access(std::uint32_t address, std::span<std::uint8_t> dat
 
 Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
                                const PassContext& pass) {
-  AccessResult result;
+  // The result is built from two locals at the end: kept in a struct on the stack, its two
+  // bytes were stored one at a time and loaded as one word, a load that cannot be forwarded from
+  // the store buffer and so waited for every store before it (the RAM window's, a cache miss)
+  // to reach the cache, which serialised the slaves' RAM misses.
+  bool any_read = false;
+  bool any_written = false;
   const std::uint64_t first_bit = static_cast<std::uint64_t>(d.address) * 8;
   const std::uint64_t end_bit = first_bit + d.data.size() * 8;  // exclusive
   for (std::uint32_t bits = active_fmmus_; bits != 0; bits &= bits - 1) {
@@ -467,11 +474,11 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
     const std::size_t d_offset = static_cast<std::size_t>((lo - first_bit) / 8);
     if (aligned) {
       auto window = d.data.subspan(d_offset, p_bytes);
-      if (p_byte >= kRegisterAreaEnd && p_byte + p_bytes <= memory_.size() &&
+      if (p_byte >= kRegisterAreaEnd && p_byte + p_bytes <= memory_size_ &&
           !sm_overlaps(p_byte, p_byte + static_cast<std::uint32_t>(p_bytes))) {
         // Process RAM outside every SyncManager (physical_read's and physical_write's fast
         // path, taken here without the copy of the incoming bytes): a read-write swaps.
-        std::uint8_t* ram = &memory_[p_byte];
+        std::uint8_t* ram = ram_ + p_byte;
         if (reading && writing) {
           for (std::size_t k = 0; k < p_bytes; ++k)
             std::swap(ram[k], window[k]);
@@ -480,23 +487,23 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
         } else {
           copy_bytes(ram, window.data(), p_bytes);
         }
-        result.read |= reading;
-        result.written |= writing;
+        any_read |= reading;
+        any_written |= writing;
         continue;
       }
       if (reading && writing) {
         // Only the window's p_bytes are copied and used.
         std::array<std::uint8_t, kMaxDatagram> incoming;
         copy_bytes(incoming.data(), window.data(), p_bytes);
-        result.read |= physical_read(p_byte, window, nullptr, false).read;
-        result.written |=
+        any_read |= physical_read(p_byte, window, nullptr, false).read;
+        any_written |=
             physical_write(p_byte, std::span<const std::uint8_t>(incoming.data(), p_bytes), nullptr,
                            pass)
                 .written;
       } else if (reading) {
-        result.read |= physical_read(p_byte, window, nullptr, false).read;
+        any_read |= physical_read(p_byte, window, nullptr, false).read;
       } else {
-        result.written |= physical_write(p_byte, window, nullptr, pass).written;
+        any_written |= physical_write(p_byte, window, nullptr, pass).written;
       }
       continue;
     }
@@ -521,7 +528,7 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
       const AccessResult r =
           physical_read(p_byte, std::span<std::uint8_t>(phys.data(), p_bytes), nullptr, false);
       if (r.read) {
-        result.read = true;
+        any_read = true;
         for (std::uint64_t b = lo; b < hi; ++b) {
           const std::uint64_t pb = p_lo + (b - lo) - static_cast<std::uint64_t>(p_byte) * 8;
           const std::uint64_t db = b - first_bit;
@@ -545,11 +552,14 @@ Esc::AccessResult Esc::logical(DatagramInFlight& d, bool do_read, bool do_write,
           phys[pb / 8] = static_cast<std::uint8_t>(phys[pb / 8] | bit);
         }
       }
-      result.written |= physical_write(p_byte, std::span<const std::uint8_t>(phys.data(), p_bytes),
-                                       mask.data(), pass)
-                            .written;
+      any_written |= physical_write(p_byte, std::span<const std::uint8_t>(phys.data(), p_bytes),
+                                    mask.data(), pass)
+                         .written;
     }
   }
+  AccessResult result;
+  result.read = any_read;
+  result.written = any_written;
   return result;
 }
 
@@ -590,11 +600,11 @@ Esc::AccessResult Esc::physical_read(std::uint32_t address, std::span<std::uint8
                                      const std::uint8_t* mask, bool or_into_data) {
   AccessResult result;
   const std::uint32_t end = address + static_cast<std::uint32_t>(out.size());
-  if (address >= kRegisterAreaEnd && end <= memory_.size() && !sm_overlaps(address, end)) {
+  if (address >= kRegisterAreaEnd && end <= memory_size_ && !sm_overlaps(address, end)) {
     // Process RAM outside every SyncManager (a plain FMMU window): no register semantics, no
     // buffer handshake, nothing else to look at.
     if (out.empty()) return result;
-    const std::uint8_t* from = &memory_[address];
+    const std::uint8_t* from = ram_ + address;
     if (or_into_data) {
       for (std::size_t k = 0; k < out.size(); ++k)
         out[k] = static_cast<std::uint8_t>(out[k] | from[k]);
@@ -682,10 +692,10 @@ Esc::AccessResult Esc::physical_write(std::uint32_t address, std::span<const std
                                       const std::uint8_t* mask, const PassContext& pass) {
   AccessResult result;
   const std::uint32_t end = address + static_cast<std::uint32_t>(in.size());
-  if (address >= kRegisterAreaEnd && end <= memory_.size() && !sm_overlaps(address, end)) {
+  if (address >= kRegisterAreaEnd && end <= memory_size_ && !sm_overlaps(address, end)) {
     // Process RAM outside every SyncManager: written as it comes (physical_read's fast path).
     if (in.empty()) return result;
-    std::uint8_t* to = &memory_[address];
+    std::uint8_t* to = ram_ + address;
     if (mask == nullptr) {
       copy_bytes(to, in.data(), in.size());
     } else {
@@ -805,7 +815,7 @@ bool Esc::register_write(std::uint32_t address, std::span<const std::uint8_t> in
 
 bool Esc::register_implemented(std::uint32_t address) const noexcept {
   if (in_range(address, reg::kFmmuBase, reg::kFmmuSize * reg::kMaxFmmus)) {
-    return (address - reg::kFmmuBase) / reg::kFmmuSize < fmmus_.size();
+    return (address - reg::kFmmuBase) / reg::kFmmuSize < fmmu_count_;
   }
   if (in_range(address, reg::kSyncManagerBase, 0x100)) {  // 0x0880..0x08FF: reserved
     return (address - reg::kSyncManagerBase) / reg::kSyncManagerSize < sms_.size();
@@ -829,7 +839,7 @@ void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const Pa
   for (std::uint16_t r : {reg::kWatchdogCounterProcessData, reg::kWatchdogCounterPdi}) {
     if (overlaps(first, last, r, 1)) memory_[r] = 0;
   }
-  for (std::size_t i = 0; i < fmmus_.size(); ++i) {
+  for (std::size_t i = 0; i < fmmu_count_; ++i) {
     if (!overlaps(first, last, reg::fmmu(i), reg::kFmmuSize)) continue;
     auto decoded = wire::FmmuConfig::decode(wire::Bytes(&memory_[reg::fmmu(i)], reg::kFmmuSize));
     // A configuration the FMMU cannot represent (bit numbers > 7) leaves it inactive.
@@ -1091,6 +1101,7 @@ void Esc::sii_control_written(std::uint32_t first, std::uint32_t last) {
   }
   if (nack) --sii_nacks_;
   sii_pending_ = pending;
+  sii_running_ = true;
   if (busy_ns > 0) {
     sii_busy_until_ns_ = now_ns_ + busy_ns;
     status = static_cast<std::uint16_t>(status | sc::kBusy | command);
@@ -1107,6 +1118,7 @@ void Esc::sii_finish_if_due_slow() {
   if (!sii_pending_ || now_ns_ < sii_busy_until_ns_) return;
   const SiiPending done = *sii_pending_;
   sii_pending_.reset();
+  sii_running_ = false;
   sii_busy_until_ns_ = 0;
   std::uint16_t status = static_cast<std::uint16_t>(sii_status_ & ~(sc::kBusy | sc::kCommandMask));
   status |= done.errors;
@@ -1124,6 +1136,7 @@ void Esc::sii_finish_if_due_slow() {
 
 void Esc::sii_store_status(std::uint16_t status) noexcept {
   sii_status_ = status;
+  sii_register_stale_ = false;
   wire::store_le16(&memory_[reg::kSiiControl], status);
 }
 
@@ -1251,12 +1264,18 @@ void Esc::pdi_set_sm_deactivated(std::size_t index, bool deactivated) {
 void Esc::pdi_write(std::uint16_t address, wire::Bytes data) {
   if (static_cast<std::size_t>(address) + data.size() > memory_.size()) return;
   std::memcpy(&memory_[address], data.data(), data.size());
-  if (!data.empty()) layout_written(address, address + static_cast<std::uint32_t>(data.size()) - 1);
+  if (data.empty()) return;
+  const std::uint32_t last = address + static_cast<std::uint32_t>(data.size()) - 1;
+  if (overlaps(address, last, reg::kSiiControl, 2)) sii_register_stale_ = true;
+  layout_written(address, last);
 }
 
 void Esc::pdi_write_u16(std::uint16_t address, std::uint16_t value) {
   if (static_cast<std::size_t>(address) + 2 > memory_.size()) return;
   wire::store_le16(&memory_[address], value);
+  if (overlaps(address, static_cast<std::uint32_t>(address) + 1, reg::kSiiControl, 2)) {
+    sii_register_stale_ = true;
+  }
   layout_written(address, static_cast<std::uint32_t>(address) + 1);
 }
 

@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <stdexcept>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -375,6 +376,42 @@ TEST(SiiControl, CommandBitsClearWhenTheCommandCompletes) {
   ASSERT_TRUE(quick.add_slave("s", make_esc(1)).ok());
   exchange(quick, Command::apwr, ap, {0x00, 0x01, 0x08, 0x00, 0x00, 0x00});
   EXPECT_EQ(wire::load_le16(exchange(quick, Command::aprd, ap, {0, 0}).data.data()), 0x0040);
+}
+
+// The ESC keeps its SII status apart from the register (Esc::advance does not read 0x0502 per
+// frame): a PDI write over the register is noticed all the same, marks the ESC as having work
+// due, and the next frame's advance stores the ESC's own status back, as it did when advance
+// compared the register.
+TEST(SiiControl, PdiWriteOverTheStatusIsRestoredAtTheNextFrame) {
+  Segment segment;
+  ASSERT_TRUE(segment.add_slave("s", make_esc(1)).ok());
+  Esc& esc = segment.esc(0);
+  const auto ap = wire::physical_address(0, reg::kSiiControl);
+  EXPECT_EQ(wire::load_le16(exchange(segment, Command::aprd, ap, {0, 0}).data.data()), 0x0040);
+  EXPECT_FALSE(esc.advance_due(esc.now_ns()));
+  esc.pdi_write_u16(reg::kSiiControl, 0xFFFF);
+  EXPECT_TRUE(esc.advance_due(esc.now_ns()));
+  EXPECT_EQ(wire::load_le16(exchange(segment, Command::aprd, ap, {0, 0}).data.data()), 0x0040);
+  EXPECT_FALSE(esc.advance_due(esc.now_ns()));
+  const std::array<std::uint8_t, 4> bytes{0x00, 0x00, 0x12, 0x34};  // 0x0500..0x0503
+  esc.pdi_write(reg::kSiiAccess, bytes);
+  EXPECT_TRUE(esc.advance_due(esc.now_ns()));
+  esc.advance(esc.now_ns());
+  EXPECT_EQ(esc.read_u16(reg::kSiiControl), 0x0040);
+  // A PDI write elsewhere leaves the SII alone.
+  esc.pdi_write_u16(reg::kAlStatusCode, 0);
+  EXPECT_FALSE(esc.advance_due(esc.now_ns()));
+}
+
+// The FMMUs the hardware has, and no more, are visible.
+TEST(FmmuConfiguration, CountFollowsTheHardware) {
+  EscHardware hw;
+  hw.fmmu_count = 3;
+  Esc esc(hw, test_eeprom(1, false), nullptr);
+  EXPECT_EQ(esc.fmmu_count(), 3u);
+  EXPECT_NO_THROW((void)esc.fmmu(2));
+  EXPECT_THROW((void)esc.fmmu(3), std::out_of_range);
+  EXPECT_EQ(esc.read_u8(reg::kFmmuCount), 3);
 }
 
 TEST_F(ThreeSlaves, SiiInvalidCommandAndMissingWriteEnableSetErrors) {

@@ -14,6 +14,7 @@
 #include <memory>
 #include <optional>
 #include <span>
+#include <stdexcept>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -142,7 +143,7 @@ class Esc {
   void pass_by(const PassContext& pass);
   // Whether a configured-address datagram with this ADP addresses the ESC (station or alias).
   bool matches_station(std::uint16_t adp) const noexcept;
-  std::size_t fmmu_count() const noexcept { return fmmus_.size(); }
+  std::size_t fmmu_count() const noexcept { return fmmu_count_; }
   // Reports layout changes (see EscLayoutObserver) as `tag`; nullptr stops.
   void set_layout_observer(EscLayoutObserver* observer, std::size_t tag) noexcept {
     layout_observer_ = observer;
@@ -175,7 +176,10 @@ class Esc {
   std::uint32_t read_u32(std::uint16_t address) const noexcept;
   std::uint64_t read_u64(std::uint16_t address) const noexcept;
   const SyncManagerState& sync_manager(std::size_t index) const { return sms_.at(index); }
-  const wire::FmmuConfig& fmmu(std::size_t index) const { return fmmus_.at(index); }
+  const wire::FmmuConfig& fmmu(std::size_t index) const {
+    if (index >= fmmu_count_) throw std::out_of_range("Esc::fmmu: no such FMMU");
+    return fmmus_[index];
+  }
   std::span<const std::uint8_t> eeprom() const noexcept { return eeprom_; }
   Application& application() noexcept { return *application_; }
   DcUnit* dc() noexcept { return dc_.get(); }
@@ -262,7 +266,7 @@ class Esc {
   // The master wrote 0x0500 (EEPROM configuration: offer to the PDI, force ECAT access).
   void sii_access_written();
   void sii_finish_if_due() {
-    if (sii_pending_) sii_finish_if_due_slow();
+    if (sii_running_) sii_finish_if_due_slow();
   }
   // Loads the ESC configuration area (words 0..7) into the registers: at power-up everything,
   // on a reload command all but the station alias and 0x0141 bits 1, 4..7. Returns whether the
@@ -279,31 +283,42 @@ class Esc {
   void rebuild_sm_areas() noexcept;
   void sii_finish_if_due_slow();
 
-  // What every datagram of a frame looks at first, kept together and apart from the bulky state
-  // below: the frame path of a 256-slave ring is bound by the cache lines it touches per ESC.
-  // The enabled SyncManagers' areas in SM index order ([start, end), index), so that a physical
-  // access searches these instead of every SyncManager's state (sm_index_for keeps the lowest
-  // index first, as before), rebuilt by rebuild_sm_areas whenever one is enabled, disabled or
-  // moved; the output SyncManagers whose process-data watchdog runs (advance, advance_due);
-  // the active FMMUs (logical).
+  // What every datagram of a frame looks at first, kept together in the object's first cache
+  // line and apart from the bulky state below: the frame path of a 256-slave ring is bound by
+  // the cache lines it touches per ESC (docs/SIMULATOR.md, "Inside an addressed ESC"). `ram_` is
+  // memory_'s storage (its size never changes after construction); `sii_running_` mirrors
+  // sii_pending_.has_value(); `sii_register_stale_` says the PDI wrote over 0x0502..0x0503 since
+  // the ESC last stored its SII status there (only the PDI can: an ECAT write goes through
+  // sii_control_written), so advance() need not load the register's line to compare it.
+  alignas(64) std::uint8_t* ram_ = nullptr;
+  std::uint32_t memory_size_ = 0;
+  std::uint32_t active_fmmus_ = 0;  // bit per FMMU: active with a non-zero length
+  std::uint32_t watchdog_sms_ = 0;  // bit per SyncManager: output with its watchdog running
+  std::uint16_t sii_status_ = 0;
+  std::uint8_t sm_area_count_ = 0;
+  std::uint8_t fmmu_count_ = 0;
+  bool sii_running_ = false;
+  bool sii_register_stale_ = false;
+  std::int64_t now_ns_ = 0;
+  std::unique_ptr<Application> application_;
+  std::unique_ptr<DcUnit> dc_;
+  // The FMMUs (as decoded from their registers) right after that line, so that an LRW reads the
+  // first four from the next one; the enabled SyncManagers' areas in SM index order ([start,
+  // end), index), so that a physical access searches these instead of every SyncManager's state
+  // (sm_index_for keeps the lowest index first, as before), rebuilt by rebuild_sm_areas whenever
+  // one is enabled, disabled or moved.
+  std::array<wire::FmmuConfig, wire::reg::kMaxFmmus> fmmus_{};
   struct SmArea {
     std::uint32_t start = 0;
     std::uint32_t end = 0;
     std::uint32_t index = 0;
   };
   std::array<SmArea, wire::reg::kMaxSyncManagers> sm_areas_{};
-  std::uint8_t sm_area_count_ = 0;
-  std::uint32_t watchdog_sms_ = 0;  // bit per SyncManager
-  std::uint32_t active_fmmus_ = 0;  // bit per FMMU: active with a non-zero length
 
   EscHardware hardware_;
   std::vector<std::uint8_t> memory_;
   std::vector<std::uint8_t> eeprom_;
   std::vector<SyncManagerState> sms_;
-  std::vector<wire::FmmuConfig> fmmus_;
-  std::unique_ptr<Application> application_;
-  std::unique_ptr<DcUnit> dc_;
-  std::int64_t now_ns_ = 0;
   std::int64_t sii_busy_until_ns_ = 0;
   // What the running EEPROM command does when the busy time ends.
   struct SiiPending {
@@ -315,7 +330,6 @@ class Esc {
   std::optional<SiiPending> sii_pending_;
   unsigned sii_nacks_ = 0;
   bool sii_nack_writes_only_ = false;
-  std::uint16_t sii_status_ = 0;
   bool dc_system_time_ = false;
   std::vector<std::uint8_t> last_mailbox_reply_;
   std::array<std::optional<std::uint16_t>, 16> al_refusals_{};  // by AL state code (4 bits)
