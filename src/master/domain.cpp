@@ -19,6 +19,8 @@
 #include <ecat/master/domain.hpp>
 #include <ecat/wire/frame.hpp>
 
+#include "tsc_clock.hpp"
+
 namespace ecat::master {
 
 static_assert(std::is_same_v<Clock, bus::Clock>, "domain times are the bus's clock");
@@ -95,18 +97,21 @@ std::uint64_t extract_bits(const std::uint8_t* p, std::size_t n, unsigned shift,
 
 // The seqlocked copy of `n` published input bytes at `offset` (retried while the bus thread
 // publishes); returns the last valid cycle's time (0: none yet) and, when asked, `changed_src`
-// read in the same section.
+// and `until_src` (the publish's TSC freshness stamp) read in the same section.
 std::int64_t copy_published(const std::atomic<std::uint64_t>& seq,
                             const std::atomic<std::int64_t>& refreshed_ns,
                             const std::atomic<std::atomic<std::uint64_t>*>& words,
                             std::size_t offset, std::uint8_t* out, std::size_t n,
                             const std::atomic<std::int64_t>* changed_src = nullptr,
-                            std::int64_t* changed = nullptr) noexcept {
+                            std::int64_t* changed = nullptr,
+                            const std::atomic<std::uint64_t>* until_src = nullptr,
+                            std::uint64_t* until = nullptr) noexcept {
   for (int spins = 0;; ++spins) {
     const std::uint64_t s1 = seq.load(std::memory_order_acquire);
     if ((s1 & 1u) == 0) {
       const std::int64_t refreshed = refreshed_ns.load(std::memory_order_relaxed);
       if (changed != nullptr) *changed = changed_src->load(std::memory_order_relaxed);
+      if (until != nullptr) *until = until_src->load(std::memory_order_relaxed);
       load_bytes(words.load(std::memory_order_acquire), offset, out, n);
       std::atomic_thread_fence(std::memory_order_acquire);
       if (seq.load(std::memory_order_relaxed) == s1) return refreshed;
@@ -354,6 +359,10 @@ struct Domain::Plan {
   bool degraded = false;
   std::uint64_t miss_streak = 0;
   std::uint64_t invalid_streak = 0;
+  // The TSC's rate against the clock (tsc_clock.hpp) and the TSC read just before the clock read
+  // of the reply being classified: what publish_inputs stamps the inputs' freshness with.
+  detail::TscCalibration tsc;
+  std::uint64_t reply_tsc = 0;
 };
 
 struct Domain::Counters {
@@ -988,6 +997,9 @@ Result<void> Domain::update_period(nanoseconds period) {
   }
   std::lock_guard lock(control_mutex_);
   const std::int64_t previous = period_ns_.exchange(period.count(), std::memory_order_acq_rel);
+  // The last publish's freshness stamp was sized for the old period's stale_after(): dropped, so
+  // reads take the clock until the next publish stamps with the new one.
+  fresh_until_tsc_.store(0, std::memory_order_release);
   if (auto r = notify_period_changed(); !r) {
     period_ns_.store(previous, std::memory_order_release);
     return std::move(r).error().context(
@@ -1351,9 +1363,12 @@ Result<std::vector<std::uint8_t>> Domain::read(PdoKey key) const {
   return value;
 }
 
-// read_fresh's verdict on a copy made at `refreshed` (the last valid cycle's time, 0: none): a
-// valid cycle, the entry's reservation present, not older than stale_after (one clock read).
-Result<void> Domain::check_fresh(const Entry& e, std::int64_t refreshed) const {
+// read_fresh's verdict on a copy made at `refreshed` (the last valid cycle's time, 0: none) and
+// stamped `fresh_until` (a TSC count, 0: none): a valid cycle, the entry's reservation present,
+// not older than stale_after. Below the stamp the copy is certainly younger than that
+// (tsc_clock.hpp); otherwise one clock read decides.
+Result<void> Domain::check_fresh(const Entry& e, std::int64_t refreshed,
+                                 std::uint64_t fresh_until) const {
   if (refreshed == 0) [[unlikely]] {
     return error(Errc::not_ready,
                  fmt::format("{} (input) has no valid cycle yet", to_string(e.key)));
@@ -1363,6 +1378,9 @@ Result<void> Domain::check_fresh(const Entry& e, std::int64_t refreshed) const {
     return error(Errc::stale,
                  fmt::format("{} (input) is stale: it belongs to {}, which is not present",
                              to_string(e.key), reservations_[e.reservation]->name));
+  }
+  if (fresh_until != 0 && detail::read_tsc() < fresh_until) [[likely]] {
+    return ok();
   }
   const std::int64_t age = std::max<std::int64_t>(0, to_ns(Clock::now()) - refreshed);
   const nanoseconds limit = stale_after();
@@ -1389,10 +1407,12 @@ Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out)
     return s->size;
   }
   // sample_entry's checks (a valid cycle, not stale) in nanoseconds, without building its
-  // SampleInfo: one clock read against stale_after().
+  // SampleInfo: the TSC stamp or one clock read against stale_after().
+  std::uint64_t until = 0;
   const std::int64_t refreshed =
-      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset, out.data(), e.size);
-  if (auto fresh = check_fresh(e, refreshed); !fresh) return std::move(fresh).error();
+      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset, out.data(), e.size, nullptr,
+                     nullptr, &fresh_until_tsc_, &until);
+  if (auto fresh = check_fresh(e, refreshed, until); !fresh) return std::move(fresh).error();
   return std::size_t{e.size};
 }
 
@@ -1419,9 +1439,11 @@ Result<std::uint64_t> Domain::read_fresh_bits(PdoHandle handle, std::size_t bit_
   const std::size_t first = bit_offset / 8;
   const std::size_t bytes = (bit_offset % 8 + bit_length + 7) / 8;
   std::uint8_t field[9];
+  std::uint64_t until = 0;
   const std::int64_t refreshed =
-      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset + first, field, bytes);
-  if (auto fresh = check_fresh(e, refreshed); !fresh) [[unlikely]] {
+      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset + first, field, bytes,
+                     nullptr, nullptr, &fresh_until_tsc_, &until);
+  if (auto fresh = check_fresh(e, refreshed, until); !fresh) [[unlikely]] {
     return std::move(fresh).error();
   }
   return extract_bits(field, bytes, static_cast<unsigned>(bit_offset % 8), bit_length);
@@ -1570,7 +1592,11 @@ void Domain::record_latency(std::int64_t ns) noexcept {
 void Domain::on_exchange_done(Exchange& x) noexcept {
   Plan& p = *plan_;
   Counters& c = *counters_;
+  const std::uint64_t tsc_before = detail::read_tsc();
   const auto now = Clock::now();
+  const std::uint64_t tsc_after = detail::read_tsc();
+  p.tsc.sample(tsc_before, to_ns(now), tsc_after);
+  p.reply_tsc = tsc_before;
   const bus::RealtimeStatus status = x.rt->status();
   const bool replied =
       status == bus::RealtimeStatus::ok || status == bus::RealtimeStatus::wkc_mismatch;
@@ -1817,6 +1843,10 @@ void Domain::publish_inputs(std::uint64_t cycle, Clock::time_point now) noexcept
       status(r.statuses[i].load(std::memory_order_relaxed));
   }
   refreshed_ns_.store(now_ns, std::memory_order_relaxed);
+  // Until this TSC count, less than stale_after has certainly passed since `now` (reply_tsc was
+  // read before it): a reader below it needs no clock read. 0: no stamp, readers read the clock.
+  const std::uint64_t ticks = p.tsc.ticks_within(stale_after());
+  fresh_until_tsc_.store(ticks != 0 ? p.reply_tsc + ticks : 0, std::memory_order_relaxed);
   input_seq_.store(seq + 2, std::memory_order_release);
   p.published = true;
 

@@ -5,6 +5,7 @@
 #include <cstring>
 #include <map>
 #include <set>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -288,19 +289,24 @@ exec::Task<Result<void>> Slave::Impl::configure_preop(std::shared_ptr<Session> k
 
   // Publish. Output images start as zeros, or keep what was staged before (a reconnect).
   std::lock_guard lock(mutex);
-  for (const auto& a : plan->attachments) {
-    if (a.direction != PdoDirection::output) continue;
-    auto& img = output_images[a.sync_manager];
-    if (img.size() != a.size) img.assign(a.size, 0);
-    auto* domain = session.find_domain(a.domain);
-    (void)domain->write(PdoKey{station, a.sync_manager}, img);
-  }
   driver = std::move(*chosen);
   driver_state = std::move(*made_state);
   layout = std::move(plan->layout);
   signals = std::move(plan->signals);
   attachments = std::move(plan->attachments);
-  index_routes();
+  {
+    // The images and the view change together under the output lock: a write_output on the
+    // view before waits, then sees that the view changed and takes the `mutex` path.
+    const OutputLock images(*this);
+    for (const auto& a : attachments) {
+      if (a.direction != PdoDirection::output) continue;
+      auto& img = output_images[a.sync_manager];
+      if (img.size() != a.size) img.assign(a.size, 0);
+      auto* domain = session.find_domain(a.domain);
+      (void)domain->write(PdoKey{station, a.sync_manager}, img);
+    }
+    index_routes();
+  }
   mailbox_status = plan->mailbox_status;
   if (mailbox) {
     std::optional<MailboxStatusSource> source;
@@ -734,7 +740,7 @@ std::uint64_t Slave::Impl::name_hash(std::string_view name) noexcept {
   return h ^ (h >> 32);
 }
 
-const Signal* Slave::Impl::find_signal(std::string_view name) const noexcept {
+const Signal* Slave::Impl::HotPath::find(std::string_view name) const noexcept {
   if (!signal_index.empty()) {
     const std::size_t mask = signal_index.size() - 1;
     for (std::size_t i = name_hash(name) & mask;; i = (i + 1) & mask) {
@@ -750,39 +756,72 @@ const Signal* Slave::Impl::find_signal(std::string_view name) const noexcept {
   return nullptr;
 }
 
-const Slave::Impl::Route* Slave::Impl::route_for(std::uint8_t sm) const noexcept {
+const Slave::Impl::Route* Slave::Impl::HotPath::route_for(std::uint8_t sm) const noexcept {
   for (const auto& r : routes) {
     if (r.sync_manager == sm) return &r;
   }
   return nullptr;
 }
 
+const Signal* Slave::Impl::find_signal(std::string_view name) const noexcept {
+  const HotPath* view = hot.load(std::memory_order_acquire);
+  return view != nullptr ? view->find(name) : nullptr;
+}
+
 void Slave::Impl::index_routes() {
-  routes.clear();
+  auto view = std::make_unique<HotPath>();
+  view->signals = signals;
   for (const auto& a : attachments) {
     Domain* domain = session.find_domain(a.domain);
     if (!domain) continue;
     auto handle = domain->find(PdoKey{self.station(), a.sync_manager});
     if (!handle) continue;
-    routes.push_back(Route{a.sync_manager, a.size, domain, *handle});
+    view->routes.push_back(Route{a.sync_manager, a.size, domain, *handle});
   }
-  signal_index.clear();
-  if (signals.empty()) return;
-  signal_index.assign(std::bit_ceil(signals.size() * 2), 0);
-  const std::size_t mask = signal_index.size() - 1;
-  for (std::size_t k = 0; k < signals.size(); ++k) {
-    for (std::size_t i = name_hash(signals[k].name) & mask;; i = (i + 1) & mask) {
-      if (signal_index[i] == 0) {
-        signal_index[i] = static_cast<std::uint32_t>(k + 1);
-        break;
-      }
-      if (signals[signal_index[i] - 1].name == signals[k].name) {
-        // Duplicate names (none expected): the walk in find_signal keeps the first one.
-        signal_index.clear();
-        return;
+  view->all_routed = view->routes.size() == attachments.size();
+  if (!signals.empty()) {
+    auto& index = view->signal_index;
+    index.assign(std::bit_ceil(signals.size() * 2), 0);
+    const std::size_t mask = index.size() - 1;
+    for (std::size_t k = 0; k < signals.size() && !index.empty(); ++k) {
+      for (std::size_t i = name_hash(signals[k].name) & mask;; i = (i + 1) & mask) {
+        if (index[i] == 0) {
+          index[i] = static_cast<std::uint32_t>(k + 1);
+          break;
+        }
+        if (signals[index[i] - 1].name == signals[k].name) {
+          // Duplicate names (none expected): the walk in find keeps the first one.
+          index.clear();
+          break;
+        }
       }
     }
   }
+  // Readers may still hold the view published before: it stays (see `views`).
+  for (const auto& made : views) {
+    if (*made == *view) {
+      hot.store(made.get(), std::memory_order_release);
+      return;
+    }
+  }
+  views.push_back(std::move(view));
+  hot.store(views.back().get(), std::memory_order_release);
+}
+
+Slave::Impl::OutputLock::OutputLock(const Impl& owner) noexcept : impl(owner) {
+  for (int spins = 0;; ++spins) {
+    bool expected = false;
+    if (impl.output_lock.compare_exchange_weak(expected, true, std::memory_order_acquire,
+                                               std::memory_order_relaxed)) {
+      return;
+    }
+    // Holders stage a few bytes; a holder that lost its CPU needs the CPU back.
+    if (spins >= 64) std::this_thread::yield();
+  }
+}
+
+Slave::Impl::OutputLock::~OutputLock() {
+  impl.output_lock.store(false, std::memory_order_release);
 }
 
 const SmAttachment* Slave::Impl::attachment_for(std::uint8_t sm) const noexcept {
@@ -796,6 +835,7 @@ std::vector<Value> Slave::Impl::signal_values(
     const std::map<std::uint8_t, std::vector<std::uint8_t>>& inputs) const {
   std::vector<Value> values;
   values.reserve(signals.size());
+  const OutputLock guard(*this);
   for (const auto& sig : signals) {
     const auto& images = sig.direction == PdoDirection::output ? output_images : inputs;
     auto it = images.find(sig.sync_manager);
@@ -1215,21 +1255,38 @@ std::vector<Signal> Slave::signals() const {
 }
 
 Result<Value> Slave::read_input(std::string_view name) const {
-  std::lock_guard lock(impl_->mutex);
-  const Signal* sig = impl_->find_signal(name);
-  if (!sig) {
-    return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
-  }
-  // A routed input of a scalar field (a route is made from an attachment): only its own bytes,
-  // from one cycle, with the domain's freshness checks.
-  const Impl::Route* route = impl_->route_for(sig->sync_manager);
-  if (sig->direction == PdoDirection::input && route != nullptr &&
-      Impl::is_field(*sig, route->size)) {
+  // The published view, without `mutex` (Impl::HotPath): nullptr before the first configuration.
+  const Impl::HotPath* view = impl_->hot.load(std::memory_order_acquire);
+  for (;;) {
+    const Signal* sig = view != nullptr ? view->find(name) : nullptr;
+    if (!sig) {
+      return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
+    }
+    // A routed input of a scalar field (a route is made from an attachment): only its own bytes,
+    // from one cycle, with the domain's freshness checks.
+    const Impl::Route* route = view->route_for(sig->sync_manager);
+    if (sig->direction != PdoDirection::input || route == nullptr ||
+        !Impl::is_field(*sig, route->size)) {
+      break;
+    }
     auto raw = route->domain->read_fresh_bits(route->handle, sig->bit_offset, sig->bit_length);
+    // The bytes were read under this view only if it is still the published one (the read's
+    // seqlock ends with an acquire fence); else reconfigured meanwhile: read again.
+    const Impl::HotPath* now = impl_->hot.load(std::memory_order_acquire);
+    if (now != view) [[unlikely]] {
+      view = now;
+      continue;
+    }
     if (!raw) [[unlikely]] {
       return raw.error().context(fmt::format("input \"{}\" of slave {}", name, name_));
     }
     return decode_field(*sig, *raw);
+  }
+  // The rest (an output's staged value, a wide or unrouted input) under `mutex`, as configured.
+  std::lock_guard lock(impl_->mutex);
+  const Signal* sig = impl_->find_signal(name);  // again: the configuration may have changed it
+  if (!sig) {
+    return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
   }
   const SmAttachment* a = impl_->attachment_for(sig->sync_manager);
   if (!a) {
@@ -1237,6 +1294,7 @@ Result<Value> Slave::read_input(std::string_view name) const {
                  fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
   }
   if (sig->direction == PdoDirection::output) {
+    const Impl::OutputLock images(*impl_);
     auto it = impl_->output_images.find(sig->sync_manager);
     if (it == impl_->output_images.end()) {
       return Error(Errc::not_ready,
@@ -1244,6 +1302,8 @@ Result<Value> Slave::read_input(std::string_view name) const {
     }
     return decode_scaled(*sig, it->second);
   }
+  const Impl::Route* route =
+      impl_->hot.load(std::memory_order_relaxed)->route_for(sig->sync_manager);
   std::array<std::uint8_t, 512> small;  // not zeroed: read_fresh fills what is used
   std::vector<std::uint8_t> large;
   wire::MutableBytes buffer(small.data(), small.size());
@@ -1261,8 +1321,8 @@ Result<Value> Slave::read_input(std::string_view name) const {
 }
 
 Result<void> Slave::write_output(std::string_view name, const Value& value) {
-  std::lock_guard lock(impl_->mutex);
-  const Signal* sig = impl_->find_signal(name);
+  const Impl::HotPath* view = impl_->hot.load(std::memory_order_acquire);
+  const Signal* sig = view != nullptr ? view->find(name) : nullptr;
   if (!sig) {
     return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
   }
@@ -1270,29 +1330,49 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
     return Error(Errc::invalid_argument,
                  fmt::format("signal \"{}\" of slave {} is an input", name, name_));
   }
-  auto it = impl_->output_images.find(sig->sync_manager);
-  if (it == impl_->output_images.end()) {
-    return Error(Errc::not_found,
-                 fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
-  }
-  if (Impl::is_field(*sig, it->second.size()) &&
-      impl_->routes.size() == impl_->attachments.size()) {
-    // A scalar field: encoded once into its raw bits and staged as those bits only (under each
-    // domain's staging lock, so a multi-byte value leaves whole in one cycle); the retained image
-    // takes them when every domain did.
+  const Impl::Route* route = view->route_for(sig->sync_manager);
+  if (view->all_routed && route != nullptr && Impl::is_field(*sig, route->size)) {
+    // A scalar field, without `mutex`: encoded once into its raw bits and staged as those bits
+    // only (under each domain's staging lock, so a multi-byte value leaves whole in one cycle);
+    // the retained image takes them when every domain did. Under the output lock throughout, so
+    // concurrent writers leave the domains and the retained image with the same value.
     auto raw = encode_field(*sig, value);
     if (!raw) [[unlikely]] {
       return raw.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
     }
-    for (const auto& r : impl_->routes) {
-      if (r.sync_manager != sig->sync_manager) continue;
-      if (auto w = r.domain->write_bits(r.handle, sig->bit_offset, sig->bit_length, *raw); !w)
-          [[unlikely]] {
-        return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,
-                                             name_, r.domain->id()));
+    const Impl::OutputLock images(*impl_);
+    auto it = impl_->output_images.find(sig->sync_manager);
+    // The configuration changes the images and the view together under this lock: a view that
+    // is no longer the published one was reconfigured meanwhile (the `mutex` path below).
+    if (impl_->hot.load(std::memory_order_relaxed) == view && it != impl_->output_images.end() &&
+        it->second.size() == route->size) [[likely]] {
+      for (const auto& r : view->routes) {
+        if (r.sync_manager != sig->sync_manager) continue;
+        if (auto w = r.domain->write_bits(r.handle, sig->bit_offset, sig->bit_length, *raw); !w)
+            [[unlikely]] {
+          return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,
+                                               name_, r.domain->id()));
+        }
       }
+      return store_field(*sig, *raw, it->second);
     }
-    return store_field(*sig, *raw, it->second);
+  }
+  // The rest (a wide value, a field outside its image, an unrouted attachment) under `mutex`.
+  std::lock_guard lock(impl_->mutex);
+  view = impl_->hot.load(std::memory_order_relaxed);
+  sig = view->find(name);  // again: the configuration may have changed it meanwhile
+  if (!sig) {
+    return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
+  }
+  if (sig->direction != PdoDirection::output) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("signal \"{}\" of slave {} is an input", name, name_));
+  }
+  const Impl::OutputLock images(*impl_);
+  auto it = impl_->output_images.find(sig->sync_manager);
+  if (it == impl_->output_images.end()) {
+    return Error(Errc::not_found,
+                 fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
   }
   // Encoded into a scratch image kept between calls (its capacity stays), so a write does not
   // allocate; it replaces the retained image only when every domain took it.
@@ -1301,8 +1381,8 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
   if (auto encoded = encode_scaled(*sig, value, staged); !encoded) {
     return encoded.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
   }
-  if (impl_->routes.size() == impl_->attachments.size()) {
-    for (const auto& r : impl_->routes) {
+  if (view->all_routed) {
+    for (const auto& r : view->routes) {
       if (r.sync_manager != sig->sync_manager) continue;
       if (auto w = r.domain->write(r.handle, staged); !w) {
         return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,

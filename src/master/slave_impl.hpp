@@ -74,20 +74,45 @@ struct Slave::Impl {
     std::uint16_t size = 0;
     Domain* domain = nullptr;
     PdoHandle handle{};
+    bool operator==(const Route&) const = default;
   };
-  std::vector<Route> routes;
-  // The signals by name: open addressing over a power-of-two table of signal index + 1 (0:
-  // empty), at most half full, probed linearly from name_hash(name); empty when two signals share
-  // a name (find_signal then walks `signals`, keeping the first). Our own rather than
-  // std::unordered_map because it is on read_input/write_output's path (issue #17's 50 ns
-  // target): no node per entry to chase, and a hash of at most 16 bytes of the name.
-  std::vector<std::uint32_t> signal_index;
+  // What read_input / write_output need, as one immutable view read without `mutex`: index_routes
+  // makes a new one under `mutex` and publishes it through `hot` (release; readers acquire). A
+  // view once published is never changed nor freed while the slave lives (a reader may still
+  // hold it): `views` keeps every one made, and index_routes reuses an equal one, so they number
+  // the distinct layouts the slave has had (one, unless reconfigured), not its reconfigurations.
+  struct HotPath {
+    std::vector<Signal> signals;  // a copy of Impl::signals
+    // The signals by name: open addressing over a power-of-two table of signal index + 1 (0:
+    // empty), at most half full, probed linearly from name_hash(name); empty when two signals
+    // share a name (find then walks `signals`, keeping the first). Our own rather than
+    // std::unordered_map because it is on read_input/write_output's path (issue #17's 50 ns
+    // target): no node per entry to chase, and a hash of at most 16 bytes of the name.
+    std::vector<std::uint32_t> signal_index;
+    std::vector<Route> routes;
+    bool all_routed = false;  // a route for every attachment (else writes look domains up)
+    const Signal* find(std::string_view name) const noexcept;
+    const Route* route_for(std::uint8_t sm) const noexcept;
+    bool operator==(const HotPath&) const = default;
+  };
+  std::atomic<const HotPath*> hot{nullptr};
+  std::vector<std::unique_ptr<const HotPath>> views;  // under `mutex`
   static std::uint64_t name_hash(std::string_view name) noexcept;
   // SM1's status mapped into a domain (mailbox status in the cyclic frame), when it is.
   std::optional<detail::MailboxStatusMapping> mailbox_status;
   // The retained output image of each output SyncManager: what write_output staged; written to
-  // every domain the SyncManager is in, and again after a reconnect.
+  // every domain the SyncManager is in, and again after a reconnect. Guarded by `output_lock`
+  // (taken inside `mutex` where both are): write_output's scalar path stages into the domains
+  // and updates this image under it alone, so two writers leave the image and the domains alike.
   std::map<std::uint8_t, std::vector<std::uint8_t>> output_images;
+  mutable std::atomic<bool> output_lock{false};
+  struct OutputLock {
+    explicit OutputLock(const Impl& impl) noexcept;
+    ~OutputLock();
+    OutputLock(const OutputLock&) = delete;
+    OutputLock& operator=(const OutputLock&) = delete;
+    const Impl& impl;
+  };
   std::vector<std::uint8_t> write_scratch;  // Slave::write_output's encoding buffer
   std::optional<std::string> configuration_error;
   std::optional<Error> configuration_failure;  // the same, as the error it was
@@ -129,9 +154,9 @@ struct Slave::Impl {
   std::string who() const;
   void record_al_error(const Error& error);
   Result<void> check_mailbox() const;
+  // The signal of that name in the published view (nullptr before the first configuration).
   const Signal* find_signal(std::string_view name) const noexcept;
   const SmAttachment* attachment_for(std::uint8_t sm) const noexcept;
-  const Route* route_for(std::uint8_t sm) const noexcept;
   // A signal the hot path reads and stages as its own bits (Domain::read_fresh_bits /
   // write_bits, decode_field / encode_field): a scalar of 1..64 bits inside an SM image of
   // `image_bytes`. Others (bytes, a field outside its image) take the whole-image path, whose
@@ -140,7 +165,7 @@ struct Slave::Impl {
     return s.type != SignalType::bytes && s.bit_length != 0 && s.bit_length <= 64 &&
            std::uint64_t{s.bit_offset} + s.bit_length <= std::uint64_t{image_bytes} * 8;
   }
-  // Rebuilds `routes` and `signal_index` from `attachments` and `signals` (under `mutex`).
+  // Makes the view of `attachments` and `signals` and publishes it through `hot` (under `mutex`).
   void index_routes();
   // Engineering values of every signal: inputs from `inputs` (per SM image), outputs as staged;
   // 0 where an image is missing (mutex held).

@@ -301,7 +301,7 @@ class Domain final : public CyclicParticipant {
   Result<void> write_bits_entry(const Entry& e, std::size_t bit_offset, std::size_t bit_length,
                                 std::uint64_t value);
   Result<SampleInfo> sample_entry(const Entry& e, wire::MutableBytes out, bool fail_stale) const;
-  Result<void> check_fresh(const Entry& e, std::int64_t refreshed) const;
+  Result<void> check_fresh(const Entry& e, std::int64_t refreshed, std::uint64_t fresh_until) const;
   Result<void> build_exchanges_locked();
   std::vector<DomainDatagram> plan_locked() const;
 
@@ -377,6 +377,9 @@ class Domain final : public CyclicParticipant {
   std::atomic<std::atomic<std::uint64_t>*> input_words_{nullptr};
   std::vector<std::unique_ptr<std::atomic<std::uint64_t>[]>> input_storage_;
   std::atomic<std::int64_t> refreshed_ns_{0};  // 0: never
+  // Published with refreshed_ns_: the TSC count below which that cycle is certainly younger than
+  // stale_after() (src/master/tsc_clock.hpp); 0: none, a freshness check reads the clock.
+  std::atomic<std::uint64_t> fresh_until_tsc_{0};
 
   // Frozen at the first start_cycling.
   std::unique_ptr<Plan> plan_;
