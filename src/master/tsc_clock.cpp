@@ -38,7 +38,7 @@ void TscCalibration::sample(std::uint64_t before, std::int64_t ns, std::uint64_t
     return;
   }
   if (rate_ == 0) {
-    if (ns - anchor_ns_ < kWindowNs) return;
+    if (ns - anchor_ns_ < kFirstWindowNs) return;
     // From the anchor's later read to this triple's earlier one: at most the ticks between the
     // two clock reads, so the rate is a lower bound.
     rate_ = static_cast<double>(before - anchor_after_) / static_cast<double>(ns - anchor_ns_);
@@ -47,7 +47,7 @@ void TscCalibration::sample(std::uint64_t before, std::int64_t ns, std::uint64_t
     check_ns_ = ns;
     return;
   }
-  if (ns - check_ns_ < kWindowNs) return;
+  if (ns - check_ns_ < kCheckWindowNs) return;
   if (before <= check_after_) {
     broken_ = true;
     ticks_per_ns_ = 0;

@@ -41,10 +41,15 @@ class TscCalibration {
   // Margin taken off the measured rate: a stamp covers at most 7/8 of the window asked for.
   static constexpr double kMargin = 1.0 / 8;
   // Triples whose two TSC reads are further apart than this (a preemption between them) are
-  // not used.
-  static constexpr std::uint64_t kMaxPairTicks = 200'000;
-  // Time over which the rate is first measured, then checked again and again.
-  static constexpr std::int64_t kWindowNs = 50'000'000;
+  // not used: a clock read takes a few hundred ticks.
+  static constexpr std::uint64_t kMaxPairTicks = 20'000;
+  // The rate is measured from the later TSC read of a first triple to the earlier read of one at
+  // least kFirstWindowNs later: fewer ticks than passed between the two clock reads, so a lower
+  // bound whatever the window (a short one only lowers it further, by at most
+  // 2 x kMaxPairTicks over the window's ticks, under 1 % at 1 GHz). Then checked again over every
+  // kCheckWindowNs.
+  static constexpr std::int64_t kFirstWindowNs = 5'000'000;
+  static constexpr std::int64_t kCheckWindowNs = 100'000'000;
   // A later window whose rate is lower than the first's by more than this drops the stamps for
   // good (the TSC is not the steady counter it was taken for).
   static constexpr double kMaxDrift = 0.02;
