@@ -105,7 +105,8 @@ struct Slave::Impl {
   // (taken inside `mutex` where both are): write_output's scalar path stages into the domains
   // and updates this image under it alone, so two writers leave the image and the domains alike.
   std::map<std::uint8_t, std::vector<std::uint8_t>> output_images;
-  mutable std::atomic<bool> output_lock{false};
+  // On a cache line of its own: the neighbouring fields are written by other threads.
+  alignas(64) mutable std::atomic<bool> output_lock{false};
   struct OutputLock {
     explicit OutputLock(const Impl& impl) noexcept;
     ~OutputLock();
