@@ -788,6 +788,10 @@ void section_hot_path(const Mode& mode, Session& session) {
     fmt::print("error: inputs never became readable\n");
     return;
   }
+  // The domain proves inputs fresh from a TSC stamp once it has calibrated the counter against
+  // the clock (a first window of 5 ms of cycles): before that every read also reads the clock,
+  // which would time the start-up rather than the steady state an application sees.
+  std::this_thread::sleep_for(50ms);
   std::optional<ecat::master::PdoRegistration> in_reg, out_reg;
   for (const auto& r : domain->registrations()) {
     if (r.key.slave == inputs.info().station && !in_reg) in_reg = r;
