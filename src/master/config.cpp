@@ -156,12 +156,6 @@ Result<void> validate(const MasterConfig& config) {
         return bad(fmt::format("{}: slave {} has an alias (the group's alias identifies it)", who,
                                s.name));
       }
-      if (s.sync && s.sync->mode != SyncMode::free_run) {
-        return bad(
-            fmt::format("{}: slave {} asks for sync mode {}: distributed clocks are not "
-                        "configured for hot-connect slaves",
-                        who, s.name, to_string(s.sync->mode)));
-      }
       if (auto r = check_slave(s); !r) return r;
       ++group_slaves;
     }

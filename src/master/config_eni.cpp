@@ -514,13 +514,6 @@ class Mapper {
         SlaveConfig s = config.slaves[k];
         s.position.reset();  // found where the group sits
         s.alias.reset();     // the group's alias identifies it
-        if (s.sync && s.sync->mode != SyncMode::free_run) {
-          note(
-              fmt::format("{}: DC SYNC settings not used: ecat runs hot-connect slaves without "
-                          "distributed clocks",
-                          who(eni_.slaves[k])));
-          s.sync.reset();
-        }
         g.slaves.push_back(std::move(s));
       }
       groups.push_back(std::move(g));

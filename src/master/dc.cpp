@@ -553,6 +553,114 @@ exec::Task<Result<DcRestepResult>> restep_dc_slaves(exec::EventLoop& loop, bus::
   co_return result;
 }
 
+exec::Task<Result<DcRingChangeResult>> adapt_dc_to_ring(exec::EventLoop& loop, bus::Bus& bus,
+                                                        std::uint16_t reference_station,
+                                                        std::vector<std::uint16_t> stations,
+                                                        std::vector<std::uint16_t> joining,
+                                                        DcInitOptions options) {
+  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
+  const bus::TransactOptions reliable{options.transaction_timeout, 2};
+  const std::string who = "DC after the ring changed";
+  if (stations.empty()) co_return Error(Errc::invalid_argument, who + ": no slaves");
+
+  // 1. Latch, then what plan_dc needs, every slave's offset and delay, one transaction.
+  auto latched =
+      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
+  if (!latched) co_return std::move(latched).error();
+  constexpr std::size_t kReads = 7;
+  bus::Transaction tx;
+  tx.reserve(stations.size() * kReads, stations.size() * 44);
+  for (const std::uint16_t st : stations) {
+    tx.fprd(st, reg::kFeatures, 2);
+    tx.fprd(st, reg::kDlStatus, 2);
+    tx.fprd(st, reg::kDcReceiveTimePort0, 16);
+    tx.fprd(st, reg::kDcReceiveTimeEpu, 8);
+    tx.fprd(st, reg::kDcSpeedCounterStart, 2);
+    tx.fprd(st, reg::kDcSystemTimeOffset, 8);
+    tx.fprd(st, reg::kDcSystemTimeDelay, 4);
+  }
+  auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
+  if (!reply) co_return reply.error().context(who + ": reading receive times");
+  std::vector<DcSlaveSnapshot> snapshots(stations.size());
+  std::vector<std::uint64_t> offsets(stations.size());
+  std::vector<std::uint32_t> delays(stations.size());
+  for (std::size_t i = 0; i < stations.size(); ++i) {
+    const std::size_t base = i * kReads;
+    auto& s = snapshots[i];
+    s.station = stations[i];
+    if (reply->wkc(base) != 1)
+      co_return wkc_error("read of 0x0008", s.station, reply->wkc(base)).context(who);
+    if (reply->wkc(base + 1) != 1) {
+      co_return wkc_error("read of DL status 0x0110", s.station, reply->wkc(base + 1)).context(who);
+    }
+    s.dc_supported =
+        wire::EscFeatures::decode(wire::load_le16(reply->data(base).data())).dc_supported;
+    s.dl_status = wire::load_le16(reply->data(base + 1).data());
+    s.receive_times_valid = reply->wkc(base + 2) == 1;
+    if (s.receive_times_valid) {
+      for (std::size_t p = 0; p < 4; ++p)
+        s.port_time[p] = wire::load_le32(reply->data(base + 2).data() + 4 * p);
+    }
+    if (reply->wkc(base + 3) == 1 && reply->wkc(base + 5) == 1 && reply->wkc(base + 6) == 1) {
+      s.epu_time = wire::load_le64(reply->data(base + 3).data());
+      offsets[i] = wire::load_le64(reply->data(base + 5).data());
+      delays[i] = wire::load_le32(reply->data(base + 6).data());
+    } else {
+      s.dc_supported = false;  // no system time unit answering
+    }
+    if (reply->wkc(base + 4) == 1)
+      s.speed_counter_start = wire::load_le16(reply->data(base + 4).data());
+  }
+  auto measured = plan_dc(snapshots, *latched, options.plan);
+  if (!measured) co_return measured.error().context(who);
+  if (measured->reference_station != reference_station) {
+    const bool joiner =
+        std::find(joining.begin(), joining.end(), measured->reference_station) != joining.end();
+    co_return Error(
+        Errc::unsupported,
+        joiner ? fmt::format("{}: DC slave 0x{:04X} of the joining slaves is ahead of the "
+                             "reference clock 0x{:04X} in frame order (the reference time cannot "
+                             "reach it)",
+                             who, measured->reference_station, reference_station)
+               : fmt::format("{}: the measured ring has reference 0x{:04X}, the session's is "
+                             "0x{:04X}",
+                             who, measured->reference_station, reference_station));
+  }
+
+  // 2. The reference's system time at the latch (its delay is 0). A joining DC slave gets the
+  //    offset that puts it there plus its delay, its delay, filter depths and a filter reset;
+  //    every other DC slave keeps its time and only gets its new delay where the propagation to
+  //    it changed (slaves upstream of it came or went): its clock is right, only the comparison
+  //    its loop makes against the reference time moved.
+  const std::size_t ref = measured->reference_position;
+  const std::uint64_t reference_time = snapshots[ref].epu_time + offsets[ref];
+  DcRingChangeResult result;
+  bus::Transaction writes;
+  for (std::size_t i = 0; i < stations.size(); ++i) {
+    auto& now = measured->slaves[i];
+    if (!now.dc) continue;
+    const bool joins = std::find(joining.begin(), joining.end(), now.station) != joining.end();
+    if (joins) {
+      const std::uint64_t offset = reference_time + now.delay_ns - snapshots[i].epu_time;
+      now.offset_ns = static_cast<std::int64_t>(offset);
+      add_clock_writes(writes, now.station, now.offset_ns, now.delay_ns,
+                       snapshots[i].speed_counter_start, options);
+      result.joined.push_back(now.station);
+      continue;
+    }
+    now.offset_ns = static_cast<std::int64_t>(offsets[i]);
+    if (i == ref || now.delay_ns == delays[i]) continue;
+    writes.fpwr(now.station, reg::kDcSystemTimeDelay, le32(now.delay_ns), 1);
+    result.delays_changed.push_back(now.station);
+  }
+  if (!writes.empty()) {
+    auto written = co_await exec::transact(loop, bus, std::move(writes), reliable);
+    if (!written) co_return written.error().context(who + ": writing offsets and delays");
+  }
+  result.plan = std::move(*measured);
+  co_return result;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -576,6 +684,15 @@ std::vector<std::uint16_t> dc_stations_of(const DcInitResult& init) {
   return out;
 }
 
+// The DC slaves followed by the optional stations not among them.
+std::vector<std::uint16_t> with_optional(std::vector<std::uint16_t> stations,
+                                         const DcRuntimeOptions& options) {
+  for (const std::uint16_t st : options.optional_stations) {
+    if (std::find(stations.begin(), stations.end(), st) == stations.end()) stations.push_back(st);
+  }
+  return stations;
+}
+
 }  // namespace
 
 DcMaintainer::DcMaintainer(bus::Bus& bus, const DcInitResult& init, DcRuntimeOptions options)
@@ -586,7 +703,7 @@ DcMaintainer::DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
     : bus_(bus),
       options_(std::move(options)),
       reference_station_(reference_station),
-      stations_(std::move(dc_stations)),
+      stations_(with_optional(dc_stations, options_)),
       frmw_only_(maintainer_layout(reference_station, stations_, false)),
       frmw_and_reads_(maintainer_layout(reference_station, stations_, true)) {
   if (options_.read_every == 0) options_.read_every = 1;
@@ -598,6 +715,15 @@ DcMaintainer::DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
   for (std::size_t i = 0; i < stations_.size(); ++i)
     status_.slaves[i].station = stations_[i];
   membership_.assign(stations_.size(), kInLock);
+  optional_.assign(stations_.size(), false);
+  const auto& optional = options_.optional_stations;
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (std::find(optional.begin(), optional.end(), stations_[i]) == optional.end()) continue;
+    optional_[i] = true;
+    // Not a DC slave of the plan: out of the ring until it joins.
+    if (std::find(dc_stations.begin(), dc_stations.end(), stations_[i]) == dc_stations.end())
+      membership_[i] = kAbsent;
+  }
   rejoin_samples_.assign(stations_.size(), 0);
   rejoin_good_.assign(stations_.size(), 0);
   status_.history.assign(options_.history, 0);
@@ -631,6 +757,7 @@ void DcMaintainer::note_reinitialised(std::uint16_t station) {
 void DcMaintainer::set_free_running(std::span<const std::uint16_t> stations) {
   std::lock_guard lock(mutex_);
   for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (membership_[i] == kAbsent) continue;
     const bool behind = std::find(stations.begin(), stations.end(), stations_[i]) != stations.end();
     if (behind && membership_[i] != kFreeRunning) {
       membership_[i] = kFreeRunning;
@@ -659,10 +786,44 @@ void DcMaintainer::rejoin_free_running() {
 void DcMaintainer::update_membership_locked() {
   std::size_t outside = 0;
   for (std::size_t i = 0; i < stations_.size(); ++i) {
-    status_.slaves[i].free_running = membership_[i] != kInLock;
-    if (membership_[i] != kInLock) ++outside;
+    const bool out = membership_[i] == kFreeRunning || membership_[i] == kRejoining;
+    status_.slaves[i].free_running = out;
+    if (out) ++outside;
   }
   status_.free_running = outside;
+}
+
+void DcMaintainer::join_stations(std::span<const std::uint16_t> stations) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (!optional_[i]) continue;
+    if (std::find(stations.begin(), stations.end(), stations_[i]) == stations.end()) continue;
+    membership_[i] = kRejoining;
+    rejoin_samples_[i] = 0;
+    rejoin_good_[i] = 0;
+    status_.slaves[i].difference_ns = 0;
+    status_.slaves[i].max_abs_difference_ns = 0;
+  }
+  update_membership_locked();
+}
+
+void DcMaintainer::leave_stations(std::span<const std::uint16_t> stations) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (!optional_[i]) continue;
+    if (std::find(stations.begin(), stations.end(), stations_[i]) != stations.end())
+      membership_[i] = kAbsent;
+  }
+  update_membership_locked();
+}
+
+bool DcMaintainer::all_in_lock(std::span<const std::uint16_t> stations) const {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (std::find(stations.begin(), stations.end(), stations_[i]) == stations.end()) continue;
+    if (membership_[i] == kFreeRunning || membership_[i] == kRejoining) return false;
+  }
+  return true;
 }
 
 namespace {
@@ -871,7 +1032,11 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
       bool all_answered = true;
       bool membership_changed = false;
       for (std::size_t i = 0; i < stations_.size(); ++i) {
+        if (membership_[i] == kAbsent) continue;  // a hot-connect slave out of the ring
         const bool answered = rt.wkc(i + 1) == 1;
+        // An optional (hot-connect) slave that stops answering left the ring before the master
+        // noticed: not counted, and not a loss of the others' lock.
+        if (!answered && optional_[i]) continue;
         const auto d = answered ? decode_dc_difference(wire::load_le32(rt.input(i + 1).data())) : 0;
         if (membership_[i] == kRejoining) {
           // Back once within the threshold for lock_samples samples in a row (or at the limit).
@@ -950,14 +1115,23 @@ DcStatus DcMaintainer::status() const {
   ordered.reserve(options_.history);
   std::vector<std::int64_t> ordered_phase;
   ordered_phase.reserve(options_.history);
+  std::vector<std::uint32_t> membership;
+  membership.reserve(stations_.size());
   std::size_t head = 0;
   std::size_t size = 0;
   {
     std::lock_guard lock(mutex_);
     out = status_;
+    membership = membership_;
     head = history_head_;
     size = history_size_;
   }
+  // Hot-connect slaves out of the ring are not part of the status.
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < out.slaves.size(); ++i) {
+    if (membership[i] != kAbsent) out.slaves[kept++] = out.slaves[i];
+  }
+  out.slaves.resize(kept);
   // Unroll the ring buffer: oldest first, only the samples taken.
   const std::size_t cap = out.history.size();
   const std::size_t first = (head + cap - size) % cap;

@@ -987,6 +987,12 @@ struct Master::Impl : DomainObserver {
       }
     }
     if (g.state != HotConnectState::joining) co_return;  // lost meanwhile
+    if (auto clocks = co_await join_group_dc(s, g); !clocks) {
+      if (s->stopping || session != s) co_return;
+      co_await fail_group(s, g, clocks.error());
+      co_return;
+    }
+    if (s->stopping || session != s || g.state != HotConnectState::joining) co_return;
     TargetState want;
     {
       std::lock_guard lock(mutex);
@@ -1024,6 +1030,85 @@ struct Master::Impl : DomainObserver {
     e.subject = at;
     e.value = static_cast<std::uint64_t>(took.count());
     events.publish(e);
+  }
+
+  // Distributed clocks for a joining group (docs/ARCHITECTURE.md "Hot connect"), its slaves in
+  // PREOP and placed: the propagation delays of the ring as it is now, the group's DC slaves
+  // stepped onto the reference's time (the fixed slaves keep theirs; one behind a junction port
+  // the group hangs on gets its new delay), the plan replaced (configure_sync finds the group's
+  // slaves in it), and the runtime reads them into the lock once they are within the threshold,
+  // which the join waits for (bounded: DcConfig::lock_timeout) before any slave of the group goes
+  // on to SAFEOP with SYNC0. A failure fails the group when one of its slaves asks for SYNC (it
+  // would fail there anyway), else it is reported and the group joins without DC.
+  exec::Task<Result<void>> join_group_dc(std::shared_ptr<Session> s, HotConnectRuntime& g) {
+    if (!s->config.dc || !s->dc_init) co_return ok();
+    std::vector<std::uint16_t> joining;
+    bool needs_sync = false;
+    const auto& declared = s->config.hot_connect[g.index].slaves;
+    for (std::size_t k = 0; k < g.slaves.size(); ++k) {
+      joining.push_back(g.slaves[k]->station());
+      const auto& sync = declared[k].sync;
+      needs_sync |= sync && (sync->mode != SyncMode::free_run || !sync->latches.empty());
+    }
+    auto adapted = co_await adapt_dc(s, joining);
+    if (s->stopping || session != s) co_return Error(Errc::closed, "session stopped");
+    if (!adapted) {
+      auto error = adapted.error().context(fmt::format("distributed clocks of group {}", g.name));
+      if (needs_sync) co_return error;
+      events.publish(make_event(EventKind::recovery_step, "dc",
+                                error.describe() + " (the group joins without them)"));
+      co_return ok();
+    }
+    if (!s->dc || adapted->joined.empty()) co_return ok();
+    s->dc->join_stations(adapted->joined);
+    const auto deadline = exec::Clock::now() + s->config.dc->lock_timeout;
+    while (!s->dc->all_in_lock(adapted->joined) && exec::Clock::now() < deadline) {
+      co_await exec::sleep_for(loop, 1ms);
+      if (s->stopping || session != s) co_return Error(Errc::closed, "session stopped");
+      if (g.state != HotConnectState::joining) co_return ok();  // lost meanwhile
+    }
+    co_return ok();
+  }
+
+  // The ring changed (a group joined: `joining`, or left): adapt_dc_to_ring over the stations at
+  // every position now, the session's plan replaced with what was measured.
+  exec::Task<Result<DcRingChangeResult>> adapt_dc(std::shared_ptr<Session> s,
+                                                  std::vector<std::uint16_t> joining) {
+    auto count = co_await count_slaves(loop, *s->bus, {50ms, 1});
+    if (!count) co_return count.error().context("counting the slaves");
+    if (s->stopping || session != s) co_return Error(Errc::closed, "session stopped");
+    auto map = co_await read_station_map(*s, *count);
+    if (!map) {
+      co_return Error(Errc::timeout,
+                      fmt::format("reading the station at each of {} positions", *count));
+    }
+    if (s->stopping || session != s) co_return Error(Errc::closed, "session stopped");
+    DcInitOptions options;
+    options.threshold = s->config.dc->lock_threshold;
+    options.plan.ring_returns_to_master = s->bus->info().redundancy.has_value();
+    auto adapted = co_await adapt_dc_to_ring(loop, *s->bus, s->dc_init->reference_station,
+                                             std::move(*map), std::move(joining), options);
+    if (!adapted || s->stopping || session != s) co_return adapted;
+    std::lock_guard lock(mutex);
+    s->dc_init->plan = adapted->plan;
+    co_return adapted;
+  }
+
+  // A group left: its DC slaves out of the runtime (absent: no loss of the others' lock), and the
+  // delays measured again for the slaves that stay (one behind the junction port it hung on
+  // gets its shorter delay).
+  exec::Task<void> group_left_dc(std::shared_ptr<Session> s, std::vector<std::uint16_t> stations) {
+    if (s->dc) s->dc->leave_stations(stations);
+    if (!s->dc_init || s->dc_adapting) co_return;
+    s->dc_adapting = true;
+    auto adapted = co_await adapt_dc(s, {});
+    if (s->stopping || session != s) co_return;
+    s->dc_adapting = false;
+    if (!adapted) {
+      events.publish(make_event(
+          EventKind::recovery_step, "dc",
+          "distributed clocks after a hot-connect group left: " + adapted.error().describe()));
+    }
   }
 
   // A group that was recognised but could not be brought up: its slaves back to INIT with their
@@ -1071,7 +1156,12 @@ struct Master::Impl : DomainObserver {
     Event e = make_event(EventKind::hotconnect_lost, g.name, how);
     if (at) e.subject = *at;
     events.publish(e);
-    (void)s;
+    if (s->config.dc && s->dc_init) {
+      std::vector<std::uint16_t> stations;
+      for (const Slave* slave : g.slaves)
+        stations.push_back(slave->station());
+      exec::spawn(loop, group_left_dc(s, std::move(stations)));
+    }
   }
 
   // ---- distributed clocks --------------------------------------------------------------------
@@ -1114,6 +1204,10 @@ struct Master::Impl : DomainObserver {
     options.threshold = s.config.dc->lock_threshold;
     options.follow_reference = s.config.dc->follow_reference;
     options.phase_target = -s.config.dc->frame_lead.value_or(s.config.dc->cycle / 4);
+    for (const auto& g : s.hot_connect) {
+      for (const Slave* slave : g.slaves)
+        options.optional_stations.push_back(slave->station());
+    }
     auto dc = std::make_unique<DcMaintainer>(*s.bus, *s.dc_init, options);
     // Lock changes are rare: the bus thread only posts them to the loop.
     dc->set_lock_callback([this, weak = s.weak_from_this()](bool locked) {

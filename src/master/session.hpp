@@ -78,6 +78,7 @@ struct Session : std::enable_shared_from_this<Session> {
   // Hot connect: the fixed slaves end before this position; the groups follow it.
   std::uint16_t fixed_end = 0;
   std::vector<HotConnectRuntime> hot_connect;
+  bool dc_adapting = false;  // a group left: the DC delays are being measured again (loop)
   std::uint16_t hot_connect_scratch = 0;             // the station a candidate is read at
   std::string hot_connect_refused;                   // the last device that matched no group
   std::uint16_t hot_connect_refused_count = 0;       // ... at this slave count

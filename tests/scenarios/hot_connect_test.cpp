@@ -7,6 +7,7 @@
 #include <vector>
 
 #include <ecat/master/config.hpp>
+#include <ecat/sim/dc_unit.hpp>
 
 #include "master/json_view.hpp"
 #include "scenarios/scenario_support.hpp"
@@ -632,6 +633,133 @@ TEST(HotConnectConfig, SimulatorRingErrorsNameWhatIsWrong) {
   auto unknown = (*segment)->plug("other", true, 0);
   ASSERT_FALSE(unknown);
   EXPECT_NE(unknown.error().describe().find("known: tool"), std::string::npos);
+}
+
+// ---- distributed clocks for a group ---------------------------------------------------------
+
+// coupler (the reference clock) -> drive (SYNC0), then the group `tool`: one servo whose clock
+// starts far off and drifts, with SYNC0.
+constexpr const char* kDcRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: drive, profile: servo, clock: {drift_ppm: -40, offset_ns: 1500000}}
+    - {name: tool_drive, profile: servo, clock: {drift_ppm: 70, offset_ns: 900000000}, hot_connect: {group: tool, plugged: false}}
+)";
+
+RingSpec dc_group_spec() {
+  RingSpec spec;
+  spec.ring_yaml = kDcRing;
+  spec.domain_period = 2ms;
+  spec.adjust = [](master::MasterConfig& c) {
+    master::DcConfig dc;
+    dc.cycle = 2ms;
+    dc.lock_threshold = 200ns;
+    c.dc = dc;
+    master::SyncConfig sync;
+    sync.mode = master::SyncMode::sync0;
+    c.slaves.clear();
+    master::SlaveConfig coupler;
+    coupler.name = "coupler";
+    c.slaves.push_back(coupler);
+    master::SlaveConfig drive;
+    drive.name = "drive";
+    drive.process_data = master::ProcessDataRequest::all("main");
+    drive.sync = sync;
+    c.slaves.push_back(drive);
+    master::HotConnectGroup g;
+    g.name = "tool";
+    master::SlaveConfig tool;
+    tool.name = "tool_drive";
+    tool.vendor_id = 0x00000ACE;
+    tool.product_code = 0x00002402;
+    tool.process_data = master::ProcessDataRequest::all("main");
+    tool.health_poll = 20ms;
+    tool.sync = sync;
+    g.slaves.push_back(tool);
+    c.hot_connect.push_back(g);
+    c.hot_connect_poll = 10ms;
+  };
+  return spec;
+}
+
+// How far the group's clock is from the reference's, in truth (the simulator's system times at
+// one instant), and whether its SYNC0 unit runs (0x0981 bit 0 and the SYNC0 bit set).
+struct SimClock {
+  std::int64_t offset_ns = 0;
+  std::uint8_t activation = 0;
+  bool running = false;
+};
+SimClock sim_clock(ScenarioRing& ring, std::size_t esc) {
+  return ring.server->with_segment([esc](sim::Segment& segment, sim::FaultInjector&) {
+    auto& ref = segment.esc(0);
+    auto& tool = segment.esc(esc);
+    const auto t = ref.now_ns();
+    SimClock c;
+    c.offset_ns = static_cast<std::int64_t>(tool.dc()->system_time(t) - ref.dc()->system_time(t));
+    c.activation = tool.read_u8(0x0981);
+    c.running = tool.dc()->sync_state() == sim::SyncUnitState::running;
+    return c;
+  });
+}
+
+TEST(HotConnectDc, AGroupWithADcSlaveJoinsTheClocksAndRunsSync0) {
+  auto ring = ScenarioRing::operational(dc_group_spec());
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(m.await_dc_locked(20s)) << ring->describe();
+  auto before = m.dc_status();
+  ASSERT_TRUE(before) << before.error().describe();
+  // Absent: the group's station is not part of the clocks' status.
+  for (const auto& s : before->slaves)
+    EXPECT_NE(s.station, 0x1002) << "the absent group's slave is listed";
+  const auto unlocks = before->unlock_count;
+
+  for (int round = 0; round < 2; ++round) {
+    SCOPED_TRACE(round);
+    ASSERT_TRUE(ring->server->plug("tool", true));
+    ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }, 15s))
+        << group_status(m).detail << "\n"
+        << ring->describe();
+    EXPECT_EQ(ring->slave_state("tool_drive"), SlaveState::op);
+    const auto info = ring->slave("tool_drive").info();
+    ASSERT_TRUE(info.dc_sync);
+    EXPECT_EQ(info.dc_sync->sync0_cycle_ns, 2'000'000u);
+    EXPECT_NE(info.dc_sync->assign_activate, 0);
+    // On the SYNC0 grid of the fixed drive: both start times are multiples of the cycle.
+    EXPECT_EQ(info.dc_sync->start_time % 2'000'000u, 0u);
+    std::this_thread::sleep_for(500ms);
+    const auto clock = sim_clock(*ring, 2);
+    EXPECT_LT(std::llabs(clock.offset_ns), 1000)
+        << "system time off the reference's by " << clock.offset_ns << " ns";
+    EXPECT_EQ(clock.activation & 0x03, 0x03) << int(clock.activation);
+    EXPECT_TRUE(clock.running);
+    auto st = m.dc_status();
+    ASSERT_TRUE(st);
+    bool listed = false;
+    for (const auto& s : st->slaves) {
+      if (s.station != 0x1002) continue;
+      listed = true;
+      EXPECT_FALSE(s.free_running);
+      EXPECT_LT(std::llabs(s.difference_ns), 200);
+    }
+    EXPECT_TRUE(listed) << "the group's slave is not in the clocks' status";
+    EXPECT_TRUE(st->locked);
+    EXPECT_EQ(st->unlock_count, unlocks) << "the fixed slaves' lock was lost";
+
+    ASSERT_TRUE(ring->server->plug("tool", false));
+    ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }));
+    std::this_thread::sleep_for(100ms);
+    st = m.dc_status();
+    ASSERT_TRUE(st);
+    for (const auto& s : st->slaves)
+      EXPECT_NE(s.station, 0x1002) << "the group's slave is still listed after it left";
+    EXPECT_TRUE(st->locked);
+    EXPECT_EQ(st->unlock_count, unlocks) << "the group's leaving cost the lock";
+    EXPECT_EQ(st->free_running, 0u);
+  }
+  EXPECT_EQ(m.state(), MasterState::operational);
+  EXPECT_FALSE(ring->saw(MasterState::recovering));
 }
 
 }  // namespace

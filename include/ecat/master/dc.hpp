@@ -192,6 +192,25 @@ exec::Task<Result<DcRestepResult>> restep_dc_slaves(exec::EventLoop& loop, bus::
                                                     std::vector<std::uint16_t> free_ran,
                                                     DcInitOptions options = {});
 
+// Hot connect: slaves joined the ring (`joining`, a group just placed) or left it (none). The
+// propagation delays are measured for the ring as it is now (a latch and plan_dc, as at
+// startup, over `stations`: every slave in ring order); each joining DC slave gets the offset
+// that puts its system time on the reference's (`reference_station`, which must stay the
+// reference: a joining DC slave ahead of it in frame order is Errc::unsupported, named), its
+// delay, filter depths and a filter reset. The other DC slaves are not stepped: their clocks are
+// right, and only those whose delay changed (a group came or went upstream of them, on a
+// junction port) get the new delay. Errors name the step and the station.
+struct DcRingChangeResult {
+  DcPlan plan;                                // the ring now, with offsets and delays
+  std::vector<std::uint16_t> joined;          // joining stations that are DC slaves
+  std::vector<std::uint16_t> delays_changed;  // other stations given a new delay
+};
+exec::Task<Result<DcRingChangeResult>> adapt_dc_to_ring(exec::EventLoop& loop, bus::Bus& bus,
+                                                        std::uint16_t reference_station,
+                                                        std::vector<std::uint16_t> stations,
+                                                        std::vector<std::uint16_t> joining,
+                                                        DcInitOptions options = {});
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -215,6 +234,12 @@ struct DcRuntimeOptions {
   // that make the runtime failed (the reference design escalates at 3); the next answered one
   // makes it healthy again. See DcMaintainer::set_health_callback.
   std::uint32_t failure_threshold = 3;
+  // Hot connect: the stations of slaves that may join the ring later (a group's). They are in
+  // the runtime from the start, absent (not read into the lock, not in DcStatus::slaves) until
+  // DcMaintainer::join_stations, and absent again after leave_stations. An unanswered read of
+  // one of them (its group unplugged, before the master noticed) never costs the others' lock.
+  // Stations already among the DC slaves are only marked optional.
+  std::vector<std::uint16_t> optional_stations;
 };
 
 // Runs on the bus thread through a Cycler (add with Cycler::kPriorityDc). Every tick it sends
@@ -262,6 +287,16 @@ class DcMaintainer final : public CyclicParticipant {
   // Any thread, allocation-free.
   void rejoin_free_running();
   static constexpr std::uint32_t kRejoinSamples = 200;
+  // Hot connect: `stations` (DcRuntimeOptions::optional_stations) joined the ring with their
+  // clocks stepped onto the reference (adapt_dc_to_ring): they rejoin the lock as free-running
+  // slaves do after a heal. Stations not among the optional ones are ignored. Any thread,
+  // allocation-free.
+  void join_stations(std::span<const std::uint16_t> stations);
+  // They left the ring: absent, out of the status and the lock, which is not lost for it. Any
+  // thread, allocation-free.
+  void leave_stations(std::span<const std::uint16_t> stations);
+  // True when every one of `stations` that is a DC slave here is in the lock (or absent).
+  bool all_in_lock(std::span<const std::uint16_t> stations) const;
   const DcRuntimeOptions& options() const noexcept { return options_; }
 
  private:
@@ -303,7 +338,9 @@ class DcMaintainer final : public CyclicParticipant {
   static constexpr std::uint32_t kInLock = 0;
   static constexpr std::uint32_t kFreeRunning = 1;
   static constexpr std::uint32_t kRejoining = 2;
+  static constexpr std::uint32_t kAbsent = 3;  // an optional station out of the ring
   std::vector<std::uint32_t> membership_;
+  std::vector<bool> optional_;                 // fixed at construction
   std::vector<std::uint32_t> rejoin_samples_;  // samples since rejoining began
   std::vector<std::uint32_t> rejoin_good_;     // consecutive samples within the threshold
   void update_membership_locked();
