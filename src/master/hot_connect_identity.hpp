@@ -9,6 +9,8 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <ecat/master/config.hpp>
 
@@ -31,5 +33,28 @@ std::optional<FoundIdentity> decode_found_identity(std::span<const std::uint8_t>
 std::optional<std::string> group_identity_mismatch(const HotConnectGroup& group,
                                                    std::uint16_t first_position,
                                                    std::span<const FoundIdentity> found);
+
+// A group already plugged on a junction port in the middle of the ring when the session starts
+// shifts the fixed slaves behind it. What the startup read at every position (ring order):
+struct StartSlave {
+  std::uint16_t alias = 0;  // 0x0012
+  FoundIdentity identity;   // SII words 8..13
+};
+struct StartPlacement {
+  std::vector<std::uint16_t> fixed;  // the ring position of each fixed slave, in config order
+  std::vector<std::pair<std::size_t, std::uint16_t>> groups;  // group index, first position
+};
+// Where the fixed slaves and the groups in front of any of them are. Walking the ring, a fixed
+// slave that declares its alias or identity (vendor_id and product_code) and matches takes the
+// position; otherwise a group not yet placed whose first slave is recognised there (alias, or
+// identity) and whose every slave is what it declares (group_identity_mismatch), with room for
+// the remaining fixed slaves behind it, takes its slaves' positions; otherwise the next fixed
+// slave does (its identity is checked as always when it is brought up). Nullopt when no group
+// sits in front of a fixed slave (the configured positions hold: groups at the end of the line
+// are the hot-connect scan's), when the fixed slaves do not fit, or when a fixed slave has a
+// position of its own that is not its index (positions counted without the groups). Pure.
+std::optional<StartPlacement> place_at_start(std::span<const SlaveConfig> fixed,
+                                             std::span<const HotConnectGroup> groups,
+                                             std::span<const StartSlave> ring);
 
 }  // namespace ecat::master

@@ -382,6 +382,65 @@ struct Master::Impl : DomainObserver {
     co_return out;
   }
 
+  // Startup with more slaves in the ring than fixed ones and hot-connect groups configured: the
+  // alias and SII identity at every position (stations base + position, just assigned), and
+  // place_at_start says whether a group sits in front of fixed slaves. If so, the stations are
+  // assigned again: the fixed slaves base + their index, everyone else after them in ring order.
+  // Returns the ring position of the slave at base + k (empty: nothing in front, k itself).
+  exec::Task<Result<std::vector<std::uint16_t>>> place_groups_at_start(Session& s,
+                                                                       std::uint16_t count) {
+    const auto base = s.config.base_station;
+    auto aliases = co_await read_aliases(s, count);
+    if (!aliases) co_return aliases.error();
+    std::vector<exec::Task<Result<std::vector<std::uint8_t>>>> reads;
+    for (std::uint16_t pos = 0; pos < count; ++pos)
+      reads.push_back(read_sii_words(loop, *s.bus, static_cast<std::uint16_t>(base + pos), 8, 6));
+    auto words = co_await exec::when_all(loop, std::move(reads));
+    std::vector<StartSlave> ring(count);
+    for (std::uint16_t pos = 0; pos < count; ++pos) {
+      if (!words[pos]) {
+        co_return words[pos].error().context(
+            fmt::format("reading the identity at position {} (hot-connect groups at start)", pos));
+      }
+      auto id = decode_found_identity(*words[pos]);
+      if (!id) co_return std::vector<std::uint16_t>{};
+      ring[pos] = {(*aliases)[pos], *id};
+    }
+    auto placed = place_at_start(s.config.slaves, s.config.hot_connect, ring);
+    if (!placed) co_return std::vector<std::uint16_t>{};
+    std::vector<std::uint16_t> order = placed->fixed;  // station index -> position
+    std::vector<bool> taken(count, false);
+    for (const auto p : order)
+      taken[p] = true;
+    for (std::uint16_t pos = 0; pos < count; ++pos) {
+      if (!taken[pos]) order.push_back(pos);
+    }
+    bus::Transaction assign;
+    for (std::uint16_t k = 0; k < count; ++k)
+      assign.apwr(order[k], wire::reg::kStationAddress, le16(static_cast<std::uint16_t>(base + k)));
+    auto assigned = co_await exec::transact(loop, *s.bus, std::move(assign));
+    if (!assigned)
+      co_return assigned.error().context("assigning stations around a hot-connect group");
+    for (std::uint16_t k = 0; k < count; ++k) {
+      if (assigned->wkc(k) != 1) {
+        co_return Error(Errc::wkc_mismatch,
+                        fmt::format("assigning station 0x{:04x} to position {}: working counter {}",
+                                    base + k, order[k], assigned->wkc(k)));
+      }
+    }
+    s.groups_in_front = true;
+    std::string where;
+    for (const auto& [g, at] : placed->groups) {
+      where += fmt::format("{}{} at position {}", where.empty() ? "" : ", ",
+                           s.config.hot_connect[g].name, at);
+    }
+    events.publish(make_event(EventKind::recovery_step, "hotconnect",
+                              fmt::format("plugged at start in front of fixed slaves: {}; the "
+                                          "fixed slaves are placed around it",
+                                          where)));
+    co_return order;
+  }
+
   exec::Task<Result<void>> bring_up_with_retry(std::shared_ptr<Session> s, Slave& slave,
                                                exec::Clock::time_point deadline) {
     std::optional<Error> last_error;
@@ -442,6 +501,23 @@ struct Master::Impl : DomainObserver {
     if (auto r = co_await assign_stations(loop, bus, *count, s->config.base_station); !r) {
       co_return r.error();
     }
+    // A group on a junction port in the middle, plugged already: the fixed slaves behind it get
+    // their stations as if it were not there (by config order), the group the ones after them
+    // (it is claimed by the hot-connect scan once the session runs). `ring_position`: the ring
+    // position of the slave at base_station + k (empty: k itself).
+    std::vector<std::uint16_t> ring_position;
+    if (!s->config.hot_connect.empty() && *count > s->config.slaves.size()) {
+      auto placed = co_await place_groups_at_start(*s, *count);
+      if (!placed) co_return placed.error();
+      ring_position = std::move(*placed);
+      if (s->stopping) co_return Error(Errc::closed, "stopped");
+    }
+    s->start_ring_stations.clear();
+    for (std::uint16_t k = 0; k < *count; ++k) {
+      const std::uint16_t pos = ring_position.empty() ? k : ring_position[k];
+      s->start_ring_stations.resize(*count);
+      s->start_ring_stations[pos] = static_cast<std::uint16_t>(s->config.base_station + k);
+    }
     std::vector<std::uint16_t> aliases;
     for (const auto& c : s->config.slaves) {
       if (!c.alias || !aliases.empty()) continue;
@@ -462,7 +538,9 @@ struct Master::Impl : DomainObserver {
     }
     auto dl = co_await read_dl_status(loop, bus, *count, s->config.base_station);
     if (!dl) co_return dl.error();
-    s->dl_status = std::move(*dl);
+    s->dl_status = *dl;
+    for (std::size_t k = 0; k < ring_position.size() && k < dl->size(); ++k)
+      s->dl_status[ring_position[k]] = (*dl)[k];  // read by station: kept by position
     if (auto r = co_await reset_slaves(loop, bus, *count); !r) co_return r.error();
     if (auto r = co_await init_all(loop, bus, *count, s->config.base_station, s->config.init); !r) {
       co_return r.error();
@@ -504,8 +582,9 @@ struct Master::Impl : DomainObserver {
 
     // Slaves.
     for (auto& c : configs) {
-      const auto pos = *c.position;
-      const auto station = static_cast<std::uint16_t>(s->config.base_station + pos);
+      const auto index = *c.position;
+      const auto station = static_cast<std::uint16_t>(s->config.base_station + index);
+      const auto pos = ring_position.empty() ? index : ring_position[index];
       auto slave = std::make_unique<Slave>(*s, std::move(c), pos, station);
       std::lock_guard lock(mutex);  // Master::slave() reads the list from other threads
       s->slaves.push_back(std::move(slave));
@@ -1170,13 +1249,31 @@ struct Master::Impl : DomainObserver {
   // without a DC-capable slave, or a failed initialisation, runs without DC: dc_status() says why.
   exec::Task<void> init_dc(std::shared_ptr<Session> s) {
     std::vector<std::uint16_t> stations;
-    for (std::uint16_t pos = 0; pos < s->fixed_end; ++pos)
-      stations.push_back(static_cast<std::uint16_t>(s->config.base_station + pos));
+    if (s->groups_in_front) {
+      // A group in the middle: the topology needs every slave of the ring, in ring order.
+      stations = s->start_ring_stations;
+    } else {
+      for (std::uint16_t pos = 0; pos < s->fixed_end; ++pos)
+        stations.push_back(static_cast<std::uint16_t>(s->config.base_station + pos));
+    }
     DcInitOptions options;
     options.threshold = s->config.dc->lock_threshold;
     // Two master ports: the last slave's open port leads back to the second one.
     options.plan.ring_returns_to_master = s->bus->info().redundancy.has_value();
     auto result = co_await initialize_dc(loop, *s->bus, std::move(stations), options);
+    if (result && s->groups_in_front) {
+      // The group's slaves are the hot-connect join's (their stations change there): out of the
+      // plan's DC slaves, and never the reference.
+      for (auto& p : result->plan.slaves) {
+        if (p.station - s->config.base_station >= s->fixed_end) p.dc = false;
+      }
+      if (result->reference_station - s->config.base_station >= s->fixed_end) {
+        result = Error(Errc::unsupported,
+                       fmt::format("the first DC slave (the reference clock) would be station "
+                                   "0x{:04x}, a hot-connect group's",
+                                   result->reference_station));
+      }
+    }
     std::lock_guard lock(mutex);
     if (result) {
       s->dc_init = std::move(*result);

@@ -78,6 +78,10 @@ struct Session : std::enable_shared_from_this<Session> {
   // Hot connect: the fixed slaves end before this position; the groups follow it.
   std::uint16_t fixed_end = 0;
   std::vector<HotConnectRuntime> hot_connect;
+  // Startup: the station at each ring position, and whether a hot-connect group sat in front of
+  // fixed slaves (place_at_start): then the fixed slaves' positions are not their indices.
+  std::vector<std::uint16_t> start_ring_stations;
+  bool groups_in_front = false;
   bool dc_adapting = false;  // a group left: the DC delays are being measured again (loop)
   std::uint16_t hot_connect_scratch = 0;             // the station a candidate is read at
   std::string hot_connect_refused;                   // the last device that matched no group

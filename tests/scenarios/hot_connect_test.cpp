@@ -417,7 +417,7 @@ slaves: [{name: coupler}]
 // 4..5 and shifts the far slaves from 4..6 to 6..8. With `stranger`, a second group on the
 // junction's port 2 (then the far slaves are left out): an EL2809 like tool_out followed by an
 // EL3202 where tool_in should be, so that it takes tool's place in the ring when tool is out.
-std::string junction_ring(bool stranger = false) {
+std::string junction_ring(bool stranger = false, bool plugged = false) {
   std::string yaml = R"(version: 1
 simulator:
   slaves:
@@ -428,6 +428,7 @@ simulator:
     - {name: tool_out, profile: EL2809, parent: junction, port: 1, hot_connect: {group: tool, plugged: false}}
     - {name: tool_in, profile: EL1809}
 )";
+  if (plugged) yaml.replace(yaml.find("plugged: false"), 14, "plugged: true");
   if (stranger) {
     yaml +=
         R"(    - {name: bad_out, profile: EL2809, parent: junction, port: 2, hot_connect: {group: stranger, plugged: false}}
@@ -447,9 +448,10 @@ simulator:
   return yaml;
 }
 
-RingSpec junction_spec(bool stranger = false, std::optional<std::uint16_t> alias = std::nullopt) {
+RingSpec junction_spec(bool stranger = false, std::optional<std::uint16_t> alias = std::nullopt,
+                       bool plugged = false) {
   RingSpec spec;
-  spec.ring_yaml = junction_ring(stranger);
+  spec.ring_yaml = junction_ring(stranger, plugged);
   spec.adjust = [alias, stranger](master::MasterConfig& c) {
     std::vector<std::pair<const char*, bool>> fixed{{"junction", false}};
     if (!stranger)
@@ -537,6 +539,47 @@ TEST(HotConnect, AGroupOnAJunctionPortInTheMiddleComesAndGoesTheOthersUntouched)
     EXPECT_TRUE(monitor.matching(fmt::format("state:{}:down", name)).empty()) << monitor.seen();
   }
   EXPECT_TRUE(monitor.matching("master:recovering").empty()) << monitor.seen();
+}
+
+TEST(HotConnect, AGroupOnAJunctionPortPluggedAtStartIsFoundAndTheOthersPlacedAroundIt) {
+  auto ring = ScenarioRing::operational(junction_spec(false, std::nullopt, true));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  // The fixed slaves behind the group keep the stations of their configuration (as if it were
+  // not there) at the positions where they are.
+  EXPECT_EQ(position_of(m, "far_coupler"), 6);
+  EXPECT_EQ(position_of(m, "far_out"), 8);
+  EXPECT_EQ((*m.slave("far_coupler"))->station(), 0x1004);
+  EXPECT_EQ((*m.slave("far_out"))->station(), 0x1006);
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail << "\n"
+      << ring->describe();
+  EXPECT_EQ(group_status(m).position, 4);
+  EXPECT_EQ(position_of(m, "tool_out"), 4);
+  EXPECT_EQ(ring->slave_state("tool_in"), SlaveState::op);
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+  EXPECT_TRUE(far_loop_follows(m, true));
+  // Unplugged and plugged again as any group.
+  ASSERT_TRUE(ring->server->plug("tool", false));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }));
+  EXPECT_TRUE(eventually([&] { return position_of(m, "far_out") == 6; }));
+  EXPECT_TRUE(far_loop_follows(m, false));
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail;
+  EXPECT_EQ(position_of(m, "far_out"), 8);
+  auto out = m.slave("tool_out");
+  auto in = m.slave("tool_in");
+  ASSERT_TRUE(out && in);
+  ASSERT_TRUE((*out)->write_output("channel_1", master::Value(true)));
+  EXPECT_TRUE(eventually([&] {
+    auto v = (*in)->read_input("channel_1");
+    return v && master::as_bool(*v) == true;
+  })) << ring->describe();
+  EXPECT_TRUE(far_loop_follows(m, true));
+  EXPECT_EQ(m.state(), MasterState::operational);
+  EXPECT_FALSE(ring->saw(MasterState::recovering));
+  EXPECT_EQ(group_status(m).appearances, 2u);
 }
 
 TEST(HotConnect, AWrongDeviceOnAJunctionPortIsRefusedTheOthersUntouched) {
