@@ -132,10 +132,10 @@ Result<void> validate(const MasterConfig& config) {
     const auto& first = group.slaves.front();
     const bool by_identity =
         (group.vendor_id || first.vendor_id) && (group.product_code || first.product_code);
-    if (!group.alias && !by_identity) {
+    if (!group.alias && !by_identity && !group.device_id) {
       return bad(
-          fmt::format("{}: cannot be recognised: give an alias, or a vendor_id and "
-                      "product_code (of the group or of its first slave {})",
+          fmt::format("{}: cannot be recognised: give an alias, a device_id (identify), or a "
+                      "vendor_id and product_code (of the group or of its first slave {})",
                       who, first.name));
     }
     if (group.reserve_bytes > 0xFFFF) {

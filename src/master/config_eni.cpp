@@ -493,10 +493,25 @@ class Mapper {
                                    cmd.line, value, *g.alias));
           }
           g.alias = value;
+        } else if (cmd.ado == 0x0134 && cmd.expected.size() >= 2) {
+          // The explicit device ID: the AL status code register after an ID request.
+          std::uint16_t value = static_cast<std::uint16_t>(cmd.expected[0] | cmd.expected[1] << 8);
+          if (cmd.mask.size() >= 2) {
+            value = static_cast<std::uint16_t>(value & (cmd.mask[0] | cmd.mask[1] << 8));
+          }
+          if (value == 0) return bad(fmt::format("IdentifyCmd (line {}): device ID 0", cmd.line));
+          if (g.device_id && *g.device_id != value) {
+            return bad(fmt::format("IdentifyCmd (line {}): device ID {}, another says {}", cmd.line,
+                                   value, *g.device_id));
+          }
+          g.device_id = value;
+        } else if (cmd.ado == 0x0120) {
+          // The ID request itself (AL control bit 5): the master sends its own.
         } else {
           note(fmt::format(
               "{}: HotConnect IdentifyCmd (line {}) reads register 0x{:04X}{}: not used; ecat "
-              "recognises the group by its head's station alias (0x0012) or identity",
+              "recognises the group by its head's station alias (0x0012), explicit device ID "
+              "(0x0134) or identity",
               who(e), cmd.line, cmd.ado, cmd.expected.empty() ? " without a value to expect" : ""));
         }
       }
@@ -539,7 +554,9 @@ class Mapper {
     for (const auto& g : groups) {
       listed += fmt::format("{}{} ({} slave(s), by {})", listed.empty() ? "" : ", ", g.name,
                             g.slaves.size(),
-                            g.alias ? fmt::format("alias 0x{:04X}", *g.alias) : "identity");
+                            g.device_id ? fmt::format("device ID {}", *g.device_id)
+                            : g.alias   ? fmt::format("alias 0x{:04X}", *g.alias)
+                                        : "identity");
     }
     note(fmt::format("HotConnect: {} group(s) may be absent and come and go: {}", groups.size(),
                      listed));

@@ -378,16 +378,17 @@ class Reader {
     return ok();
   }
 
-  // hot_connect: [{group, alias | vendor_id + product_code, reserve_bytes, slaves: [...]}]
+  // hot_connect: [{group, alias | vendor_id + product_code | identify: {device_id}, reserve_bytes,
+  //                slaves: [...]}]
   Result<void> hot_connect(const SpecNode& node, MasterConfig& config) {
     if (!node.is_sequence()) return spec_error(ctx_, node, "hot_connect", "must be a list");
     for (std::size_t i = 0; i < node.items.size(); ++i) {
       const auto& item = node.items[i];
       const auto path = index_path("hot_connect", i);
       if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
-      if (auto r = check_keys(
-              ctx_, item, path,
-              {"group", "alias", "vendor_id", "product_code", "reserve_bytes", "slaves"});
+      if (auto r = check_keys(ctx_, item, path,
+                              {"group", "alias", "vendor_id", "product_code", "identify",
+                               "reserve_bytes", "slaves"});
           !r) {
         return r.error();
       }
@@ -415,6 +416,15 @@ class Reader {
           auto x = to_int(ctx_, v, p, 0, 0xFFFFFFFF);
           if (!x) return x.error();
           g.product_code = static_cast<std::uint32_t>(*x);
+        } else if (e.key == "identify") {
+          if (!v.is_mapping()) return spec_error(ctx_, v, p, "expected {device_id: N}");
+          if (auto r = check_keys(ctx_, v, p, {"device_id"}); !r) return r.error();
+          const auto* id = v.find("device_id");
+          if (!id)
+            return spec_error(ctx_, v, p, "needs device_id (the group's explicit device ID)");
+          auto x = to_int(ctx_, *id, join_path(p, "device_id"), 1, 0xFFFF);
+          if (!x) return x.error();
+          g.device_id = static_cast<std::uint16_t>(*x);
         } else if (e.key == "reserve_bytes") {
           auto x = to_int(ctx_, v, p, 1, 0xFFFF);
           if (!x) return x.error();

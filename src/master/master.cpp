@@ -897,6 +897,20 @@ struct Master::Impl : DomainObserver {
     if (!words || words->size() < 8) co_return;  // tried again at the next poll
     const std::uint32_t vendor = wire::load_le32(words->data());
     const std::uint32_t product = wire::load_le32(words->data() + 4);
+    // Its explicit device ID, when a group waiting is known by one.
+    std::optional<std::uint16_t> device_id;
+    bool asked_id = false;
+    for (const auto& g : s->hot_connect) {
+      const bool waiting =
+          g.state != HotConnectState::present && g.state != HotConnectState::joining;
+      if (waiting && s->config.hot_connect[g.index].device_id) asked_id = true;
+    }
+    if (asked_id) {
+      auto id = co_await read_device_id(*s, scratch);
+      if (s->stopping || session != s) co_return;
+      if (!id) co_return;  // tried again at the next poll
+      device_id = *id;
+    }
 
     HotConnectRuntime* match = nullptr;
     std::string how;
@@ -904,12 +918,18 @@ struct Master::Impl : DomainObserver {
       if (g.state == HotConnectState::present || g.state == HotConnectState::joining) continue;
       const auto& cfg = s->config.hot_connect[g.index];
       const auto& first = cfg.slaves.front();
-      if (cfg.alias) {
+      const auto v = cfg.vendor_id ? cfg.vendor_id : first.vendor_id;
+      const auto p = cfg.product_code ? cfg.product_code : first.product_code;
+      if (cfg.device_id) {
+        // The device ID, and the alias and identity where the group gives them.
+        if (device_id != cfg.device_id) continue;
+        if (cfg.alias && alias != *cfg.alias) continue;
+        if (v && p && (vendor != *v || product != *p)) continue;
+        how = fmt::format("device ID {} at position {}{}", *device_id, at, behind);
+      } else if (cfg.alias) {
         if (alias != *cfg.alias) continue;
         how = fmt::format("alias 0x{:04x} at position {}{}", alias, at, behind);
       } else {
-        const auto v = cfg.vendor_id ? cfg.vendor_id : first.vendor_id;
-        const auto p = cfg.product_code ? cfg.product_code : first.product_code;
         if (vendor != v.value_or(~0u) || product != p.value_or(~0u)) continue;
         how = fmt::format("vendor 0x{:08x} product 0x{:08x} at position {}{}", vendor, product, at,
                           behind);
@@ -918,10 +938,13 @@ struct Master::Impl : DomainObserver {
       break;
     }
     if (!match) {
+      const std::string id_text = !asked_id   ? std::string()
+                                  : device_id ? fmt::format(", device ID {}", *device_id)
+                                              : std::string(", no device ID");
       auto why = fmt::format(
-          "position {}{}: alias 0x{:04x}, vendor 0x{:08x} product 0x{:08x}: "
+          "position {}{}: alias 0x{:04x}, vendor 0x{:08x} product 0x{:08x}{}: "
           "matches no absent hot-connect group; not configured",
-          at, behind, alias, vendor, product);
+          at, behind, alias, vendor, product, id_text);
       const bool again = why == s->hot_connect_refused;  // reported once while it lasts
       {
         std::lock_guard lock(mutex);
@@ -961,6 +984,51 @@ struct Master::Impl : DomainObserver {
     }
     match->short_since.reset();
     co_await join_group(s, *match, at, std::move(how));
+  }
+
+  // Explicit device identification (ETG.1000.6 AL control bit 5): AL control = INIT + ID request
+  // to the slave at `station`; while the request is set, a device with an ID sets AL status bit 5
+  // (ID loaded) and shows the ID in the AL status code register 0x0134. Polled for up to 100 ms
+  // (the firmware answers), then the request is taken back. Nullopt inside: the device has no
+  // ID (bit 5 never set, or ID 0); an error when the slave does not answer.
+  exec::Task<Result<std::optional<std::uint16_t>>> read_device_id(Session& s,
+                                                                  std::uint16_t station) {
+    const bus::TransactOptions quick{50ms, 1};
+    auto request = [&](bool on) {
+      bus::Transaction tx;
+      tx.fpwr(station, wire::reg::kAlControl,
+              le16(static_cast<std::uint16_t>(wire::encode_al_control(wire::AlState::init, false) |
+                                              (on ? wire::kAlControlIdRequest : 0))));
+      return tx;
+    };
+    auto asked = co_await exec::transact(loop, *s.bus, request(true), quick);
+    if (!asked) co_return asked.error().context("requesting the explicit device ID");
+    if (asked->wkc(0) != 1) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("requesting the explicit device ID of station 0x{:04x}: "
+                                  "working counter {}",
+                                  station, asked->wkc(0)));
+    }
+    std::optional<std::uint16_t> id;
+    const auto deadline = exec::Clock::now() + 100ms;
+    while (true) {
+      bus::Transaction read;
+      read.fprd(station, wire::reg::kAlStatus, 6);
+      auto reply = co_await exec::transact(loop, *s.bus, std::move(read), quick);
+      if (!reply) co_return reply.error().context("reading the explicit device ID");
+      if (reply->wkc(0) == 1) {
+        const auto data = reply->data(0);
+        if ((data[0] & 0x20) != 0) {
+          const auto value = wire::load_le16(data.data() + 4);
+          if (value != 0) id = value;
+          break;
+        }
+      }
+      if (exec::Clock::now() >= deadline || s.stopping) break;
+      co_await exec::sleep_for(loop, 2ms);
+    }
+    (void)co_await exec::transact(loop, *s.bus, request(false), quick);
+    co_return id;
   }
 
   // A group seen but not taken (short of slaves, or its slaves not what it declares): nothing is

@@ -878,6 +878,20 @@ void Esc::after_register_write(std::uint32_t first, std::uint32_t last, const Pa
       memory_[reg::kAlStatus + 1] = memory_[reg::kAlControl + 1];
     }
     application_->on_al_control(*this, read_u16(reg::kAlControl));
+    apply_id_request(read_u16(reg::kAlControl));
+  }
+}
+
+void Esc::apply_id_request(std::uint16_t control) noexcept {
+  if (!hardware_.device_id) return;
+  constexpr std::uint8_t kIdLoaded = 0x20;  // AL status bit 5
+  if ((control & wire::kAlControlIdRequest) != 0 && !al_error()) {
+    memory_[reg::kAlStatus] = static_cast<std::uint8_t>(memory_[reg::kAlStatus] | kIdLoaded);
+    wire::store_le16(&memory_[reg::kAlStatusCode], *hardware_.device_id);
+  } else if ((control & wire::kAlControlIdRequest) == 0 &&
+             (memory_[reg::kAlStatus] & kIdLoaded) != 0) {
+    memory_[reg::kAlStatus] = static_cast<std::uint8_t>(memory_[reg::kAlStatus] & ~kIdLoaded);
+    if (!al_error()) wire::store_le16(&memory_[reg::kAlStatusCode], 0);
   }
 }
 

@@ -283,7 +283,7 @@ class RingParser {
     if (auto r = tree::check_keys(
             c_, node, path,
             {"name", "profile", "file", "options", "clock", "esc", "start", "objects", "parent",
-             "port", "cable_delay_ns", "timing", "count", "hot_connect"});
+             "port", "cable_delay_ns", "timing", "count", "hot_connect", "device_id"});
         !r) {
       return r;
     }
@@ -441,6 +441,11 @@ class RingParser {
         if (!b) return std::move(b).error();
         slave.plugged = *b;
       }
+    }
+    if (const SpecNode* id = node.find("device_id")) {
+      auto v = tree::to_int(c_, *id, tree::join_path(path, "device_id"), 1, 0xFFFF);
+      if (!v) return std::move(v).error();
+      slave.device_id = static_cast<std::uint16_t>(*v);
     }
     std::int64_t count = 1;
     if (const SpecNode* count_node = node.find("count")) {
@@ -788,6 +793,7 @@ Result<std::unique_ptr<Segment>> build_segment(const Ring& ring) {
     const RingSlave& s = ring.slaves[i];
     auto esc = make_device(s.device);
     if (!esc) return Error(esc.error().code(), where(s, i) + ": " + esc.error().describe());
+    if (s.device_id) (*esc)->set_device_id(s.device_id);
     Attachment attachment;
     if (s.parent) attachment.parent = segment->find(*s.parent);
     attachment.parent_port = s.port;

@@ -222,8 +222,8 @@ TEST(ConfigEni, LoadMasterConfigTellsEniFromRingFileByContent) {
 // ---- hot-connect groups (Slave/HotConnect) ------------------------------------------------
 
 // A ring with a group (tool_out, tool_in) on a junction port in the middle, identified by an
-// explicit device ID the master does not read (so by its head's identity). Also an ENI seed of
-// the fuzz corpus.
+// explicit device ID (IdentifyCmd reading 0x0134, 7 expected). Also an ENI seed of the fuzz
+// corpus.
 const std::string kHotConnectEni = std::string(ECAT_SOURCE_DIR) + "/fuzz/seeds/eni/hot-connect.xml";
 
 // The same ring for the simulator, the group unplugged.
@@ -234,7 +234,7 @@ simulator:
     - {name: inputs, profile: EL1809}
     - {name: outputs, profile: EL2809}
     - {name: junction, profile: EK1122}
-    - {name: tool_out, profile: EL2809, parent: junction, port: 1, hot_connect: {group: tool, plugged: false}}
+    - {name: tool_out, profile: EL2809, parent: junction, port: 1, device_id: 7, hot_connect: {group: tool, plugged: false}}
     - {name: tool_in, profile: EL1809}
     - {name: far_coupler, profile: EK1100, parent: junction, port: 2}
     - {name: far_in, profile: EL1809}
@@ -261,6 +261,7 @@ TEST(ConfigEni, HotConnectGroupsBecomeMasterGroupsAndLeaveTheFixedSlaves) {
   const auto& g = c.hot_connect[0];
   EXPECT_EQ(g.name, "tool");
   EXPECT_FALSE(g.alias);
+  EXPECT_EQ(g.device_id, 7);
   ASSERT_EQ(g.slaves.size(), 2u);
   EXPECT_EQ(g.slaves[0].name, "tool_out");
   EXPECT_EQ(g.slaves[1].name, "tool_in");
@@ -272,10 +273,10 @@ TEST(ConfigEni, HotConnectGroupsBecomeMasterGroupsAndLeaveTheFixedSlaves) {
     EXPECT_EQ(s.process_data.kind, ProcessDataRequest::Kind::all) << s.name;
   }
   const auto& r = imported->report;
-  EXPECT_TRUE(reported(r, "IdentifyCmd (line 17) reads register 0x0134")) << joined(r);
+  EXPECT_FALSE(reported(r, "IdentifyCmd (line 17)")) << joined(r);
   EXPECT_TRUE(reported(r,
                        "HotConnect: 1 group(s) may be absent and come and go: tool (2 "
-                       "slave(s), by identity)"))
+                       "slave(s), by device ID 7)"))
       << joined(r);
 }
 
@@ -361,6 +362,22 @@ TEST(ConfigEni, HotConnectByAliasAndMalformedGroupsAreNamed) {
       "<HotConnect><GroupMemberCnt>1</GroupMemberCnt><IdentifyCmd><Cmd>1</Cmd><Ado>18</Ado>"
       "<Validate><Data>0000</Data></Validate></IdentifyCmd></HotConnect>"));
   EXPECT_NE(alias_zero.find("IdentifyCmd (line 4): alias 0"), std::string::npos) << alias_zero;
+  const auto id_zero = error_of(with_hot_connect(
+      "",
+      "<HotConnect><GroupMemberCnt>1</GroupMemberCnt><IdentifyCmd><Cmd>1</Cmd><Ado>#x134</Ado>"
+      "<Validate><Data>0000</Data></Validate></IdentifyCmd></HotConnect>"));
+  EXPECT_NE(id_zero.find("IdentifyCmd (line 4): device ID 0"), std::string::npos) << id_zero;
+  // An explicit device ID, the ID request itself (AL control 0x0120) passed over.
+  auto by_id = import_eni(
+      with_hot_connect("",
+                       "<HotConnect><GroupMemberCnt>1</GroupMemberCnt><IdentifyCmd><Cmd>2</Cmd>"
+                       "<Ado>#x120</Ado></IdentifyCmd><IdentifyCmd><Cmd>1</Cmd><Ado>#x134</Ado>"
+                       "<Validate><Data>2a00</Data></Validate></IdentifyCmd></HotConnect>"),
+      "by-id.xml");
+  ASSERT_TRUE(by_id) << by_id.error().describe();
+  ASSERT_EQ(by_id->config.hot_connect.size(), 1u);
+  EXPECT_EQ(by_id->config.hot_connect[0].device_id, 42);
+  EXPECT_FALSE(reported(by_id->report, "IdentifyCmd")) << joined(by_id->report);
   // A group whose GroupMemberCnt reaches another group's head.
   std::string nested = with_hot_connect(
       "", "<HotConnect><GroupName>t</GroupName><GroupMemberCnt>2</GroupMemberCnt></HotConnect>");
@@ -405,6 +422,8 @@ TEST(ConfigEni, AnEniHotConnectGroupJoinsOnTheSimulatedRing) {
     const auto st = master.status();
     return !st.hot_connect.empty() && st.hot_connect[0].state == HotConnectState::present;
   })) << (master.status().hot_connect.empty() ? "" : master.status().hot_connect[0].detail);
+  EXPECT_NE(master.status().hot_connect[0].detail.find("device ID 7"), std::string::npos)
+      << master.status().hot_connect[0].detail;
   auto in = master.slave("tool_in");
   ASSERT_TRUE(in);
   EXPECT_EQ((*in)->state(), SlaveState::op);

@@ -805,5 +805,107 @@ TEST(HotConnectDc, AGroupWithADcSlaveJoinsTheClocksAndRunsSync0) {
   EXPECT_FALSE(ring->saw(MasterState::recovering));
 }
 
+// ---- groups known by an explicit device ID ---------------------------------------------------
+
+// coupler -> inputs -> outputs -> junction; on the junction's port 1 the group `a` (device ID 5),
+// on its port 2 the group `b` (device ID 6): both an EL2809 followed by an EL1809.
+std::string device_id_ring(std::uint16_t a_id) {
+  return fmt::format(R"(version: 1
+simulator:
+  slaves:
+    - {{name: coupler, profile: EK1100}}
+    - {{name: inputs, profile: EL1809}}
+    - {{name: outputs, profile: EL2809}}
+    - {{name: junction, profile: EK1122}}
+    - {{name: a_out, profile: EL2809, parent: junction, port: 1, device_id: {}, hot_connect: {{group: a, plugged: false}}}}
+    - {{name: a_in, profile: EL1809}}
+    - {{name: b_out, profile: EL2809, parent: junction, port: 2, device_id: 6, hot_connect: {{group: b, plugged: false}}}}
+    - {{name: b_in, profile: EL1809}}
+  wiring:
+    - {{from: outputs.channel_1, to: inputs.channel_1}}
+    - {{from: a_out.channel_1, to: a_in.channel_1}}
+    - {{from: b_out.channel_1, to: b_in.channel_1}}
+)",
+                     a_id);
+}
+
+// The master declares `left` with device ID 6 and `right` with 5: the same devices, told apart
+// by their IDs only.
+RingSpec device_id_spec(std::uint16_t a_id) {
+  RingSpec spec;
+  spec.ring_yaml = device_id_ring(a_id);
+  spec.adjust = [](master::MasterConfig& c) {
+    master::SlaveConfig junction;
+    junction.name = "junction";
+    c.slaves.push_back(junction);
+    for (const auto& [name, id] :
+         {std::pair<const char*, std::uint16_t>{"left", 6}, {"right", 5}}) {
+      auto g = tool_group();
+      g.name = name;
+      g.device_id = id;
+      g.slaves[0].name = std::string(name) + "_out";
+      g.slaves[1].name = std::string(name) + "_in";
+      c.hot_connect.push_back(g);
+    }
+    c.hot_connect_poll = 10ms;
+  };
+  return spec;
+}
+
+master::HotConnectStatus named_group(master::Master& m, const std::string& name) {
+  for (const auto& g : m.status().hot_connect) {
+    if (g.group == name) return g;
+  }
+  return {};
+}
+
+TEST(HotConnect, GroupsOfOneProductAreToldApartByTheirDeviceIds) {
+  auto ring = ScenarioRing::operational(device_id_spec(5));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(ring->server->plug("a", true));  // device ID 5: `right`
+  ASSERT_TRUE(eventually([&] { return named_group(m, "right").state == HotConnectState::present; }))
+      << named_group(m, "right").detail << "\n"
+      << ring->describe();
+  EXPECT_EQ(named_group(m, "left").state, HotConnectState::absent);
+  EXPECT_NE(named_group(m, "right").detail.find("device ID 5 at position 4"), std::string::npos)
+      << named_group(m, "right").detail;
+  ASSERT_TRUE(ring->server->plug("b", true));  // device ID 6: `left`, behind it
+  ASSERT_TRUE(eventually([&] { return named_group(m, "left").state == HotConnectState::present; }))
+      << named_group(m, "left").detail << "\n"
+      << ring->describe();
+  EXPECT_EQ(named_group(m, "left").position, 6);
+  for (const char* side : {"left", "right"}) {
+    auto out = m.slave(std::string(side) + "_out");
+    auto in = m.slave(std::string(side) + "_in");
+    ASSERT_TRUE(out && in);
+    EXPECT_EQ((*in)->state(), SlaveState::op) << side;
+    ASSERT_TRUE((*out)->write_output("channel_1", master::Value(true)));
+    EXPECT_TRUE(eventually([&] {
+      auto v = (*in)->read_input("channel_1");
+      return v && master::as_bool(*v) == true;
+    })) << side;
+  }
+  // The ID request was taken back: AL status shows the state alone.
+  auto sim = ring->server->status();
+  EXPECT_EQ(sim.slaves.at(4).al_state, wire::AlState::op);
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
+TEST(HotConnect, ADeviceIdNoGroupDeclaresIsRefusedNamingIt) {
+  auto ring = ScenarioRing::operational(device_id_spec(9));
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(ring->server->plug("a", true));
+  ASSERT_TRUE(eventually([&] { return !m.status().hot_connect_refused.empty(); }));
+  const auto why = m.status().hot_connect_refused;
+  EXPECT_NE(why.find("device ID 9"), std::string::npos) << why;
+  EXPECT_NE(why.find("position 4"), std::string::npos) << why;
+  EXPECT_EQ(named_group(m, "left").state, HotConnectState::absent);
+  EXPECT_EQ(named_group(m, "right").state, HotConnectState::absent);
+  EXPECT_EQ(ring->server->status().slaves.at(4).al_state, wire::AlState::init);
+  EXPECT_TRUE(stays([&] { return m.state() == MasterState::operational; }, 100ms));
+}
+
 }  // namespace
 }  // namespace ecat::scenarios

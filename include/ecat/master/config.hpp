@@ -540,6 +540,10 @@ struct HotConnectGroup {
   std::optional<std::uint16_t> alias{};
   std::optional<std::uint32_t> vendor_id{};
   std::optional<std::uint32_t> product_code{};
+  // Explicit device ID (ring file `identify: {device_id: N}`; an ENI IdentifyCmd reading 0x0134):
+  // the first slave's answer to an AL ID request (0x0120 bit 5 -> 0x0134) must be this, and
+  // its alias / identity too where given.
+  std::optional<std::uint16_t> device_id{};
   // Image bytes reserved per domain the group's slaves use; 0: 64 bytes per slave of the group.
   std::size_t reserve_bytes = 0;
   // No `position` (found where the group sits); `alias` is not used on them.

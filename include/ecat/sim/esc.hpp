@@ -77,6 +77,11 @@ struct EscHardware {
   // indicator and the status code. Part of the device, so power cycles keep it (set_al_refusal
   // adds to it; lifting a refusal restores these).
   std::vector<std::pair<wire::AlState, std::uint16_t>> al_refusals{};
+  // Explicit device identification (an ID selector switch on the device; ring file `device_id`):
+  // AL control 0x0120 bit 5 (ID request) makes the firmware put it into the AL status code
+  // register 0x0134 and set AL status 0x0130 bit 5 (ID loaded) while the request stays set and no
+  // AL error is pending; clearing the request clears both. Unset: the request is ignored.
+  std::optional<std::uint16_t> device_id{};
 };
 
 // What the ESC datasheets give for an ESC type (register 0x0000) where neither a capture nor
@@ -170,6 +175,8 @@ class Esc {
   bool al_error() const noexcept;
   std::uint16_t al_status_code() const noexcept;
   const EscHardware& hardware() const noexcept { return hardware_; }
+  // EscHardware::device_id (the device's ID switch: kept across power cycles).
+  void set_device_id(std::optional<std::uint16_t> id) noexcept { hardware_.device_id = id; }
   wire::Bytes memory() const noexcept { return memory_; }
   std::uint8_t read_u8(std::uint16_t address) const noexcept;
   std::uint16_t read_u16(std::uint16_t address) const noexcept;
@@ -315,6 +322,7 @@ class Esc {
   };
   std::array<SmArea, wire::reg::kMaxSyncManagers> sm_areas_{};
 
+  void apply_id_request(std::uint16_t control) noexcept;
   EscHardware hardware_;
   std::vector<std::uint8_t> memory_;
   std::vector<std::uint8_t> eeprom_;

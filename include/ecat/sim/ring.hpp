@@ -44,6 +44,8 @@ struct RingSlave {
   // (everything cabled behind its port 0); `plugged` is its state when the simulator starts.
   std::optional<std::string> hot_connect_group;
   bool plugged = true;
+  // The device's explicit device ID (EscHardware::device_id), answered to an AL ID request.
+  std::optional<std::uint16_t> device_id;
   int line = 0;  // where the entry starts in the ring file
 };
 
