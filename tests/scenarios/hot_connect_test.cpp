@@ -389,6 +389,17 @@ slaves: [{name: coupler}]
   EXPECT_EQ(ok->hot_connect[0].alias, 0x0042);
   EXPECT_EQ(ok->hot_connect[0].reserve_bytes, 32u);
   EXPECT_EQ(ok->hot_connect[0].slaves[0].revision, 0x00110000u);
+  EXPECT_FALSE(ok->hot_connect[0].device_id);
+  // Known by an explicit device ID alone, its slave with SYNC0.
+  auto by_id = parse(R"(dc: {cycle_us: 1000}
+hot_connect:
+  - group: tool
+    identify: {device_id: 5}
+    slaves: [{name: tool_io, sync: {mode: sync0}}]
+)");
+  ASSERT_TRUE(by_id) << by_id.error().describe();
+  EXPECT_EQ(by_id->hot_connect[0].device_id, 5);
+  ASSERT_TRUE(by_id->hot_connect[0].slaves[0].sync);
   // Each refused, naming what is wrong.
   const std::pair<const char*, const char*> refused[] = {
       {"hot_connect: [{group: tool, alias: 1, slaves: [{name: a, revision: -1}]}]\n",
@@ -401,6 +412,10 @@ slaves: [{name: coupler}]
       {"hot_connect: [{group: tool, alias: 1, slaves: [{name: a, process_data: nowhere}]}]\n",
        "unknown domain"},
       {"hot_connect: [{group: tool, alias: 1, where: 3, slaves: []}]\n", "where"},
+      {"hot_connect: [{group: tool, identify: {device_id: 0}, slaves: [{name: a}]}]\n",
+       "hot_connect[0].identify.device_id"},
+      {"hot_connect: [{group: tool, identify: {serial: 3}, slaves: [{name: a}]}]\n", "serial"},
+      {"hot_connect: [{group: tool, identify: 5, slaves: [{name: a}]}]\n", "{device_id: N}"},
   };
   for (const auto& [tail, named] : refused) {
     auto bad = parse(tail);
@@ -661,6 +676,14 @@ TEST(HotConnectConfig, SimulatorRingErrorsNameWhatIsWrong) {
   ASSERT_FALSE(built);
   EXPECT_NE(built.error().describe().find("already part of group g"), std::string::npos)
       << built.error().describe();
+  auto id_zero = sim::parse_ring(R"(simulator:
+  slaves:
+    - {name: a, profile: EK1100}
+    - {name: b, profile: EL1809, device_id: 0}
+)");
+  ASSERT_FALSE(id_zero);
+  EXPECT_NE(id_zero.error().describe().find("device_id"), std::string::npos)
+      << id_zero.error().describe();
   auto good = sim::parse_ring(hot_connect_ring(false));
   ASSERT_TRUE(good) << good.error().describe();
   auto segment = sim::build_segment(*good);
