@@ -160,14 +160,18 @@ Result<void> validate(const MasterConfig& config) {
       ++group_slaves;
     }
   }
-  // One more station: the scratch address a newly found slave is identified at.
+  // One more station: the scratch address a newly found slave is identified at. The group's
+  // stations follow the last fixed position (positions may leave gaps).
+  std::size_t fixed = config.slaves.size();
+  for (const auto& s : config.slaves) {
+    if (s.position) fixed = std::max<std::size_t>(fixed, std::size_t{*s.position} + 1);
+  }
   if (group_slaves > 0 &&
-      static_cast<std::uint32_t>(config.base_station) + config.slaves.size() + group_slaves >
-          0xFFFF) {
+      static_cast<std::uint32_t>(config.base_station) + fixed + group_slaves > 0xFFFF) {
     return bad(
-        fmt::format("hot_connect: stations 0x{:04x} + {} fixed and {} group slaves (and "
-                    "one to identify them at) run past 0xffff",
-                    config.base_station, config.slaves.size(), group_slaves));
+        fmt::format("hot_connect: stations 0x{:04x} + {} fixed positions and {} group slaves "
+                    "(and one to identify them at) run past 0xffff",
+                    config.base_station, fixed, group_slaves));
   }
   if (config.hot_connect_poll.count() <= 0) return bad("hot_connect_poll must be positive");
   if (config.dc && config.dc->cycle.count() <= 0) return bad("dc.cycle must be positive");

@@ -646,7 +646,11 @@ struct Master::Impl : DomainObserver {
 
   Result<void> make_hot_connect_groups(Session& s) {
     const auto& groups = s.config.hot_connect;
-    auto station = static_cast<std::uint16_t>(s.config.base_station + s.config.slaves.size());
+    // After every fixed station: base + position up to the last fixed position, which with gaps
+    // in the configured positions lies past base + the number of configured slaves (the slaves
+    // in the gaps have stations there too).
+    auto station = static_cast<std::uint16_t>(
+        s.config.base_station + std::max<std::size_t>(s.config.slaves.size(), s.fixed_end));
     for (std::size_t gi = 0; gi < groups.size(); ++gi) {
       const auto& group = groups[gi];
       HotConnectRuntime rt;

@@ -3,6 +3,7 @@
 // session's target by the master without disturbing the others' cycles.
 #include <mutex>
 #include <random>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -155,6 +156,43 @@ TEST(HotConnect, PlugBringsTheGroupToOpWithoutDisturbingTheOthers) {
   EXPECT_TRUE(monitor.matching("state:inputs:down").empty()) << monitor.seen();
   EXPECT_TRUE(monitor.matching("master:recovering").empty()) << monitor.seen();
   EXPECT_TRUE(fixed_loop_follows(m, true));
+}
+
+// Fixed slaves configured with a gap in their positions (the inputs terminal at position 1 is not
+// configured): the group's stations follow the last fixed position, not the number of configured
+// slaves (which would give the group the outputs terminal's station).
+TEST(HotConnect, GroupStationsFollowTheLastFixedPositionWhenPositionsLeaveGaps) {
+  auto spec = hot_connect_spec(false);
+  spec.adjust = [](master::MasterConfig& c) {
+    std::erase_if(c.slaves, [](const master::SlaveConfig& s) { return s.name == "inputs"; });
+    c.slaves[0].position = 0;  // coupler
+    c.slaves[1].position = 2;  // outputs
+    c.hot_connect.push_back(tool_group());
+    c.hot_connect_poll = 10ms;
+  };
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  const auto before = ring->domain_stats();
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail << "\n"
+      << ring->describe();
+  std::set<std::uint16_t> stations;
+  for (const char* name : {"coupler", "outputs", "tool_out", "tool_in"}) {
+    auto s = m.slave(name);
+    ASSERT_TRUE(s) << name;
+    EXPECT_TRUE(stations.insert((*s)->info().station).second)
+        << name << " shares station " << (*s)->info().station;
+  }
+  // Ring positions 0..2 have stations base + 0..2; the group comes after them.
+  const std::uint16_t base = (*m.slave("coupler"))->info().station;
+  EXPECT_EQ((*m.slave("tool_out"))->info().station, base + 3);
+  EXPECT_EQ((*m.slave("tool_in"))->info().station, base + 4);
+  for (const char* name : {"outputs", "tool_out", "tool_in"})
+    EXPECT_EQ((*m.slave(name))->state(), SlaveState::op) << name;
+  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count) << ring->describe();
+  EXPECT_EQ(m.state(), MasterState::operational);
 }
 
 TEST(HotConnect, UnplugMarksTheGroupStaleAndReplugRestoresItsStagedOutputs) {
