@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <array>
+#include <optional>
 #include <string>
 
 #include <fmt/format.h>
@@ -155,22 +156,117 @@ Result<void> check_addressing(std::uint16_t count, std::uint16_t base_station) {
   return ok();
 }
 
-exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
-                                         std::uint16_t base_station) {
-  if (auto checked = check_addressing(count, base_station); !checked) co_return checked.error();
+namespace {
+
+// The datagrams a port's copy of every frame carries as NOP while it lives (Link::set_port_nop),
+// so that they reach the slaves through the other port only; ended on every way out.
+class PortMask {
+ public:
+  PortMask(bus::Bus& bus, link::Port port, link::DatagramSelector selector)
+      : bus_(bus), port_(port), result_(bus.set_port_nop(port, selector)) {}
+  ~PortMask() {
+    if (result_) (void)bus_.set_port_nop(port_, std::nullopt);
+  }
+  PortMask(const PortMask&) = delete;
+  PortMask& operator=(const PortMask&) = delete;
+  const Result<void>& result() const { return result_; }
+
+ private:
+  bus::Bus& bus_;
+  link::Port port_;
+  Result<void> result_;
+};
+
+link::DatagramSelector every_station_write() {
+  return {static_cast<std::uint8_t>(wire::Command::apwr), 0, reg::kStationAddress, true};
+}
+
+// Station base + first + k to the k-th slave from `port`'s side (position k), for k < count.
+exec::Task<Result<void>> assign_from(exec::EventLoop& loop, bus::Bus& bus,
+                                     std::optional<link::Port> port, std::uint16_t first,
+                                     std::uint16_t count, std::uint16_t base_station) {
+  if (count == 0) co_return ok();
+  std::optional<PortMask> mask;
+  if (port) {
+    // The other port's copy carries the writes as NOPs.
+    mask.emplace(bus, *port == link::Port::primary ? link::Port::secondary : link::Port::primary,
+                 every_station_write());
+    if (!mask->result()) co_return mask->result().error().context("assigning station addresses");
+  }
   bus::Transaction write;
-  for (std::uint16_t pos = 0; pos < count; ++pos) {
-    write.apwr(pos, reg::kStationAddress, le16(static_cast<std::uint16_t>(base_station + pos)));
+  for (std::uint16_t k = 0; k < count; ++k) {
+    write.apwr(k, reg::kStationAddress, le16(static_cast<std::uint16_t>(base_station + first + k)));
   }
   auto written = co_await exec::transact(loop, bus, std::move(write));
   if (!written) co_return written.error().context("assigning station addresses");
-  for (std::uint16_t pos = 0; pos < count; ++pos) {
-    if (written->wkc(pos) != 1) {
-      co_return Error(Errc::wkc_mismatch,
-                      fmt::format("assigning station 0x{:04x} to position {}: working counter "
-                                  "{} (expected 1)",
-                                  base_station + pos, pos, written->wkc(pos)));
+  for (std::uint16_t k = 0; k < count; ++k) {
+    if (written->wkc(k) != 1) {
+      co_return Error(
+          Errc::wkc_mismatch,
+          fmt::format("assigning station 0x{:04x} to position {}{}: working counter {} "
+                      "(expected 1)",
+                      base_station + first + k, first + k,
+                      port && *port == link::Port::secondary
+                          ? fmt::format(" (position {} from the secondary port's side)", k)
+                          : std::string(),
+                      written->wkc(k)));
     }
+  }
+  co_return ok();
+}
+
+}  // namespace
+
+exec::Task<Result<RingSides>> count_ring_sides(exec::EventLoop& loop, bus::Bus& bus) {
+  // Two broadcast reads in one frame: the first (0x0000) a NOP in the secondary's copy, so only
+  // the primary's side counts it; the second (0x0001) counted by both. The second also keeps
+  // the secondary's copy a frame some slave may process, so that with the primary's cable cut
+  // its bounce is a reply (a copy carrying nothing but NOPs comes back as it left: a
+  // passthrough, never a reply).
+  PortMask mask(bus, link::Port::secondary,
+                {static_cast<std::uint8_t>(wire::Command::brd), 0, reg::kType, true});
+  if (!mask.result()) co_return mask.result().error().context("counting the primary's side");
+  bus::Transaction tx;
+  tx.brd(reg::kType, 1);
+  tx.brd(reg::kRevision, 1);
+  auto reply = co_await exec::transact(loop, bus, std::move(tx));
+  if (!reply) co_return reply.error().context("counting the primary's side (BRD 0x0000)");
+  RingSides sides{reply->wkc(0), reply->wkc(1)};
+  if (sides.primary > sides.total) {
+    co_return Error(Errc::wkc_mismatch,
+                    fmt::format("counting the primary's side: {} slaves of {}: the ring changed",
+                                sides.primary, sides.total));
+  }
+  co_return sides;
+}
+
+exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
+                                         std::uint16_t base_station) {
+  if (auto checked = check_addressing(count, base_station); !checked) co_return checked.error();
+  if (!bus.info().redundancy) {
+    auto assigned = co_await assign_from(loop, bus, std::nullopt, 0, count, base_station);
+    if (!assigned) co_return assigned.error();
+  } else {
+    // A redundant ring may be broken already: each side's position 0 is the first slave its
+    // port's frame processes, so a position reaches a slave on each side. The primary's side is
+    // counted and assigned with the secondary's copy silenced, then the rest from the
+    // secondary's side (in ring order: its frame processes them from the break on), with the
+    // primary's silenced. A whole ring is all on the primary's side.
+    auto sides = co_await count_ring_sides(loop, bus);
+    if (!sides) co_return sides.error().context("assigning station addresses");
+    if (sides->total != count) {
+      co_return Error(Errc::wkc_mismatch,
+                      fmt::format("assigning station addresses: {} slaves answer, {} were "
+                                  "counted: the ring changed",
+                                  sides->total, count));
+    }
+    auto assigned =
+        co_await assign_from(loop, bus, link::Port::primary, 0, sides->primary, base_station);
+    if (!assigned) co_return assigned.error();
+    assigned =
+        co_await assign_from(loop, bus, link::Port::secondary, sides->primary,
+                             static_cast<std::uint16_t>(count - sides->primary), base_station);
+    if (!assigned) co_return assigned.error();
   }
   bus::Transaction check;
   for (std::uint16_t pos = 0; pos < count; ++pos) {

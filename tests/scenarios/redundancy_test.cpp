@@ -577,6 +577,93 @@ TEST(RedundantLinkFaults, LinkDownAndReplyFaultsOverTwoVethPairs) {
   EXPECT_EQ(ring->redundant_ports->stats().send_errors, 0u);
 }
 
+// ---- a start on a ring already broken ----------------------------------------------------------
+
+// The ring is served broken (`cabling`) before the master starts. Position addressing behind a
+// break counts from the first slave after it, so a position reaches a slave on each side: the
+// stations are assigned side by side, through one port at a time. Every slave gets its ring
+// position's station (the configured slave at its configured position), the session reaches OP
+// with the whole ring's working counter and the break is located; healed, the same process data
+// flows through the whole ring and nothing is assigned again.
+void starts_broken(const RedundantTopology& cabling, const link::RingBreak& expected_break,
+                   RingKind kind = RingKind::basic, Transport transport = Transport::redundant) {
+  SCOPED_TRACE(sim::describe(cabling));
+  auto spec = redundant_spec(5ms, transport);
+  spec.kind = kind;
+  spec.redundant_cabling = cabling;
+  std::string skip;
+  auto ring = ScenarioRing::operational(spec, &skip);
+  if (!skip.empty()) GTEST_SKIP() << skip;
+  ASSERT_TRUE(ring);
+  ASSERT_NE(ring->redundant_link, nullptr);
+  EXPECT_EQ(sim::describe(ring->redundant_ports->topology()), sim::describe(cabling));
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::broken);
+  const auto slaves = ring->master->status().slaves;
+  std::vector<std::string> names;
+  std::size_t esc_count = 0;
+  ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+    esc_count = segment.size();
+    for (std::size_t i = 0; i < segment.size(); ++i)
+      names.push_back(segment.name(i));
+  });
+  ASSERT_EQ(slaves.size(), esc_count);
+  for (std::size_t i = 0; i < slaves.size(); ++i) {
+    EXPECT_EQ(slaves[i].position, i);
+    EXPECT_EQ(slaves[i].station, 0x1000 + i) << slaves[i].name;
+    EXPECT_EQ(slaves[i].name, names[i]);
+  }
+  // Each ESC holds its ring position's station (the simulator's own view).
+  const auto stations_are_positions = [&] {
+    ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+      for (std::size_t i = 0; i < segment.size(); ++i)
+        EXPECT_EQ(segment.esc(i).station_address(), 0x1000 + i) << "slave " << i;
+    });
+  };
+  stations_are_positions();
+  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
+  EXPECT_TRUE(ring->loopback(false)) << ring->describe();
+  EXPECT_TRUE(eventually([&] {
+    const auto r = ring->master->status().redundancy;
+    return r && r->break_location && *r->break_location == expected_break;
+  })) << ring->describe();
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::whole);
+  EXPECT_TRUE(eventually([&] {
+    const auto r = ring->master->status().redundancy;
+    return r && !r->break_location;
+  })) << ring->describe();
+  stations_are_positions();
+  expect_never_recovered(*ring);
+}
+
+using Where = link::RingBreak::Where;
+
+TEST(Scenario00, RedundantRingStartsBrokenBetweenSlaves) {
+  // After the first slave, and before the last.
+  starts_broken(RedundantTopology::broken_after(1), {Where::between_slaves, 0, 0x1000, 1, 0x1001});
+  starts_broken(RedundantTopology::broken_after(2), {Where::between_slaves, 1, 0x1001, 2, 0x1002});
+}
+
+TEST(Scenario00, RedundantRingStartsBrokenInALongerRing) {
+  // Four slaves (the mailbox one last): a break in the middle, and before the last.
+  starts_broken(RedundantTopology::broken_after(2), {Where::between_slaves, 1, 0x1001, 2, 0x1002},
+                RingKind::segmented);
+  starts_broken(RedundantTopology::broken_after(3), {Where::between_slaves, 2, 0x1002, 3, 0x1003},
+                RingKind::segmented);
+}
+
+TEST(Scenario00, RedundantRingStartsWithAMasterCableCut) {
+  starts_broken(RedundantTopology::cut_at(RedundantPort::primary),
+                {Where::primary_cable, 0, 0x1000, 0, 0x1000});
+  starts_broken(RedundantTopology::cut_at(RedundantPort::secondary),
+                {Where::secondary_cable, 2, 0x1002, 2, 0x1002});
+}
+
+TEST(Scenario00, RedundantRingStartsBrokenOverTwoVethPairs) {
+  starts_broken(RedundantTopology::broken_after(1), {Where::between_slaves, 0, 0x1000, 1, 0x1001},
+                RingKind::basic, Transport::redundant_raw);
+}
+
 // ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
 
 // The default ring served with two master ports and a bus on a RedundantLink, no master.

@@ -131,6 +131,9 @@ struct RingSpec {
   std::function<void()> before_start;
   // Wraps the master's end of the link before the master starts (e.g. to log its frames).
   std::function<std::unique_ptr<link::Link>(std::unique_ptr<link::Link>)> wrap_link;
+  // Transport::redundant(_raw): the cabling the ring is served with (broken before the master
+  // starts).
+  std::optional<sim::RedundantTopology> redundant_cabling;
 };
 
 inline std::string ring_yaml(RingKind kind) {
@@ -597,6 +600,7 @@ class ScenarioRing {
         return server->serve_memory();
       case Transport::redundant: {
         sim::RedundantPortsOptions options;
+        if (spec_.redundant_cabling) options.topology = *spec_.redundant_cabling;
         auto ports = sim::RedundantPorts::create(*server, options);
         if (!ports) return ports.error();
         redundant_ports = std::move(*ports);
@@ -611,7 +615,9 @@ class ScenarioRing {
         return std::unique_ptr<link::Link>(std::move(*link));
       }
       case Transport::redundant_raw: {
-        auto ports = sim::RedundantPorts::create(*server, {});
+        sim::RedundantPortsOptions cabling;
+        if (spec_.redundant_cabling) cabling.topology = *spec_.redundant_cabling;
+        auto ports = sim::RedundantPorts::create(*server, cabling);
         if (!ports) return ports.error();
         redundant_ports = std::move(*ports);
         std::array<std::unique_ptr<link::RawLink>, 2> served;

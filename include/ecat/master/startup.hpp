@@ -45,8 +45,22 @@ exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus:
 // stay within 0xFFFF; station 0 is never assigned).
 Result<void> check_addressing(std::uint16_t count, std::uint16_t base_station);
 
+// On a redundant link: how the slaves divide between the two ports' frames now. Position
+// addressing counts from the first slave a port's frame processes, so behind a break position p
+// from the secondary's side is ring position primary + p.
+struct RingSides {
+  std::uint16_t primary = 0;  // processed by the primary's frame (0 with its cable cut)
+  std::uint16_t total = 0;    // processed by either
+};
+// One frame: BRD 0x0000 with the secondary's copy a NOP (Link::set_port_nop) and BRD 0x0001
+// through both. A whole ring is all on the primary's side.
+exec::Task<Result<RingSides>> count_ring_sides(exec::EventLoop& loop, bus::Bus& bus);
+
 // Writes station = base + position to every slave (one APWR each, in one transaction) and reads
-// them back by station. Errors name the position and station.
+// them back by station. Errors name the position and station. On a redundant link (a ring that
+// may be broken already, where position addressing counts from each side's first slave) the
+// primary's side is assigned through the primary port alone and the rest through the
+// secondary's (Link::set_port_nop), so every slave gets its ring position's station.
 exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
                                          std::uint16_t base_station);
 
