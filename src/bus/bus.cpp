@@ -239,6 +239,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     max_frame = std::min(link->max_frame_size(), kLargestFrame);
     frame_timeout_ns.store(options.frame_timeout.count());
     reliable_timeout_ns.store(options.frame_timeout.count());
+    link->set_frame_budget(options.frame_timeout);
     send_buffer.assign(max_frame, 0);
   }
 
@@ -1675,6 +1676,7 @@ Result<void> Bus::set_frame_timeout(nanoseconds timeout) {
   }
   impl_->frame_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
   impl_->reliable_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
+  impl_->link->set_frame_budget(timeout);
   return ok();
 }
 
@@ -1766,9 +1768,10 @@ BusStats Bus::stats() const noexcept {
   return out;
 }
 
-Result<void> Bus::set_port_nop(link::Port port, std::optional<link::DatagramSelector> selector) {
+Result<void> Bus::set_port_nop(link::Port port, link::NopSlot slot,
+                               std::optional<link::DatagramSelector> selector) {
   if (!impl_) return Error(Errc::closed, "bus on link " + link_name_ + " is gone");
-  return impl_->link->set_port_nop(port, selector);
+  return impl_->link->set_port_nop(port, slot, selector);
 }
 
 BusInfo Bus::info() const {

@@ -14,7 +14,9 @@ std::size_t Link::max_frame_size() const {
   return wire::kMaxFrameSize;
 }
 
-Result<void> Link::set_port_nop(Port, std::optional<DatagramSelector>) {
+void Link::set_frame_budget(std::chrono::nanoseconds) {}
+
+Result<void> Link::set_port_nop(Port, NopSlot, std::optional<DatagramSelector>) {
   return Error(Errc::unsupported,
                "link " + name() + " has one port: per-port frame contents need a redundant link");
 }

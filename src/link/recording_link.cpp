@@ -359,8 +359,13 @@ std::size_t RecordingLink::max_frame_size() const {
 std::optional<RedundancyStatus> RecordingLink::redundancy() const {
   return inner_->redundancy();
 }
-Result<void> RecordingLink::set_port_nop(Port port, std::optional<DatagramSelector> selector) {
-  return inner_->set_port_nop(port, selector);
+void RecordingLink::set_frame_budget(std::chrono::nanoseconds budget) {
+  inner_->set_frame_budget(budget);
+}
+
+Result<void> RecordingLink::set_port_nop(Port port, NopSlot slot,
+                                         std::optional<DatagramSelector> selector) {
+  return inner_->set_port_nop(port, slot, selector);
 }
 
 }  // namespace ecat::link

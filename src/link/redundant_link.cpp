@@ -72,6 +72,7 @@ struct Exchange {
   std::array<std::array<std::uint8_t, wire::kMaxFrameSize>, 2> bounce{};
   std::array<std::size_t, 2> bounce_size{};
   std::int64_t last_arrival_ns = 0;
+  Clock::time_point sent_at{};
   Clock::time_point window_end{};
 };
 
@@ -162,15 +163,17 @@ struct RedundantLink::Impl {
   std::array<std::uint8_t, wire::kMaxFrameSize> out{};
   // Per-port frame contents (set_port_nop): each port's selector, and the copy a port sends
   // when it differs (send() only: one thread sends at a time).
-  std::array<std::atomic<std::uint64_t>, 2> nop_selector{};
+  std::array<std::array<std::atomic<std::uint64_t>, kNopSlots>, 2> nop_selector{};
   // For a selector that applies only while the other port's side reads: whether the other
   // port's copy of the last matching datagram came back with its data changed (under `mutex`).
-  std::array<bool, 2> other_side_reads{};
+  std::array<std::array<bool, kNopSlots>, 2> other_side_reads{};
   std::array<std::uint8_t, wire::kMaxFrameSize> port_copy{};
   // An arrival with its masked datagrams put back (under `mutex`).
   std::array<std::uint8_t, wire::kMaxFrameSize> restored{};
   std::size_t next_leg_to_wait = 1;  // the secondary, where a whole ring's replies arrive
 
+  // The sender's wait for a reply (set_frame_budget), 0 when not told.
+  std::atomic<std::int64_t> frame_budget_ns{0};
   std::atomic<bool> closed{false};
   std::atomic<bool> interrupted{false};
   std::atomic<RingState> ring{RingState::unknown};
@@ -305,7 +308,11 @@ struct RedundantLink::Impl {
       if (!e->leg_sent[other(s)] || e->arrived[other(s)] || silent[other(s)] > 0) {
         return complete_lone(*e, s, false);
       }
-      e->window_end = Clock::now() + options.merge_window;
+      // The window: merge_window from now, or half the frame's budget from its send if later
+      // (the other side's reply may be late on a loaded host; the lone bounce must still reach
+      // the sender within its budget).
+      const auto budget = nanoseconds(frame_budget_ns.load(std::memory_order_relaxed));
+      e->window_end = std::max(Clock::now() + options.merge_window, e->sent_at + budget / 2);
       return std::nullopt;
     }
     if (e->state != SlotState::waiting) return std::nullopt;  // answered already
@@ -352,31 +359,45 @@ struct RedundantLink::Impl {
       return;
     }
     const std::size_t k = other(from);
-    const std::uint64_t selector = nop_selector[k].load(std::memory_order_acquire);
-    if ((selector & kSelectorWhileOtherReads) == 0) return;
-    const auto request = wire::decode_frame(sent);
-    const auto reply = wire::decode_frame(arrived);
-    if (!request || !reply) return;
-    auto r = reply.frame->begin();
-    for (const wire::DatagramView d : *request.frame) {
-      if (r == reply.frame->end()) return;
-      const wire::DatagramView got = *r;
-      ++r;
-      if (!matches(selector, d.header)) continue;
-      other_side_reads[k] = got.wkc > 0 && !std::equal(d.data.begin(), d.data.end(),
-                                                       got.data.begin(), got.data.end());
-      return;
+    for (std::size_t slot = 0; slot < kNopSlots; ++slot) {
+      const std::uint64_t selector = nop_selector[k][slot].load(std::memory_order_acquire);
+      if ((selector & kSelectorWhileOtherReads) == 0) continue;
+      const auto request = wire::decode_frame(sent);
+      const auto reply = wire::decode_frame(arrived);
+      if (!request || !reply) return;
+      auto r = reply.frame->begin();
+      for (const wire::DatagramView d : *request.frame) {
+        if (r == reply.frame->end()) break;
+        const wire::DatagramView got = *r;
+        ++r;
+        if (!matches(selector, d.header)) continue;
+        other_side_reads[k][slot] = got.wkc > 0 && !std::equal(d.data.begin(), d.data.end(),
+                                                               got.data.begin(), got.data.end());
+        break;
+      }
     }
   }
 
   wire::Bytes port_copy_of(std::size_t k, wire::Bytes frame, Exchange& e) {
-    const std::uint64_t selector = nop_selector[k].load(std::memory_order_acquire);
-    if ((selector & kSelectorActive) == 0) return frame;
-    if ((selector & kSelectorWhileOtherReads) != 0) {
-      // Only while the other side reads it, and has not gone silent (a cut cable).
-      std::lock_guard lock(mutex);
-      if (!other_side_reads[k] || silent[other(k)] > 0) return frame;
+    // The port's selectors that apply to this frame (inactive ones are 0).
+    std::array<std::uint64_t, kNopSlots> selectors{};
+    bool any = false;
+    for (std::size_t slot = 0; slot < kNopSlots; ++slot) {
+      const std::uint64_t selector = nop_selector[k][slot].load(std::memory_order_acquire);
+      if ((selector & kSelectorActive) == 0) continue;
+      if ((selector & kSelectorWhileOtherReads) != 0) {
+        // Only while the other side reads it, and has not gone silent (a cut cable).
+        std::lock_guard lock(mutex);
+        if (!other_side_reads[k][slot] || silent[other(k)] > 0) continue;
+      }
+      selectors[slot] = selector;
+      any = true;
     }
+    if (!any) return frame;
+    const auto matches_any = [&](const wire::DatagramHeader& h) {
+      return std::any_of(selectors.begin(), selectors.end(),
+                         [&](std::uint64_t selector) { return matches(selector, h); });
+    };
     const auto decoded = wire::decode_frame(frame);
     if (!decoded) return frame;
     bool copied = false;
@@ -384,7 +405,7 @@ struct RedundantLink::Impl {
     std::size_t count = 0;
     for (const wire::DatagramView d : *decoded.frame) {
       if (count == kMaxMasked) break;
-      if (!matches(selector, d.header)) continue;
+      if (!matches_any(d.header)) continue;
       if (!copied) {
         std::memcpy(port_copy.data(), frame.data(), frame.size());
         copied = true;
@@ -526,6 +547,7 @@ Result<void> RedundantLink::send(wire::Bytes ethercat_frame) {
     e->arrived = {};
     e->has_bounce = {};
     e->last_arrival_ns = 0;
+    e->sent_at = now;
     e->masked_count = 0;
   }
   std::optional<Error> first_error;
@@ -644,13 +666,24 @@ Result<void> RedundantLink::reopen() {
                : Error(Errc::io_error, fmt::format("reopening {}: no port works", s.name));
 }
 
-Result<void> RedundantLink::set_port_nop(Port port, std::optional<DatagramSelector> selector) {
+void RedundantLink::set_frame_budget(nanoseconds budget) {
+  impl_->frame_budget_ns.store(std::max<std::int64_t>(0, budget.count()),
+                               std::memory_order_relaxed);
+}
+
+Result<void> RedundantLink::set_port_nop(Port port, NopSlot slot,
+                                         std::optional<DatagramSelector> selector) {
   const std::size_t k = port == Port::primary ? 0 : 1;
+  const auto s = static_cast<std::size_t>(slot);
+  if (s >= kNopSlots) {
+    return Error(Errc::invalid_argument,
+                 fmt::format("per-port frame contents: no selector slot {}", s));
+  }
   {
     std::lock_guard lock(impl_->mutex);
-    impl_->other_side_reads[k] = false;
+    impl_->other_side_reads[k][s] = false;
   }
-  impl_->nop_selector[k].store(selector ? pack(*selector) : 0, std::memory_order_release);
+  impl_->nop_selector[k][s].store(selector ? pack(*selector) : 0, std::memory_order_release);
   return {};
 }
 

@@ -740,13 +740,15 @@ struct Master::Impl : DomainObserver {
     bus::Transaction tx;
     for (std::uint32_t pos = 0; pos < n; ++pos)
       tx.aprd(static_cast<std::uint16_t>(pos), wire::reg::kStationAddress, 2);
-    auto reply = co_await exec::transact(loop, *s.bus, std::move(tx), {50ms, 1});
+    // Behind a break of a redundant ring, through the secondary's frame (transact_by_position).
+    auto reply =
+        co_await transact_by_position(loop, *s.bus, s.position_access, std::move(tx), {50ms, 1});
     if (!reply) co_return std::nullopt;
     std::vector<std::uint16_t> map;
     map.reserve(n);
     for (std::uint32_t pos = 0; pos < n; ++pos) {
-      if (reply->wkc(pos) != 1) co_return std::nullopt;
-      map.push_back(wire::load_le16(reply->data(pos).data()));
+      if ((*reply)[pos].wkc != 1) co_return std::nullopt;
+      map.push_back(wire::load_le16((*reply)[pos].data.data()));
     }
     co_return map;
   }
@@ -1396,7 +1398,8 @@ struct Master::Impl : DomainObserver {
       const link::DatagramSelector frmw{static_cast<std::uint8_t>(wire::Command::frmw),
                                         s.dc_init->reference_station, wire::reg::kDcSystemTime,
                                         false, true};
-      if (auto armed = s.bus->set_port_nop(link::Port::secondary, frmw); !armed) {
+      if (auto armed = s.bus->set_port_nop(link::Port::secondary, link::NopSlot::dc_time, frmw);
+          !armed) {
         std::lock_guard lock(mutex);
         s.dc_error = armed.error().context("starting the distributed-clock runtime");
         return;

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include <ecat/bus/bus.hpp>
+#include <ecat/exec/async_mutex.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/cycler.hpp>
@@ -90,6 +91,9 @@ struct Session : std::enable_shared_from_this<Session> {
   std::uint16_t hot_connect_seen_count = 0;          // the slave count at the last poll
   std::uint16_t hot_connect_located_count = 0;  // ... when the stations were last read by position
   std::atomic<bool> stopping{false};
+  // Position-addressed accesses after startup (transact_by_position), one at a time: on a
+  // redundant ring they share the link's addressing selector. Loop thread.
+  exec::AsyncMutex position_access{loop};
   // What the cycle thread's CycleThreadOptions came to (written once by the bus thread), and
   // what it holds for the session (cpu_dma_latency, the memory lock; written by the bus thread at
   // its start, released when the session goes).

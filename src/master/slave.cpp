@@ -15,6 +15,7 @@
 #include <ecat/master/coe_client.hpp>
 #include <ecat/master/sii_reader.hpp>
 #include <ecat/master/slave.hpp>
+#include <ecat/master/startup.hpp>
 #include <ecat/wire/bytes.hpp>
 
 #include "blocking.hpp"
@@ -1013,19 +1014,24 @@ exec::Task<bool> Slave::Impl::probe_and_rebuild(std::shared_ptr<Session> keep) {
   probe.fprd(station, reg::kAlStatus, 2);
   auto by_station = co_await exec::transact(loop, bus, std::move(probe), quick);
   if (!by_station || by_station->wkc(0) == 0) {
-    // Not at its station: a power-cycled slave has station 0. Look at its position.
+    // Not at its station: a power-cycled slave has station 0. Look at its position (behind a
+    // break of a redundant ring, through the secondary's frame: transact_by_position).
     bus::Transaction at_position;
     at_position.aprd(self.position(), reg::kStationAddress, 2);
-    auto found = co_await exec::transact(loop, bus, std::move(at_position), quick);
-    if (!found || found->wkc(0) == 0) co_return false;
-    const auto there = wire::load_le16(found->data(0).data());
+    auto found = co_await transact_by_position(loop, bus, session.position_access,
+                                               std::move(at_position), quick);
+    if (!found || (*found)[0].wkc != 1) co_return false;
+    const auto there = wire::load_le16((*found)[0].data.data());
     if (there != 0 && there != station) co_return false;  // another slave: keep waiting
     if (there == 0) {
       bus::Transaction assign;
       std::array<std::uint8_t, 2> value{};
       wire::store_le16(value.data(), station);
       assign.apwr(self.position(), reg::kStationAddress, value, 1);
-      if (!co_await exec::transact(loop, bus, std::move(assign), quick)) co_return false;
+      if (!co_await transact_by_position(loop, bus, session.position_access, std::move(assign),
+                                         quick)) {
+        co_return false;
+      }
     }
   }
   // Rebuild to PREOP (the SII identity must be the one seen before).

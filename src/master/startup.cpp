@@ -2,6 +2,7 @@
 #include <array>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -163,9 +164,11 @@ namespace {
 class PortMask {
  public:
   PortMask(bus::Bus& bus, link::Port port, link::DatagramSelector selector)
-      : bus_(bus), port_(port), result_(bus.set_port_nop(port, selector)) {}
+      : bus_(bus),
+        port_(port),
+        result_(bus.set_port_nop(port, link::NopSlot::addressing, selector)) {}
   ~PortMask() {
-    if (result_) (void)bus_.set_port_nop(port_, std::nullopt);
+    if (result_) (void)bus_.set_port_nop(port_, link::NopSlot::addressing, std::nullopt);
   }
   PortMask(const PortMask&) = delete;
   PortMask& operator=(const PortMask&) = delete;
@@ -238,6 +241,96 @@ exec::Task<Result<RingSides>> count_ring_sides(exec::EventLoop& loop, bus::Bus& 
                                 sides.primary, sides.total));
   }
   co_return sides;
+}
+
+PositionRoute route_position(RingSides sides, std::uint16_t position) noexcept {
+  if (position < sides.primary) return {link::Port::primary, position};
+  return {link::Port::secondary, static_cast<std::uint16_t>(position - sides.primary)};
+}
+
+namespace {
+
+bool position_addressed(wire::Command command) {
+  return command == wire::Command::aprd || command == wire::Command::apwr ||
+         command == wire::Command::aprw;
+}
+
+// Ring position of a position-addressed datagram (ADP = -position).
+std::uint16_t ring_position(const bus::DatagramRequest& d) {
+  return wire::position_adp(d.adp());  // the negation is its own inverse
+}
+
+Error changed_ring(RingSides before, RingSides after) {
+  return Error(Errc::wkc_mismatch,
+               fmt::format("position-addressed access: the ring changed under it ({} of {} "
+                           "slaves on the primary port's side, then {} of {})",
+                           before.primary, before.total, after.primary, after.total));
+}
+
+}  // namespace
+
+exec::Task<Result<std::vector<PositionReply>>> transact_by_position(exec::EventLoop& loop,
+                                                                    bus::Bus& bus,
+                                                                    exec::AsyncMutex& addressing,
+                                                                    bus::Transaction tx,
+                                                                    bus::TransactOptions options) {
+  if (tx.error()) co_return *tx.error();
+  const auto datagrams = tx.datagrams();
+  for (const auto& d : datagrams) {
+    if (!position_addressed(d.command) || d.command != datagrams.front().command ||
+        d.ado() != datagrams.front().ado()) {
+      co_return Error(Errc::invalid_argument,
+                      fmt::format("position-addressed access: {} in a transaction of {}: one "
+                                  "position-addressed command at one register only",
+                                  bus::describe(d), bus::describe(datagrams.front())));
+    }
+  }
+  std::vector<PositionReply> out(datagrams.size());
+  const auto take = [&](const bus::TransactionResult& reply, std::size_t from, std::size_t to) {
+    const auto data = reply.data(from);
+    out[to].wkc = reply.wkc(from);
+    out[to].data.assign(data.begin(), data.end());
+  };
+  if (datagrams.empty()) co_return out;
+  if (!bus.info().redundancy) {
+    auto reply = co_await exec::transact(loop, bus, std::move(tx), options);
+    if (!reply) co_return reply.error();
+    for (std::size_t i = 0; i < out.size(); ++i)
+      take(*reply, i, i);
+    co_return out;
+  }
+  auto guard = co_await addressing.lock();
+  auto sides = co_await count_ring_sides(loop, bus);
+  if (!sides) co_return sides.error().context("position-addressed access");
+  const link::DatagramSelector selector{static_cast<std::uint8_t>(datagrams.front().command), 0,
+                                        datagrams.front().ado(), true};
+  for (const auto port : {link::Port::primary, link::Port::secondary}) {
+    bus::Transaction side;
+    std::vector<std::size_t> slots;  // side's slot -> tx's
+    for (std::size_t i = 0; i < datagrams.size(); ++i) {
+      const auto& d = datagrams[i];
+      const auto route = route_position(*sides, ring_position(d));
+      if (route.port != port) continue;
+      const auto address = static_cast<std::uint32_t>(wire::position_adp(route.position)) |
+                           (static_cast<std::uint32_t>(d.ado()) << 16);
+      side.add(d.command, address, d.length, tx.data(i), d.expected_wkc);
+      slots.push_back(i);
+    }
+    if (slots.empty()) continue;
+    PortMask mask(bus, port == link::Port::primary ? link::Port::secondary : link::Port::primary,
+                  selector);
+    if (!mask.result()) co_return mask.result().error().context("position-addressed access");
+    auto reply = co_await exec::transact(loop, bus, std::move(side), options);
+    if (!reply) co_return reply.error();
+    for (std::size_t k = 0; k < slots.size(); ++k)
+      take(*reply, k, slots[k]);
+  }
+  auto after = co_await count_ring_sides(loop, bus);
+  if (!after) co_return after.error().context("position-addressed access");
+  if (after->primary != sides->primary || after->total != sides->total) {
+    co_return changed_ring(*sides, *after);
+  }
+  co_return out;
 }
 
 exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,

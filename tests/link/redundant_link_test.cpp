@@ -31,6 +31,7 @@ struct ToyRing {
   std::size_t break_after = 0;
   std::array<std::deque<std::pair<ByteVector, wire::MacAddress>>, 2> queues;  // arriving per port
   std::array<bool, 2> send_fails{};
+  std::array<bool, 2> held{};  // a port's arrivals held back (a late side)
 
   void process(ByteVector& frame, std::size_t first, std::size_t last) {
     if (first >= last) return;
@@ -97,7 +98,7 @@ class ToyPort final : public Link {
   }
   Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds) override {
     auto& q = ring_.queues[port_];
-    if (q.empty()) return std::optional<ReceivedFrame>{};
+    if (q.empty() || ring_.held[port_]) return std::optional<ReceivedFrame>{};
     held_ = std::move(q.front().first);
     const auto source = q.front().second;
     q.pop_front();
@@ -224,7 +225,7 @@ TEST(RedundantLink, BreakAnywhereGivesTheWholeRingsReply) {
 TEST(RedundantLink, APortsNopCopyLeavesThoseDatagramsToTheOtherSide) {
   Fixture f;
   const std::uint8_t brd = static_cast<std::uint8_t>(wire::Command::brd);
-  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, DatagramSelector{brd, 0, 0}));
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, NopSlot::dc_time, DatagramSelector{brd, 0, 0}));
   const auto command_of = [](const ByteVector& frame, std::size_t datagram) {
     auto decoded = wire::decode_frame(frame);
     auto it = decoded.frame->begin();
@@ -254,15 +255,16 @@ TEST(RedundantLink, APortsNopCopyLeavesThoseDatagramsToTheOtherSide) {
   EXPECT_EQ(f.link->status().stale, 0u);
   // Every LRW (any address) a NOP on the primary's copy: only the secondary's side maps.
   ASSERT_TRUE(f.link->set_port_nop(
-      Port::primary, DatagramSelector{static_cast<std::uint8_t>(wire::Command::lrw), 0, 1, true}));
+      Port::primary, NopSlot::dc_time,
+      DatagramSelector{static_cast<std::uint8_t>(wire::Command::lrw), 0, 1, true}));
   r = exchange(*f.link, 0x54);
   ASSERT_TRUE(r);
   EXPECT_EQ(r->lrw_wkc, 3);
   EXPECT_EQ(r->brd_wkc, 1);
   EXPECT_EQ(r->data, (ByteVector{0x5A, 0x00, 0x00, 0x81, 0x82, 0x83, 0x00, 0x00}));
   // Ended: both sides again.
-  ASSERT_TRUE(f.link->set_port_nop(Port::primary, std::nullopt));
-  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, std::nullopt));
+  ASSERT_TRUE(f.link->set_port_nop(Port::primary, NopSlot::dc_time, std::nullopt));
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, NopSlot::dc_time, std::nullopt));
   r = exchange(*f.link, 0x56);
   ASSERT_TRUE(r);
   EXPECT_EQ(r->lrw_wkc, 4);
@@ -270,9 +272,76 @@ TEST(RedundantLink, APortsNopCopyLeavesThoseDatagramsToTheOtherSide) {
   EXPECT_EQ(command_of(f.ring.sent_by[1].back(), 1), wire::Command::brd);
   // A link with one port has no per-port contents.
   auto [one, other_end] = make_memory_link_pair();
-  auto refused = one->set_port_nop(Port::secondary, DatagramSelector{brd, 0, 0});
+  auto refused = one->set_port_nop(Port::secondary, NopSlot::dc_time, DatagramSelector{brd, 0, 0});
   ASSERT_FALSE(refused);
   EXPECT_EQ(refused.error().code(), Errc::unsupported);
+}
+
+// Each user has a slot of its own: two selectors on one port both apply, and ending one leaves
+// the other in place (the DC runtime's FRMW and a position-addressed access side by side).
+TEST(RedundantLink, APortsSelectorSlotsApplyTogetherAndEndApart) {
+  Fixture f;
+  f.ring.shape = ToyRing::Shape::break_after;
+  f.ring.break_after = 1;
+  const std::uint8_t brd = static_cast<std::uint8_t>(wire::Command::brd);
+  const std::uint8_t lrw = static_cast<std::uint8_t>(wire::Command::lrw);
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, NopSlot::dc_time, DatagramSelector{brd, 0, 0}));
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, NopSlot::addressing,
+                                   DatagramSelector{lrw, 0, 1, true}));
+  // Both datagrams are NOPs in the secondary's copy: only the primary's side (slave 0) counts.
+  auto r = exchange(*f.link, 0x60);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->brd_wkc, 1);
+  EXPECT_EQ(r->lrw_wkc, 1);
+  EXPECT_EQ(r->data, (ByteVector{0x5A, 0x00, 0x80, 0x00, 0x00, 0x00, 0x00, 0x00}));
+  // The addressing slot ended: the LRW reaches both sides again, the BRD still one.
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, NopSlot::addressing, std::nullopt));
+  r = exchange(*f.link, 0x62);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->brd_wkc, 1);
+  EXPECT_EQ(r->lrw_wkc, 4);
+  EXPECT_EQ(r->data, kWhole);
+  ASSERT_TRUE(f.link->set_port_nop(Port::secondary, NopSlot::dc_time, std::nullopt));
+  r = exchange(*f.link, 0x64);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->brd_wkc, 4);
+  // A slot the link does not have is refused.
+  auto refused = f.link->set_port_nop(Port::primary, static_cast<NopSlot>(kNopSlots), std::nullopt);
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code(), Errc::invalid_argument);
+}
+
+// On a loaded host one side's bounce may come back well after the merge window: with a frame
+// budget the lone bounce waits until half of it after the send, and the late side is merged.
+TEST(RedundantLink, ALateSideIsMergedWithinHalfTheFrameBudget) {
+  Fixture f;  // merge window 500 us
+  f.link->set_frame_budget(200ms);
+  f.ring.shape = ToyRing::Shape::break_after;
+  f.ring.break_after = 1;
+  f.ring.held[1] = true;
+  ASSERT_TRUE(f.link->send(lrw_frame(0x70)));
+  // Well past the merge window: the primary's bounce still waits for the secondary's.
+  auto early = f.link->receive(20ms);
+  ASSERT_TRUE(early);
+  EXPECT_FALSE(*early);
+  f.ring.held[1] = false;
+  auto late = f.link->receive(5ms);
+  ASSERT_TRUE(late);
+  ASSERT_TRUE(*late);
+  auto decoded = wire::decode_frame((*late)->frame);
+  ASSERT_TRUE(decoded);
+  EXPECT_EQ((*decoded.frame->begin()).wkc, 4);
+  EXPECT_EQ(f.link->status().merged, 1u);
+  EXPECT_EQ(f.link->status().merge_timeouts, 0u);
+  // A side that never answers: the lone bounce is handed over by half the budget.
+  f.ring.held[1] = true;
+  const auto sent = std::chrono::steady_clock::now();
+  ASSERT_TRUE(f.link->send(lrw_frame(0x72)));
+  auto lone = f.link->receive(1s);
+  ASSERT_TRUE(lone);
+  ASSERT_TRUE(*lone);
+  EXPECT_LT(std::chrono::steady_clock::now() - sent, 200ms);
+  EXPECT_EQ(f.link->status().merge_timeouts, 1u);
 }
 
 TEST(RedundantLink, CableCutAtTheMasterWaitsOnceThenNotAgain) {

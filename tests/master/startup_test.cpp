@@ -136,6 +136,21 @@ TEST_F(StartupTest, LinkPictureEndsTheScanEarlyOnlyWhenTheLinksAddUp) {
 
 // On a redundant ring the last slave's port 1 is cabled back to the master's second port: that
 // link leads to no slave, and the scan still ends early (it used to wait out the window).
+// Behind a break position addressing counts from the first slave the secondary's frame
+// processes; a whole ring (or the secondary's cable cut) is all on the primary's side, the
+// primary's cable cut all on the secondary's.
+TEST(RedundantStartup, RingPositionsRouteToThePortWhoseFrameReachesThem) {
+  using link::Port;
+  const RingSides broken_after_two{2, 5};
+  EXPECT_EQ(route_position(broken_after_two, 0), (PositionRoute{Port::primary, 0}));
+  EXPECT_EQ(route_position(broken_after_two, 1), (PositionRoute{Port::primary, 1}));
+  EXPECT_EQ(route_position(broken_after_two, 2), (PositionRoute{Port::secondary, 0}));
+  EXPECT_EQ(route_position(broken_after_two, 4), (PositionRoute{Port::secondary, 2}));
+  EXPECT_EQ(route_position(RingSides{5, 5}, 4), (PositionRoute{Port::primary, 4}));
+  EXPECT_EQ(route_position(RingSides{0, 5}, 0), (PositionRoute{Port::secondary, 0}));
+  EXPECT_EQ(route_position(RingSides{0, 5}, 4), (PositionRoute{Port::secondary, 4}));
+}
+
 TEST(RedundantStartup, TheCableBackToTheSecondPortIsNoMissingSlave) {
   auto server = test::make_sim_server(kRing);
   ASSERT_TRUE(server);

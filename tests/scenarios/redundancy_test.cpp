@@ -664,6 +664,62 @@ TEST(Scenario00, RedundantRingStartsBrokenOverTwoVethPairs) {
                 RingKind::basic, Transport::redundant_raw);
 }
 
+// ---- position addressing behind a break -------------------------------------------------------
+
+// A slave power-cycled while the ring is broken comes back at station 0 and is found by its
+// position: behind the break that position is reached through the secondary's frame (counted
+// from the first slave after the break), and a position on the primary's side must not also
+// reach the slave at that count behind the break. It is recovered to OP with its own station;
+// no other slave is touched.
+void power_cycle_behind_break(RingKind kind, const RedundantTopology& cabling,
+                              const std::string& cycled) {
+  SCOPED_TRACE(sim::describe(cabling) + ", " + cycled + " power-cycled");
+  auto spec = redundant_spec();
+  spec.kind = kind;
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  expect_flows_through(*ring, cabling);
+  ASSERT_TRUE(eventually([&] {
+    const auto r = ring->master->status().redundancy;
+    return r && r->break_location;
+  })) << ring->describe();
+  const auto slaves = ring->master->status().slaves;
+  Monitor monitor(*ring->master);
+  ASSERT_TRUE(ring->server->power_cycle(cycled));
+  ASSERT_TRUE(eventually([&] { return monitor.saw("state:" + cycled + ":down"); }))
+      << monitor.seen();
+  ASSERT_TRUE(ring->master->await_operational(10s)) << ring->describe();
+  EXPECT_TRUE(eventually([&] {
+    return ring->all_slaves_in(SlaveState::op) && !ring->any_slave_fault();
+  })) << ring->describe();
+  EXPECT_TRUE(ring->loopback(true)) << ring->describe();
+  EXPECT_TRUE(ring->loopback(false)) << ring->describe();
+  for (const auto& slave : slaves) {
+    if (slave.name == cycled) continue;
+    EXPECT_FALSE(monitor.saw("state:" + slave.name + ":down")) << monitor.seen();
+  }
+  ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+    for (std::size_t i = 0; i < segment.size(); ++i)
+      EXPECT_EQ(segment.esc(i).station_address(), 0x1000 + i) << segment.name(i);
+  });
+  EXPECT_EQ(sim::describe(ring->redundant_ports->topology()), sim::describe(cabling));
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::broken);
+}
+
+TEST(RedundantPositionAddressing, PowerCycledSlaveBehindABreakIsRecoveredAtItsStation) {
+  // Ring position 1 is the secondary side's position 0: position 1 from there is the outputs.
+  power_cycle_behind_break(RingKind::basic, RedundantTopology::broken_after(1), "inputs");
+  // Ring position 2: no position 2 on either side without the translation.
+  power_cycle_behind_break(RingKind::basic, RedundantTopology::broken_after(1), "outputs");
+  power_cycle_behind_break(RingKind::segmented, RedundantTopology::broken_after(2), "outputs");
+}
+
+TEST(RedundantPositionAddressing, PowerCycledSlaveBeforeABreakDoesNotReachOneBehindIt) {
+  // Four slaves broken after two: ring position 1 (the inputs) is also position 1 from the
+  // secondary's side (the mailbox), which must keep its station.
+  power_cycle_behind_break(RingKind::segmented, RedundantTopology::broken_after(2), "inputs");
+}
+
 // ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
 
 // The default ring served with two master ports and a bus on a RedundantLink, no master.

@@ -241,7 +241,8 @@ class Bus {
   BusInfo info() const;
   // A redundant link's per-port frame contents (link::Link::set_port_nop), from any thread: the
   // link reads its selectors without a lock on the bus thread. Errc::unsupported for one port.
-  Result<void> set_port_nop(link::Port port, std::optional<link::DatagramSelector> selector);
+  Result<void> set_port_nop(link::Port port, link::NopSlot slot,
+                            std::optional<link::DatagramSelector> selector);
   const std::string& link_name() const noexcept { return link_name_; }
   // Largest EtherCAT frame the bus builds: min(link max_frame_size, 2 + 2047).
   std::size_t max_frame_size() const noexcept { return max_frame_size_; }

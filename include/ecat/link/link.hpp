@@ -139,6 +139,14 @@ struct DatagramSelector {
   bool operator==(const DatagramSelector&) const = default;
 };
 
+// A redundant link keeps one selector per port for each user of per-port frame contents
+// (Link::set_port_nop), so that one user's selector never ends another's.
+enum class NopSlot : std::uint8_t {
+  dc_time,     // the DC reference-time FRMW (the master's DC runtime)
+  addressing,  // position addressing through one port (startup, a slave found by its position)
+};
+inline constexpr std::size_t kNopSlots = 2;
+
 class Link {
  public:
   virtual ~Link() = default;
@@ -188,10 +196,17 @@ class Link {
   // it). The master uses it to keep the secondary's copy of the DC reference-time FRMW from the
   // slaves behind a ring break (they would take the master's prediction for the reference's
   // time), or to send datagrams through one port only (a NOP on the other: where position
-  // addressing counts from each side's first slave, behind a break). std::nullopt ends it. Any
-  // thread, allocation-free; applies from the next send(). Errc::unsupported for a link with one
-  // port (the default).
-  virtual Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector);
+  // addressing counts from each side's first slave, behind a break). Each `slot` holds one
+  // selector per port; a datagram any of a port's selectors matches is a NOP in its copy.
+  // std::nullopt ends the slot's. Any thread, allocation-free; applies from the next send().
+  // Errc::unsupported for a link with one port (the default).
+  virtual Result<void> set_port_nop(Port port, NopSlot slot,
+                                    std::optional<DatagramSelector> selector);
+
+  // How long the sender waits for the reply to a frame (the bus's frame timeout; the bus tells it
+  // at start and at every change). A redundant link lets a lone bounce wait for its complement
+  // up to half of it (RedundantLinkOptions::merge_window). Any thread; ignored by default.
+  virtual void set_frame_budget(std::chrono::nanoseconds budget);
 
   // Largest EtherCAT frame send() accepts.
   virtual std::size_t max_frame_size() const;  // wire::kMaxFrameSize unless the link says less

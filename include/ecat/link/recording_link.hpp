@@ -126,7 +126,9 @@ class RecordingLink final : public Link {
   LinkStats stats() const override;
   std::size_t max_frame_size() const override;
   std::optional<RedundancyStatus> redundancy() const override;
-  Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector) override;
+  void set_frame_budget(std::chrono::nanoseconds budget) override;
+  Result<void> set_port_nop(Port port, NopSlot slot,
+                            std::optional<DatagramSelector> selector) override;
 
   FrameRecorder& recorder() const noexcept { return *recorder_; }
 

@@ -6,9 +6,10 @@
 // a whole ring) is the reply; the unprocessed copy that only passed through the ring is dropped;
 // two bounces (each side of a broken ring processed part of the slaves) are merged byte by byte
 // with their working counters summed, so the bus sees one reply with the whole ring's working
-// counter wherever the ring is broken. A lone bounce waits at most `merge_window` for its
-// complement, and not at all when the other leg sent nothing or has been silent in the exchanges
-// before (a port cut at the master): a broken ring costs no cycle.
+// counter wherever the ring is broken. A lone bounce waits for its complement `merge_window`, or
+// until half the frame budget after the send if that is later, and not at all when the other leg
+// sent nothing or has been silent in the exchanges before (a port cut at the master): a broken ring
+// costs no cycle.
 //
 // Port health is observed (send and receive errors, what arrives), never taken from the carrier:
 // a leg that fails is still tried on every frame, and reopened at most once a second when its
@@ -37,7 +38,11 @@ struct RedundantLinkOptions {
   // differ in more than the locally administered bit. open_raw takes them from the interfaces.
   wire::MacAddress primary_mac{};
   wire::MacAddress secondary_mac{};
-  // Longest a lone bounce waits for its complement. Keep it below the bus's frame timeout.
+  // Least a lone bounce waits for its complement (from its arrival) while the other side may
+  // still answer; with a frame budget (set_frame_budget: the bus's frame timeout) it waits until
+  // half the budget after the frame was sent if that is later, so that a side answering late on
+  // a loaded host is still merged and the lone bounce still reaches the bus in time. Keep it
+  // below the bus's frame timeout.
   std::chrono::nanoseconds merge_window = std::chrono::microseconds(500);
   // A failed leg is reopened at most this often (from send(), on the bus thread).
   std::chrono::nanoseconds reopen_interval = std::chrono::seconds(1);
@@ -72,7 +77,10 @@ class RedundantLink final : public Link {
   std::size_t max_frame_size() const override;
   // The datagrams matching `selector` go out as NOP on `port`'s copy only (Link::set_port_nop);
   // an arrival's are given back the request's command before it is classified and merged.
-  Result<void> set_port_nop(Port port, std::optional<DatagramSelector> selector) override;
+  // A lone bounce waits up to half of it after the frame was sent (at least merge_window).
+  void set_frame_budget(std::chrono::nanoseconds budget) override;
+  Result<void> set_port_nop(Port port, NopSlot slot,
+                            std::optional<DatagramSelector> selector) override;
 
   RedundancyStatus status() const;
   std::optional<RedundancyStatus> redundancy() const override { return status(); }

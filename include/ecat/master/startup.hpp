@@ -10,8 +10,10 @@
 #include <vector>
 
 #include <ecat/bus/bus.hpp>
+#include <ecat/exec/async_mutex.hpp>
 #include <ecat/exec/event_loop.hpp>
 #include <ecat/exec/task.hpp>
+#include <ecat/link/link.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/result.hpp>
 #include <ecat/wire/al.hpp>
@@ -55,6 +57,33 @@ struct RingSides {
 // One frame: BRD 0x0000 with the secondary's copy a NOP (Link::set_port_nop) and BRD 0x0001
 // through both. A whole ring is all on the primary's side.
 exec::Task<Result<RingSides>> count_ring_sides(exec::EventLoop& loop, bus::Bus& bus);
+
+// Where position addressing reaches ring position `position` (0 = the primary's first slave)
+// when the ring divides into `sides`: through the primary's frame at the same position, or
+// behind a break through the secondary's at position - sides.primary.
+struct PositionRoute {
+  link::Port port = link::Port::primary;
+  std::uint16_t position = 0;  // counted from that port's first slave
+  bool operator==(const PositionRoute&) const = default;
+};
+PositionRoute route_position(RingSides sides, std::uint16_t position) noexcept;
+
+// The reply to one datagram of transact_by_position.
+struct PositionReply {
+  std::uint16_t wkc = 0;
+  std::vector<std::uint8_t> data;
+};
+// Sends `tx`, whose datagrams are one position-addressed command (APRD, APWR or APRW) at one
+// register, each to the slave at its ring position, also on a redundant ring that is broken:
+// there each datagram goes through the port whose frame reaches that position (route_position,
+// the other port's copy a NOP: Link::set_port_nop, NopSlot::addressing), the ring's sides
+// counted before and after (a change between them is an error: Errc::wkc_mismatch, "the ring
+// changed"). `addressing` keeps the session's position-addressed accesses one at a time (they
+// share the slot). On one port the transaction goes out as it is. Replies in `tx`'s order;
+// an expected working counter is checked as the bus checks it.
+exec::Task<Result<std::vector<PositionReply>>> transact_by_position(
+    exec::EventLoop& loop, bus::Bus& bus, exec::AsyncMutex& addressing, bus::Transaction tx,
+    bus::TransactOptions options = {});
 
 // Writes station = base + position to every slave (one APWR each, in one transaction) and reads
 // them back by station. Errors name the position and station. On a redundant link (a ring that
