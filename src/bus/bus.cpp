@@ -239,7 +239,6 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     max_frame = std::min(link->max_frame_size(), kLargestFrame);
     frame_timeout_ns.store(options.frame_timeout.count());
     reliable_timeout_ns.store(options.frame_timeout.count());
-    link->set_frame_budget(options.frame_timeout);
     send_buffer.assign(max_frame, 0);
   }
 
@@ -1676,7 +1675,6 @@ Result<void> Bus::set_frame_timeout(nanoseconds timeout) {
   }
   impl_->frame_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
   impl_->reliable_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
-  impl_->link->set_frame_budget(timeout);
   return ok();
 }
 

@@ -203,9 +203,10 @@ class Link {
   virtual Result<void> set_port_nop(Port port, NopSlot slot,
                                     std::optional<DatagramSelector> selector);
 
-  // How long the sender waits for the reply to a frame (the bus's frame timeout; the bus tells it
-  // at start and at every change). A redundant link lets a lone bounce wait for its complement
-  // up to half of it (RedundantLinkOptions::merge_window). Any thread; ignored by default.
+  // How long the sender waits for the reply to a frame (a sender that talks to the link itself
+  // says so; the bus does not: see docs/ARCHITECTURE.md "Cable redundancy"). A redundant link
+  // lets a lone bounce wait for its complement up to half of it after the send
+  // (RedundantLinkOptions::merge_window). Any thread; ignored by default.
   virtual void set_frame_budget(std::chrono::nanoseconds budget);
 
   // Largest EtherCAT frame send() accepts.

@@ -39,7 +39,8 @@ struct RedundantLinkOptions {
   wire::MacAddress primary_mac{};
   wire::MacAddress secondary_mac{};
   // Least a lone bounce waits for its complement (from its arrival) while the other side may
-  // still answer; with a frame budget (set_frame_budget: the bus's frame timeout) it waits until
+  // still answer; with a frame budget (set_frame_budget, from a sender that waits that long) it
+  // waits until
   // half the budget after the frame was sent if that is later, so that a side answering late on
   // a loaded host is still merged and the lone bounce still reaches the bus in time. Keep it
   // below the bus's frame timeout.
