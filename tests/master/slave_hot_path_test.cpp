@@ -232,6 +232,21 @@ TEST(SlaveHotPath, ReadsAndWritesRaceReconfigurationSafely) {
       if (i % 64 == 0) std::this_thread::yield();
     }
   });
+  // A failed assertion below returns early: the threads are stopped and joined then too.
+  struct StopAndJoin {
+    std::atomic<bool>& stop;
+    std::thread& a;
+    std::thread& b;
+    ~StopAndJoin() {
+      stop.store(true);
+      for (std::thread* t : {&a, &b}) {
+        if (t->joinable()) t->join();
+      }
+    }
+  } guard{stop, reader, writer};
+  // Both threads calling before the first reconfiguration (on a loaded machine a new thread may
+  // wait a while for a core).
+  EXPECT_TRUE(eventually([&] { return reads.load() > 0 && writes.load() > 0; }));
   for (int round = 0; round < 3; ++round) {
     for (Slave* s : {&in, &out}) {
       ASSERT_TRUE(s->request(wire::AlState::preop)) << s->name();
@@ -241,6 +256,11 @@ TEST(SlaveHotPath, ReadsAndWritesRaceReconfigurationSafely) {
     for (Slave* s : {&in, &out})
       ASSERT_TRUE(s->request(wire::AlState::op)) << s->name();
   }
+  // And after the last one, with the new views.
+  const auto reads_before = reads.load();
+  const auto writes_before = writes.load();
+  EXPECT_TRUE(
+      eventually([&] { return reads.load() > reads_before && writes.load() > writes_before; }));
   stop.store(true);
   reader.join();
   writer.join();

@@ -312,7 +312,7 @@ TEST(RingErrors, Slaves) {
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, colour: 1}\n"),
             "ring.yaml:3: simulator.slaves[0].colour: unknown key (known: name, profile, file, "
             "options, clock, esc, start, objects, parent, port, cable_delay_ns, timing, count, "
-            "hot_connect)");
+            "hot_connect, device_id)");
   EXPECT_EQ(error_of("simulator:\n  slaves:\n    - {name: a, profile: generic, parent: a}\n"),
             "ring.yaml:3: simulator.slaves[0]: the first slave is cabled to the master: it has "
             "no parent or port");

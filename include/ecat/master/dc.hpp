@@ -239,7 +239,7 @@ struct DcRuntimeOptions {
   // DcMaintainer::join_stations, and absent again after leave_stations. An unanswered read of
   // one of them (its group unplugged, before the master noticed) never costs the others' lock.
   // Stations already among the DC slaves are only marked optional.
-  std::vector<std::uint16_t> optional_stations;
+  std::vector<std::uint16_t> optional_stations{};
 };
 
 // Runs on the bus thread through a Cycler (add with Cycler::kPriorityDc). Every tick it sends
