@@ -395,13 +395,24 @@ TEST_F(HostileInput, AFailureWhileRunningLeavesEverySlaveInInit) {
                           "  - {name: coupler}\n  - {name: inputs, process_data: main}\n"
                           "  - {name: outputs, process_data: main}\n");
   std::thread faulter([&] {
-    // Once the ring is in OP, the outputs terminal refuses to stay there.
+    // Once the ring is in OP, the outputs terminal refuses to stay there. It waits for the
+    // terminal to stay in OP for 500 ms: the master (another process) has then seen it there and
+    // reported the session operational; a retreat at once could come before the master read the
+    // terminal's OP, and the session would end as never started (activation blocked) instead.
     const auto deadline = std::chrono::steady_clock::now() + 20s;
     bool op = false;
+    auto op_since = std::chrono::steady_clock::time_point::max();
     while (!op && std::chrono::steady_clock::now() < deadline) {
       std::this_thread::sleep_for(10ms);
       for (const auto& s : ring.server().status().slaves) {
-        if (s.name == "outputs") op = s.al_state == wire::AlState::op;
+        if (s.name != "outputs") continue;
+        const auto now = std::chrono::steady_clock::now();
+        if (s.al_state != wire::AlState::op) {
+          op_since = std::chrono::steady_clock::time_point::max();
+        } else if (op_since == std::chrono::steady_clock::time_point::max()) {
+          op_since = now;
+        }
+        op = op_since != std::chrono::steady_clock::time_point::max() && now - op_since >= 500ms;
       }
     }
     EXPECT_TRUE(op) << "the outputs terminal never reached OP: " << ring.states();
