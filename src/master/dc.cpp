@@ -265,6 +265,75 @@ void add_clock_writes(bus::Transaction& tx, std::uint16_t station, std::int64_t 
           le16(speed_counter_start != 0 ? speed_counter_start : std::uint16_t{0x1000}), 1);
 }
 
+// The ring as plan_dc sees it, latched and read in one transaction: every slave's features, DL
+// status, port receive times, EPU time and speed counter start (DcSlaveSnapshot), and its current
+// system-time offset and delay. A slave whose system time unit does not answer (0x0918, 0x0920,
+// 0x0928) is taken as without DC. Shared by the start-up, the re-step after a heal and the
+// hot-connect join; errors name `who`, the register and the station.
+struct RingReading {
+  std::int64_t master_time = 0;  // the master's clock at the latch
+  std::vector<DcSlaveSnapshot> snapshots;
+  std::vector<std::uint64_t> offsets;  // 0x0920
+  std::vector<std::uint32_t> delays;   // 0x0928
+};
+
+exec::Task<Result<RingReading>> read_ring(exec::EventLoop& loop, bus::Bus& bus,
+                                          const std::vector<std::uint16_t>& stations,
+                                          const DcInitOptions& options, const std::string& who) {
+  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
+  auto latched =
+      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
+  if (!latched) co_return std::move(latched).error();
+  constexpr std::size_t kReads = 7;
+  bus::Transaction tx;
+  tx.reserve(stations.size() * kReads, stations.size() * 44);
+  for (const std::uint16_t st : stations) {
+    tx.fprd(st, reg::kFeatures, 2);
+    tx.fprd(st, reg::kDlStatus, 2);
+    tx.fprd(st, reg::kDcReceiveTimePort0, 16);
+    tx.fprd(st, reg::kDcReceiveTimeEpu, 8);
+    tx.fprd(st, reg::kDcSpeedCounterStart, 2);
+    tx.fprd(st, reg::kDcSystemTimeOffset, 8);
+    tx.fprd(st, reg::kDcSystemTimeDelay, 4);
+  }
+  const bus::TransactOptions reliable{options.transaction_timeout, 2};
+  auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
+  if (!reply) co_return reply.error().context(who + ": reading receive times");
+  RingReading out;
+  out.master_time = *latched;
+  out.snapshots.resize(stations.size());
+  out.offsets.resize(stations.size());
+  out.delays.resize(stations.size());
+  for (std::size_t i = 0; i < stations.size(); ++i) {
+    const std::size_t base = i * kReads;
+    auto& s = out.snapshots[i];
+    s.station = stations[i];
+    if (reply->wkc(base) != 1)
+      co_return wkc_error("read of 0x0008", s.station, reply->wkc(base)).context(who);
+    if (reply->wkc(base + 1) != 1) {
+      co_return wkc_error("read of DL status 0x0110", s.station, reply->wkc(base + 1)).context(who);
+    }
+    s.dc_supported =
+        wire::EscFeatures::decode(wire::load_le16(reply->data(base).data())).dc_supported;
+    s.dl_status = wire::load_le16(reply->data(base + 1).data());
+    s.receive_times_valid = reply->wkc(base + 2) == 1;
+    if (s.receive_times_valid) {
+      for (std::size_t p = 0; p < 4; ++p)
+        s.port_time[p] = wire::load_le32(reply->data(base + 2).data() + 4 * p);
+    }
+    if (reply->wkc(base + 3) == 1 && reply->wkc(base + 5) == 1 && reply->wkc(base + 6) == 1) {
+      s.epu_time = wire::load_le64(reply->data(base + 3).data());
+      out.offsets[i] = wire::load_le64(reply->data(base + 5).data());
+      out.delays[i] = wire::load_le32(reply->data(base + 6).data());
+    } else {
+      s.dc_supported = false;  // no system time unit answering
+    }
+    if (reply->wkc(base + 4) == 1)
+      s.speed_counter_start = wire::load_le16(reply->data(base + 4).data());
+  }
+  co_return out;
+}
+
 }  // namespace
 
 exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& bus,
@@ -273,59 +342,15 @@ exec::Task<Result<DcInitResult>> initialize_dc(exec::EventLoop& loop, bus::Bus& 
   using SteadyClock = std::chrono::steady_clock;
   const auto started = SteadyClock::now();
   if (stations.empty()) co_return Error(Errc::invalid_argument, "DC init: no slaves");
-  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
   const bus::TransactOptions reliable{options.transaction_timeout, 2};
   const bus::TransactOptions once{options.transaction_timeout, 0};
 
-  // 1. Latch the receive times of every port of every slave.
-  auto latched =
-      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, "DC init");
-  if (!latched) co_return std::move(latched).error();
-  const std::int64_t master_time = *latched;
+  // 1. Latch the receive times of every port of every slave, then read what the plan needs.
+  auto reading = co_await read_ring(loop, bus, stations, options, "DC init");
+  if (!reading) co_return std::move(reading).error();
+  const std::vector<DcSlaveSnapshot>& snapshots = reading->snapshots;
 
-  // 2. Everything the plan needs, one transaction for all slaves.
-  std::vector<DcSlaveSnapshot> snapshots(stations.size());
-  {
-    bus::Transaction tx;
-    tx.reserve(stations.size() * 5, stations.size() * 30);
-    for (std::uint16_t station : stations) {
-      tx.fprd(station, reg::kFeatures, 2);
-      tx.fprd(station, reg::kDlStatus, 2);
-      tx.fprd(station, reg::kDcReceiveTimePort0, 16);
-      tx.fprd(station, reg::kDcReceiveTimeEpu, 8);
-      tx.fprd(station, reg::kDcSpeedCounterStart, 2);
-    }
-    auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
-    if (!reply) co_return reply.error().context("DC init: reading receive times");
-    for (std::size_t i = 0; i < stations.size(); ++i) {
-      const std::size_t base = i * 5;
-      auto& s = snapshots[i];
-      s.station = stations[i];
-      if (reply->wkc(base) != 1)
-        co_return wkc_error("read of 0x0008", stations[i], reply->wkc(base));
-      if (reply->wkc(base + 1) != 1) {
-        co_return wkc_error("read of DL status 0x0110", stations[i], reply->wkc(base + 1));
-      }
-      s.dc_supported =
-          wire::EscFeatures::decode(wire::load_le16(reply->data(base).data())).dc_supported;
-      s.dl_status = wire::load_le16(reply->data(base + 1).data());
-      s.receive_times_valid = reply->wkc(base + 2) == 1;
-      if (s.receive_times_valid) {
-        for (std::size_t p = 0; p < 4; ++p)
-          s.port_time[p] = wire::load_le32(reply->data(base + 2).data() + 4 * p);
-      }
-      // No answer from 0x0918: the ESC's system time unit is absent or powered down.
-      if (reply->wkc(base + 3) == 1) {
-        s.epu_time = wire::load_le64(reply->data(base + 3).data());
-      } else {
-        s.dc_supported = false;
-      }
-      if (reply->wkc(base + 4) == 1)
-        s.speed_counter_start = wire::load_le16(reply->data(base + 4).data());
-    }
-  }
-
-  auto plan = plan_dc(snapshots, master_time, options.plan);
+  auto plan = plan_dc(snapshots, reading->master_time, options.plan);
   if (!plan) co_return std::move(plan).error();
 
   DcInitResult result;
@@ -471,50 +496,23 @@ exec::Task<Result<DcRestepResult>> restep_dc_slaves(exec::EventLoop& loop, bus::
                                                     DcPlan plan,
                                                     std::vector<std::uint16_t> free_ran,
                                                     DcInitOptions options) {
-  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
   const bus::TransactOptions reliable{options.transaction_timeout, 2};
   const std::string who = "DC re-step after the ring healed";
   if (plan.slaves.empty()) co_return Error(Errc::invalid_argument, who + ": no slaves");
 
-  // 1. Latch, then what plan_dc needs and every DC slave's offset, one transaction.
-  auto latched =
-      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
-  if (!latched) co_return std::move(latched).error();
-  constexpr std::size_t kReads = 5;
-  bus::Transaction tx;
-  tx.reserve(plan.slaves.size() * kReads, plan.slaves.size() * 36);
-  for (const auto& p : plan.slaves) {
-    tx.fprd(p.station, reg::kDlStatus, 2);
-    tx.fprd(p.station, reg::kDcReceiveTimePort0, 16);
-    tx.fprd(p.station, reg::kDcReceiveTimeEpu, 8);
-    tx.fprd(p.station, reg::kDcSpeedCounterStart, 2);
-    tx.fprd(p.station, reg::kDcSystemTimeOffset, 8);
-  }
-  auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
-  if (!reply) co_return reply.error().context(who + ": reading receive times");
-  std::vector<DcSlaveSnapshot> snapshots(plan.slaves.size());
-  std::vector<std::uint64_t> offsets(plan.slaves.size());
-  for (std::size_t i = 0; i < plan.slaves.size(); ++i) {
-    const std::size_t base = i * kReads;
-    const auto& p = plan.slaves[i];
-    auto& s = snapshots[i];
-    s.station = p.station;
-    if (reply->wkc(base) != 1) {
-      co_return wkc_error("read of DL status 0x0110", p.station, reply->wkc(base)).context(who);
-    }
-    s.dl_status = wire::load_le16(reply->data(base).data());
-    s.receive_times_valid = reply->wkc(base + 1) == 1;
-    if (s.receive_times_valid) {
-      for (std::size_t k = 0; k < 4; ++k)
-        s.port_time[k] = wire::load_le32(reply->data(base + 1).data() + 4 * k);
-    }
-    s.dc_supported = p.dc && reply->wkc(base + 2) == 1 && reply->wkc(base + 4) == 1;
-    if (reply->wkc(base + 2) == 1) s.epu_time = wire::load_le64(reply->data(base + 2).data());
-    if (reply->wkc(base + 3) == 1)
-      s.speed_counter_start = wire::load_le16(reply->data(base + 3).data());
-    if (reply->wkc(base + 4) == 1) offsets[i] = wire::load_le64(reply->data(base + 4).data());
-  }
-  auto measured = plan_dc(snapshots, *latched, options.plan);
+  // 1. Latch, then what plan_dc needs and every slave's offset, one transaction. Only the
+  //    plan's DC slaves count as such.
+  std::vector<std::uint16_t> stations;
+  stations.reserve(plan.slaves.size());
+  for (const auto& p : plan.slaves)
+    stations.push_back(p.station);
+  auto reading = co_await read_ring(loop, bus, stations, options, who);
+  if (!reading) co_return std::move(reading).error();
+  std::vector<DcSlaveSnapshot>& snapshots = reading->snapshots;
+  const std::vector<std::uint64_t>& offsets = reading->offsets;
+  for (std::size_t i = 0; i < plan.slaves.size(); ++i)
+    snapshots[i].dc_supported = snapshots[i].dc_supported && plan.slaves[i].dc;
+  auto measured = plan_dc(snapshots, reading->master_time, options.plan);
   if (!measured) co_return measured.error().context(who);
   if (measured->reference_station != plan.reference_station) {
     co_return Error(Errc::invalid_argument,
@@ -558,60 +556,17 @@ exec::Task<Result<DcRingChangeResult>> adapt_dc_to_ring(exec::EventLoop& loop, b
                                                         std::vector<std::uint16_t> stations,
                                                         std::vector<std::uint16_t> joining,
                                                         DcInitOptions options) {
-  auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
   const bus::TransactOptions reliable{options.transaction_timeout, 2};
   const std::string who = "DC after the ring changed";
   if (stations.empty()) co_return Error(Errc::invalid_argument, who + ": no slaves");
 
   // 1. Latch, then what plan_dc needs, every slave's offset and delay, one transaction.
-  auto latched =
-      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
-  if (!latched) co_return std::move(latched).error();
-  constexpr std::size_t kReads = 7;
-  bus::Transaction tx;
-  tx.reserve(stations.size() * kReads, stations.size() * 44);
-  for (const std::uint16_t st : stations) {
-    tx.fprd(st, reg::kFeatures, 2);
-    tx.fprd(st, reg::kDlStatus, 2);
-    tx.fprd(st, reg::kDcReceiveTimePort0, 16);
-    tx.fprd(st, reg::kDcReceiveTimeEpu, 8);
-    tx.fprd(st, reg::kDcSpeedCounterStart, 2);
-    tx.fprd(st, reg::kDcSystemTimeOffset, 8);
-    tx.fprd(st, reg::kDcSystemTimeDelay, 4);
-  }
-  auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
-  if (!reply) co_return reply.error().context(who + ": reading receive times");
-  std::vector<DcSlaveSnapshot> snapshots(stations.size());
-  std::vector<std::uint64_t> offsets(stations.size());
-  std::vector<std::uint32_t> delays(stations.size());
-  for (std::size_t i = 0; i < stations.size(); ++i) {
-    const std::size_t base = i * kReads;
-    auto& s = snapshots[i];
-    s.station = stations[i];
-    if (reply->wkc(base) != 1)
-      co_return wkc_error("read of 0x0008", s.station, reply->wkc(base)).context(who);
-    if (reply->wkc(base + 1) != 1) {
-      co_return wkc_error("read of DL status 0x0110", s.station, reply->wkc(base + 1)).context(who);
-    }
-    s.dc_supported =
-        wire::EscFeatures::decode(wire::load_le16(reply->data(base).data())).dc_supported;
-    s.dl_status = wire::load_le16(reply->data(base + 1).data());
-    s.receive_times_valid = reply->wkc(base + 2) == 1;
-    if (s.receive_times_valid) {
-      for (std::size_t p = 0; p < 4; ++p)
-        s.port_time[p] = wire::load_le32(reply->data(base + 2).data() + 4 * p);
-    }
-    if (reply->wkc(base + 3) == 1 && reply->wkc(base + 5) == 1 && reply->wkc(base + 6) == 1) {
-      s.epu_time = wire::load_le64(reply->data(base + 3).data());
-      offsets[i] = wire::load_le64(reply->data(base + 5).data());
-      delays[i] = wire::load_le32(reply->data(base + 6).data());
-    } else {
-      s.dc_supported = false;  // no system time unit answering
-    }
-    if (reply->wkc(base + 4) == 1)
-      s.speed_counter_start = wire::load_le16(reply->data(base + 4).data());
-  }
-  auto measured = plan_dc(snapshots, *latched, options.plan);
+  auto reading = co_await read_ring(loop, bus, stations, options, who);
+  if (!reading) co_return std::move(reading).error();
+  const std::vector<DcSlaveSnapshot>& snapshots = reading->snapshots;
+  const std::vector<std::uint64_t>& offsets = reading->offsets;
+  const std::vector<std::uint32_t>& delays = reading->delays;
+  auto measured = plan_dc(snapshots, reading->master_time, options.plan);
   if (!measured) co_return measured.error().context(who);
   if (measured->reference_station != reference_station) {
     const bool joiner =
