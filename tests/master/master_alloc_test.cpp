@@ -30,19 +30,8 @@ namespace {
 
 using namespace std::chrono_literals;
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-    - {name: drive, profile: servo}
-  wiring:
-    - {from: outputs.channel_2, to: inputs.channel_2}
-)";
-
 TEST(MasterAllocations, SteadyOpCycleAndHotPathAllocateNothing) {
-  auto server = test::make_sim_server(kRing);
+  auto server = test::make_sim_server(test::kDriveRing);
   ASSERT_TRUE(server);
   MasterConfig config;
   config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};
@@ -126,7 +115,7 @@ TEST(MasterAllocations, SteadyOpCycleAndHotPathAllocateNothing) {
 // the reply over with a node in the awaiting coroutine, EventLoop::post(Work&)). master_bench
 // --only alloc prints the same figure over a minute at the default rate.
 TEST(MasterAllocations, HealthPollCompletionsAllocateNothingOnTheBusThread) {
-  auto server = test::make_sim_server(kRing);
+  auto server = test::make_sim_server(test::kDriveRing);
   ASSERT_TRUE(server);
   MasterConfig config;
   config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};
@@ -183,7 +172,7 @@ TEST(MasterAllocations, HealthPollCompletionsAllocateNothingOnTheBusThread) {
 // items of its own (EventLoop::post(Work&)), not a std::function. A short WKC fault on the
 // outputs' share of the LRW degrades the domain at its first invalid cycle.
 TEST(MasterAllocations, DomainDegradedAndRecoveredNoticesAllocateNothingOnTheBusThread) {
-  auto server = test::make_sim_server(kRing);
+  auto server = test::make_sim_server(test::kDriveRing);
   ASSERT_TRUE(server);
   MasterConfig config;
   config.scan = {.poll = 2ms, .stable = 10ms, .timeout = 2s};

@@ -71,6 +71,19 @@ simulator:
     - {name: outputs, profile: EL2809}
 )";
 
+// kTerminalRing with a CiA 402 servo drive behind it, the outputs' channel 2 wired back to the
+// inputs' channel 2: the ring of the hot-path and allocation tests.
+inline constexpr const char* kDriveRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: drive, profile: servo}
+  wiring:
+    - {from: outputs.channel_2, to: inputs.channel_2}
+)";
+
 // A slave of kTerminalRing's kind: process data in domain "main" (unless not wanted), health
 // polled every 20 ms.
 inline SlaveConfig quick_slave(std::string name, bool process_data = true,

@@ -21,17 +21,6 @@ namespace {
 
 using namespace std::chrono_literals;
 
-constexpr const char* kRing = R"(version: 1
-simulator:
-  slaves:
-    - {name: coupler, profile: EK1100}
-    - {name: inputs, profile: EL1809}
-    - {name: outputs, profile: EL2809}
-    - {name: drive, profile: servo}
-  wiring:
-    - {from: outputs.channel_2, to: inputs.channel_2}
-)";
-
 template <class F>
 bool eventually(F&& f, std::chrono::milliseconds limit = 5s) {
   const auto end = std::chrono::steady_clock::now() + limit;
@@ -47,7 +36,7 @@ struct Running {
   std::unique_ptr<Master> master;
 
   Running() {
-    server = test::make_sim_server(kRing);
+    server = test::make_sim_server(test::kDriveRing);
     if (!server) return;
     MasterConfig config = test::quick_config(2ms);
     config.frame_timeout = 1s;  // no spurious loss on a loaded machine
