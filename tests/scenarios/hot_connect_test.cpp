@@ -78,10 +78,12 @@ bool group_in(master::Master& m, HotConnectState state) {
   return group_status(m).state == state;
 }
 
-// The fixed slaves' process data, end to end through the wiring: outputs.channel_1 -> inputs.
-bool fixed_loop_follows(master::Master& m, bool value) {
-  auto out = m.slave("outputs");
-  auto in = m.slave("inputs");
+// Process data end to end through the simulator's wiring: `value` written to `out`'s channel 1
+// is read back from `in`'s channel 1 within `limit`.
+bool loop_follows(master::Master& m, const std::string& out_name, const std::string& in_name,
+                  bool value, std::chrono::milliseconds limit = 10s) {
+  auto out = m.slave(out_name);
+  auto in = m.slave(in_name);
   if (!out || !in) return false;
   if (!(*out)->write_output("channel_1", master::Value(value))) return false;
   return eventually(
@@ -89,7 +91,12 @@ bool fixed_loop_follows(master::Master& m, bool value) {
         auto v = (*in)->read_input("channel_1");
         return v && master::as_bool(*v) == value;
       },
-      2s);
+      limit);
+}
+
+// The fixed slaves' process data: outputs.channel_1 -> inputs.
+bool fixed_loop_follows(master::Master& m, bool value) {
+  return loop_follows(m, "outputs", "inputs", value, 2s);
 }
 
 TEST(HotConnect, AbsentAtStartTheRestIsOperational) {
@@ -139,14 +146,8 @@ TEST(HotConnect, PlugBringsTheGroupToOpWithoutDisturbingTheOthers) {
   EXPECT_EQ(json["hot_connect"][0]["position"], 3);
   EXPECT_EQ(json["hot_connect"][0]["slaves"][1], "tool_in");
   // The group's own process data, through the simulator's wiring.
-  auto out = m.slave("tool_out");
-  auto in = m.slave("tool_in");
-  ASSERT_TRUE(out && in);
-  ASSERT_TRUE((*out)->write_output("channel_1", master::Value(true)));
-  EXPECT_TRUE(eventually([&] {
-    auto v = (*in)->read_input("channel_1");
-    return v && master::as_bool(*v) == true;
-  })) << ring->describe();
+  ASSERT_TRUE(m.slave("tool_out") && m.slave("tool_in"));
+  EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", true)) << ring->describe();
   // Nobody else noticed: every cycle valid, the session operational all along.
   const auto after = ring->domain_stats();
   EXPECT_EQ(after.wkc_mismatch_count, before.wkc_mismatch_count) << ring->describe();
@@ -524,16 +525,7 @@ RingSpec junction_spec(bool stranger = false, std::optional<std::uint16_t> alias
 
 // far_out.channel_1 -> far_in.channel_1, the slaves behind the junction's port 2.
 bool far_loop_follows(master::Master& m, bool value) {
-  auto out = m.slave("far_out");
-  auto in = m.slave("far_in");
-  if (!out || !in) return false;
-  if (!(*out)->write_output("channel_1", master::Value(value))) return false;
-  return eventually(
-      [&] {
-        auto v = (*in)->read_input("channel_1");
-        return v && master::as_bool(*v) == value;
-      },
-      2s);
+  return loop_follows(m, "far_out", "far_in", value, 2s);
 }
 
 std::uint16_t position_of(master::Master& m, const char* name) {
@@ -561,14 +553,9 @@ TEST(HotConnect, AGroupOnAJunctionPortInTheMiddleComesAndGoesTheOthersUntouched)
     EXPECT_EQ(position_of(m, "tool_out"), 4);
     EXPECT_EQ(position_of(m, "far_coupler"), 6);
     EXPECT_EQ(position_of(m, "far_out"), 8);
-    auto out = m.slave("tool_out");
     auto in = m.slave("tool_in");
-    ASSERT_TRUE(out && in);
-    ASSERT_TRUE((*out)->write_output("channel_1", master::Value(round == 0)));
-    EXPECT_TRUE(eventually([&] {
-      auto v = (*in)->read_input("channel_1");
-      return v && master::as_bool(*v) == (round == 0);
-    })) << ring->describe();
+    ASSERT_TRUE(m.slave("tool_out") && in);
+    EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", round == 0)) << ring->describe();
     EXPECT_TRUE(fixed_loop_follows(m, round == 0));
     EXPECT_TRUE(far_loop_follows(m, round == 0));
     ASSERT_TRUE(ring->server->plug("tool", false));
@@ -621,14 +608,8 @@ TEST(HotConnect, AGroupOnAJunctionPortPluggedAtStartIsFoundAndTheOthersPlacedAro
   ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
       << group_status(m).detail;
   EXPECT_EQ(position_of(m, "far_out"), 8);
-  auto out = m.slave("tool_out");
-  auto in = m.slave("tool_in");
-  ASSERT_TRUE(out && in);
-  ASSERT_TRUE((*out)->write_output("channel_1", master::Value(true)));
-  EXPECT_TRUE(eventually([&] {
-    auto v = (*in)->read_input("channel_1");
-    return v && master::as_bool(*v) == true;
-  })) << ring->describe();
+  ASSERT_TRUE(m.slave("tool_out") && m.slave("tool_in"));
+  EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", true)) << ring->describe();
   EXPECT_TRUE(far_loop_follows(m, true));
   EXPECT_EQ(m.state(), MasterState::operational);
   EXPECT_FALSE(ring->saw(MasterState::recovering));
