@@ -8,7 +8,8 @@
 // says what to do with the rest:
 //   t % 4 == 0, 1, 2: the rest is written into SM0 of the mailbox device (CoE, FoE, VoE), the SoE
 //                     drive or the EoE device (mailbox header included; cut or zero-padded to
-//                     the SyncManager's size), then SM1 is read until it is empty;
+//                     the SyncManager's size), then SM1 is read until it is empty (not in INIT,
+//                     which has no mailbox);
 //   t % 4 == 3:       the mailbox device is sent to INIT, PREOP, BOOTSTRAP (by (t >> 2) % 4; the
 //                     mailbox SyncManagers follow, as a master writes them) or, for 3, the SM1
 //                     repeat request is toggled.
@@ -168,7 +169,11 @@ class Ring {
   }
 
   // SM1 read until it is empty (bounded: a device that never stops talking is a bug too).
+  // INIT has no mailbox: the SyncManagers may still cover the bootstrap layout, so the standard
+  // area is plain process RAM and reading it returns what is there (WKC 1), as a real ESC does.
+  // A master reads nothing there; neither do we.
   void drain(const Device& d) {
+    if (d.state == wire::AlState::init) return;
     const auto& mailbox = mailbox_of(d);
     for (int i = 0; i < 256; ++i) {
       auto reply =

@@ -202,6 +202,17 @@ std::vector<std::pair<std::string, Vec>> generated_seeds() {
                          .control(kPreop)
                          .coe(wire::SdoInitiateUploadRequest{0x100A, 0, false})
                          .bytes());
+  // A message to the mailbox device in INIT after BOOTSTRAP: its SyncManagers still cover the
+  // bootstrap mailbox, so the standard mailbox's area is plain RAM (a fuzz run once read it back
+  // as a reply); then PREOP, whose mailbox must answer as if nothing had happened.
+  seeds.emplace_back("init_after_bootstrap",
+                     Sequence()
+                         .control(kBootstrap)
+                         .control(kInit)
+                         .coe(wire::SdoInitiateUploadRequest{0x1008, 0, false})
+                         .control(kPreop)
+                         .coe(wire::SdoInitiateUploadRequest{0x1008, 0, false})
+                         .bytes());
   Vec corrupt = image;
   corrupt[kFirmwareHeaderSize + 7] ^= 1;
   seeds.emplace_back("foe_firmware_corrupt",
