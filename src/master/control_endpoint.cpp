@@ -663,40 +663,25 @@ Result<Json> dispatch(Master& master, const Request& r, const std::string& op, b
     return Json::object();
   }
   if (op == "rescan") {
-    // What is on the wire now, read without disturbing the session: the slave count (BRD of
-    // the ESC type register: every slave increments the working counter), and at every position
-    // the station address and AL status (APRD, read only). Slaves the session does not know, and
-    // session slaves the wire no longer has, are listed.
-    bus::Bus* bus = master.bus();
-    if (bus == nullptr) return Error(Errc::not_ready, "no session runs");
-    bus::Transaction count;
-    count.brd(0x0000, 1);
-    auto counted = bus->transact(std::move(count));
-    if (!counted) return counted.error();
-    const std::size_t on_wire = (*counted)[0].wkc;
-    bus::Transaction each;
-    for (std::size_t pos = 0; pos < on_wire; ++pos) {
-      each.aprd(static_cast<std::uint16_t>(pos), 0x0010, 2);  // position addressed
-      each.aprd(static_cast<std::uint16_t>(pos), 0x0130, 2);
-    }
-    Result<bus::TransactionResult> read = bus::TransactionResult{};
-    if (on_wire > 0) read = bus->transact(std::move(each));
-    if (!read) return read.error();
+    // What is on the wire now, read without disturbing the session (Master::scan_wire: the
+    // slave count, and at every position the station address and AL status, also behind a break
+    // of a redundant ring). Slaves the session does not know, and session slaves the wire no
+    // longer has, are listed.
+    auto wire_now = master.scan_wire();
+    if (!wire_now) return wire_now.error();
+    const std::size_t on_wire = wire_now->size();
     const auto known = master.slaves();
     Json list = Json::array();
     std::size_t unknown = 0;
     for (std::size_t pos = 0; pos < on_wire; ++pos) {
-      const auto station_bytes = (*read)[2 * pos];
-      const auto al_bytes = (*read)[2 * pos + 1];
+      const auto& at = (*wire_now)[pos];
       Json j{{"position", pos}};
-      if (station_bytes.wkc == 1 && station_bytes.data.size() == 2) {
-        j["station"] = wire::load_le16(station_bytes.data.data());
-      }
-      if (al_bytes.wkc == 1 && al_bytes.data.size() == 2) {
-        const auto code = static_cast<std::uint8_t>(al_bytes.data[0] & 0x0F);
+      if (at.station) j["station"] = *at.station;
+      if (at.al_status) {
+        const auto code = static_cast<std::uint8_t>(*at.al_status & 0x0F);
         const auto state = wire::al_state_from_code(code);
         j["al_state"] = state ? std::string(wire::to_string(*state)) : fmt::format("0x{:x}", code);
-        j["al_error"] = (al_bytes.data[0] & 0x10) != 0;
+        j["al_error"] = (*at.al_status & 0x10) != 0;
       }
       const auto it = std::find_if(known.begin(), known.end(),
                                    [&](const SlaveSummary& k) { return k.position == pos; });

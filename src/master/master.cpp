@@ -418,14 +418,16 @@ struct Master::Impl : DomainObserver {
     bus::Transaction assign;
     for (std::uint16_t k = 0; k < count; ++k)
       assign.apwr(order[k], wire::reg::kStationAddress, le16(static_cast<std::uint16_t>(base + k)));
-    auto assigned = co_await exec::transact(loop, *s.bus, std::move(assign));
+    // On a ring already broken at start, each through the frame that reaches its position.
+    auto assigned = co_await transact_by_position(loop, *s.bus, s.position_access,
+                                                  std::move(assign), bus::TransactOptions{});
     if (!assigned)
       co_return assigned.error().context("assigning stations around a hot-connect group");
     for (std::uint16_t k = 0; k < count; ++k) {
-      if (assigned->wkc(k) != 1) {
+      if ((*assigned)[k].wkc != 1) {
         co_return Error(Errc::wkc_mismatch,
                         fmt::format("assigning station 0x{:04x} to position {}: working counter {}",
-                                    base + k, order[k], assigned->wkc(k)));
+                                    base + k, order[k], (*assigned)[k].wkc));
       }
     }
     s.groups_in_front = true;
@@ -484,7 +486,7 @@ struct Master::Impl : DomainObserver {
 
   exec::Task<Result<void>> run_startup(std::shared_ptr<Session> s) {
     auto& bus = *s->bus;
-    auto count = co_await await_stable_count(loop, bus, s->config.scan);
+    auto count = co_await await_stable_count(loop, bus, s->config.scan, &s->position_access);
     if (!count) co_return count.error().context("discovering the ring");
     if (s->stopping) co_return Error(Errc::closed, "stopped");
     if (s->config.slaves.size() > *count) {
@@ -891,8 +893,10 @@ struct Master::Impl : DomainObserver {
     const bus::TransactOptions quick{50ms, 1};
     bus::Transaction assign;
     assign.apwr(at, wire::reg::kStationAddress, le16(scratch));
-    auto assigned = co_await exec::transact(loop, bus, std::move(assign), quick);
-    if (!assigned || assigned->wkc(0) != 1 || s->stopping || session != s) co_return;
+    // Behind a break of a redundant ring, through the frame that reaches `at`.
+    auto assigned =
+        co_await transact_by_position(loop, bus, s->position_access, std::move(assign), quick);
+    if (!assigned || (*assigned)[0].wkc != 1 || s->stopping || session != s) co_return;
     bus::Transaction alias_tx;
     alias_tx.fprd(scratch, wire::reg::kStationAlias, 2);
     auto alias_reply = co_await exec::transact(loop, bus, std::move(alias_tx), quick);
@@ -1086,17 +1090,19 @@ struct Master::Impl : DomainObserver {
       assign.apwr(static_cast<std::uint16_t>(at + k), wire::reg::kStationAddress,
                   le16(g.slaves[k]->station()));
     }
-    auto assigned = co_await exec::transact(loop, bus, std::move(assign));
+    // Behind a break of a redundant ring, each through the frame that reaches its position.
+    auto assigned = co_await transact_by_position(loop, bus, s->position_access, std::move(assign),
+                                                  bus::TransactOptions{});
     if (s->stopping || session != s) co_return;
     if (!assigned) {
       refuse_group(*s, g, assigned.error().context("assigning the group's stations").describe());
       co_return;
     }
     for (std::size_t k = 0; k < g.slaves.size(); ++k) {
-      if (assigned->wkc(k) != 1) {
+      if ((*assigned)[k].wkc != 1) {
         refuse_group(*s, g,
                      fmt::format("assigning station 0x{:04x} to position {}: working counter {}",
-                                 g.slaves[k]->station(), at + k, assigned->wkc(k)));
+                                 g.slaves[k]->station(), at + k, (*assigned)[k].wkc));
         co_return;
       }
     }
@@ -2694,6 +2700,48 @@ bus::Bus* Master::bus() noexcept {
   std::lock_guard lock(impl_->mutex);
   auto s = impl_->session;
   return s ? s->bus.get() : nullptr;
+}
+
+Result<std::vector<WirePosition>> Master::scan_wire() {
+  std::shared_ptr<Session> running;
+  {
+    std::lock_guard lock(impl_->mutex);
+    running = impl_->session;
+  }
+  if (!running) return Error(Errc::not_ready, "scan_wire: no session runs");
+  auto done = exec::run_blocking(
+      impl_->loop,
+      [](Impl& impl, std::shared_ptr<Session> s) -> exec::Task<Result<std::vector<WirePosition>>> {
+        // A broadcast read of the ESC type register: every slave increments the working counter
+        // (on a redundant ring, both sides' counts merged).
+        bus::Transaction count;
+        count.brd(wire::reg::kType, 1);
+        auto counted = co_await exec::transact(impl.loop, *s->bus, std::move(count));
+        if (!counted) co_return counted.error().context("scan_wire: counting the slaves");
+        const std::size_t on_wire = counted->wkc(0);
+        std::vector<WirePosition> out(on_wire);
+        if (on_wire == 0) co_return out;
+        // One register per position-addressed transaction (transact_by_position's rule).
+        for (const std::uint16_t reg : {wire::reg::kStationAddress, wire::reg::kAlStatus}) {
+          bus::Transaction tx;
+          for (std::size_t pos = 0; pos < on_wire; ++pos)
+            tx.aprd(static_cast<std::uint16_t>(pos), reg, 2);
+          auto read = co_await transact_by_position(impl.loop, *s->bus, s->position_access,
+                                                    std::move(tx), bus::TransactOptions{});
+          if (!read) co_return read.error().context("scan_wire");
+          for (std::size_t pos = 0; pos < on_wire; ++pos) {
+            out[pos].position = static_cast<std::uint16_t>(pos);
+            const auto& r = (*read)[pos];
+            if (r.wkc != 1 || r.data.size() != 2) continue;
+            const auto value = wire::load_le16(r.data.data());
+            (reg == wire::reg::kStationAddress ? out[pos].station : out[pos].al_status) = value;
+          }
+        }
+        co_return out;
+      }(*impl_, std::move(running)),
+      10s);
+  if (!done) return Error(Errc::timeout, "scan_wire: no answer within 10 s");
+  return std::move(*done);
 }
 
 std::vector<SlaveSummary> Master::slaves() const {

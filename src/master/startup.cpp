@@ -44,21 +44,27 @@ exec::Task<Result<std::uint16_t>> count_slaves(exec::EventLoop& loop, bus::Bus& 
 }
 
 exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(exec::EventLoop& loop,
-                                                                 bus::Bus& bus,
-                                                                 std::uint16_t count) {
+                                                                 bus::Bus& bus, std::uint16_t count,
+                                                                 exec::AsyncMutex* addressing) {
   if (count == 0 || count > kMaxAutoIncrementSlaves) co_return std::nullopt;
   bus::Transaction tx;
   for (std::uint32_t pos = 0; pos < count; ++pos)
     tx.aprd(static_cast<std::uint16_t>(pos), reg::kDlStatus, 2);
-  auto reply = co_await exec::transact(loop, bus, std::move(tx));
+  // By ring position also on a redundant ring that is broken (through the port whose frame
+  // reaches each position), with the sides the ring divides into.
+  exec::AsyncMutex own(loop);
+  RingSides sides{count, count};
+  auto reply = co_await transact_by_position(loop, bus, addressing ? *addressing : own,
+                                             std::move(tx), {}, &sides);
   if (!reply) co_return reply.error().context("reading DL status by position");
+  if (sides.total != count) co_return std::nullopt;  // the ring changed since the count
   LinkPicture picture;
   picture.ports.reserve(count);
   std::uint32_t links = 0;
   for (std::uint32_t pos = 0; pos < count; ++pos) {
     // A position that does not answer: the ring changed under the read.
-    if (reply->wkc(pos) != 1) co_return std::nullopt;
-    const auto dl = wire::DlStatus::decode(wire::load_le16(reply->data(pos).data()));
+    if ((*reply)[pos].wkc != 1) co_return std::nullopt;
+    const auto dl = wire::DlStatus::decode(wire::load_le16((*reply)[pos].data.data()));
     std::uint16_t bits = 0;
     for (std::uint8_t port = 1; port < 4; ++port) {
       const auto& p = dl.ports[port];
@@ -75,14 +81,18 @@ exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(exec::EventLoop
   }
   // In a tree every slave but the first hangs from exactly one port 1-3 of another: a link more
   // leads to a device the count does not hold (booting, or the master's second port). On a
-  // redundant link the last slave's port 1 is the cable back to the second port: not a slave.
+  // redundant link the last slave's port 1 is the cable back to the second port: not a slave;
+  // and a break between two slaves leaves the first slave behind it hanging from the secondary
+  // port instead of from a port 1-3 (a cut master cable leaves one side only: a plain line).
   if (bus.info().redundancy && (picture.ports.back() & (1u << 1)) != 0) --links;
-  if (links != count - 1u) picture.complete = false;
+  const bool broken_between = sides.primary > 0 && sides.primary < sides.total;
+  if (links != count - 1u - (broken_between ? 1u : 0u)) picture.complete = false;
   co_return picture;
 }
 
 exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
-                                                     ScanOptions options) {
+                                                     ScanOptions options,
+                                                     exec::AsyncMutex* addressing) {
   const auto start = Clock::now();
   std::optional<std::uint16_t> current;
   Clock::time_point since{};
@@ -116,7 +126,7 @@ exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus:
     if (current && *current > 0 && options.link_check) {
       // The early end: the same count at two polls, and both times the same complete link
       // picture (every open port leads to a counted slave, nothing half up).
-      auto picture = co_await read_link_picture(loop, bus, *current);
+      auto picture = co_await read_link_picture(loop, bus, *current, addressing);
       if (picture && *picture && (*picture)->complete) {
         if (samples >= 2 && last_picture && last_picture->ports == (*picture)->ports) {
           co_return *current;
@@ -269,11 +279,9 @@ Error changed_ring(RingSides before, RingSides after) {
 
 }  // namespace
 
-exec::Task<Result<std::vector<PositionReply>>> transact_by_position(exec::EventLoop& loop,
-                                                                    bus::Bus& bus,
-                                                                    exec::AsyncMutex& addressing,
-                                                                    bus::Transaction tx,
-                                                                    bus::TransactOptions options) {
+exec::Task<Result<std::vector<PositionReply>>> transact_by_position(
+    exec::EventLoop& loop, bus::Bus& bus, exec::AsyncMutex& addressing, bus::Transaction tx,
+    bus::TransactOptions options, RingSides* seen) {
   if (tx.error()) co_return *tx.error();
   const auto datagrams = tx.datagrams();
   for (const auto& d : datagrams) {
@@ -330,6 +338,7 @@ exec::Task<Result<std::vector<PositionReply>>> transact_by_position(exec::EventL
   if (after->primary != sides->primary || after->total != sides->total) {
     co_return changed_ring(*sides, *after);
   }
+  if (seen) *seen = *sides;
   co_return out;
 }
 

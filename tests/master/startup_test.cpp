@@ -179,6 +179,45 @@ TEST(RedundantStartup, TheCableBackToTheSecondPortIsNoMissingSlave) {
   bus.stop();
 }
 
+// A ring already broken when the scan runs: each position is read through the port whose frame
+// reaches it (both ports' copies would otherwise answer a position, or the wrong slave), and the
+// break's missing link is allowed for, so the scan still ends early instead of waiting out the
+// window. A cut master cable leaves a plain line on one side.
+TEST(RedundantStartup, ABrokenRingGivesAWholeLinkPictureAndTheScanEndsEarly) {
+  using sim::RedundantTopology;
+  for (const auto& cabling :
+       {RedundantTopology::broken_after(1), RedundantTopology::broken_after(2),
+        RedundantTopology::broken_after(3), RedundantTopology::cut_at(wire::RedundantPort::primary),
+        RedundantTopology::cut_at(wire::RedundantPort::secondary)}) {
+    SCOPED_TRACE(sim::describe(cabling));
+    auto server = test::make_sim_server(kRing);
+    ASSERT_TRUE(server);
+    auto [ports, link] = test::open_redundant_link(*server);
+    ASSERT_TRUE(ports && link);
+    ASSERT_TRUE(ports->set_topology(cabling));
+    bus::Bus bus(std::move(link));
+    ASSERT_TRUE(bus.start());
+    exec::EventLoop loop;
+    loop.start_thread("test-control");
+    auto picture = exec::run_blocking(loop, read_link_picture(loop, bus, 4), 10s);
+    ASSERT_TRUE(picture.has_value());
+    ASSERT_TRUE(*picture) << picture->error().describe();
+    ASSERT_TRUE(picture->value().has_value());
+    EXPECT_TRUE((*picture)->value().complete);
+    auto early = exec::run_blocking(
+        loop,
+        await_stable_count(loop, bus,
+                           {.poll = 2ms, .stable = 10s, .link_check = true, .timeout = 2s}),
+        10s);
+    ASSERT_TRUE(early.has_value());
+    ASSERT_TRUE(*early) << early->error().describe();
+    EXPECT_EQ(**early, 4);
+    loop.stop();
+    loop.join();
+    bus.stop();
+  }
+}
+
 TEST_F(StartupTest, WrongCountsAndStationRangesAreNamed) {
   EXPECT_FALSE(check_addressing(3, 0));
   auto overflow = check_addressing(3, 0xFFFE);

@@ -250,6 +250,52 @@ TEST(HotConnect, UnplugMarksTheGroupStaleAndReplugRestoresItsStagedOutputs) {
   m.unsubscribe_events(subscription);
 }
 
+// A redundant ring whose last two slaves are the group, broken in front of the group: the group
+// is reached through the secondary's frame only, which counts positions from tool_out. Unplugged
+// and plugged again, its scratch station and stations are written by position through that
+// frame (ring position 3 is the secondary's position 0). Sent through both ports as is, position
+// 3 would reach no slave on either side, and the group would never come back.
+TEST(HotConnect, AGroupPluggedBehindABreakOfARedundantRingGetsItsOwnStations) {
+  auto spec = hot_connect_spec(true);
+  spec.transport = Transport::redundant;
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail;
+  ASSERT_TRUE(ring->redundant_ports->set_topology(sim::RedundantTopology::broken_after(3)));
+  ASSERT_TRUE(eventually([&] {
+    const auto r = m.status().redundancy;
+    return r && r->break_location;
+  })) << ring->describe();
+  EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", true)) << ring->describe();
+  const auto before = ring->domain_stats();
+  ASSERT_TRUE(ring->server->plug("tool", false));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }))
+      << group_status(m).detail;
+  EXPECT_TRUE(fixed_loop_follows(m, false));
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail << "\n"
+      << ring->describe();
+  EXPECT_EQ(group_status(m).position, 3);
+  EXPECT_EQ(group_status(m).appearances, 2u);
+  // Every ESC holds the station the master gave its slave.
+  ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+    for (std::size_t i = 0; i < segment.size(); ++i) {
+      auto slave = m.slave(segment.name(i));
+      ASSERT_TRUE(slave) << segment.name(i);
+      EXPECT_EQ(segment.esc(i).station_address(), (*slave)->info().station) << segment.name(i);
+    }
+  });
+  EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", false)) << ring->describe();
+  EXPECT_TRUE(fixed_loop_follows(m, true));
+  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count)
+      << ring->describe();
+  EXPECT_FALSE(ring->saw(MasterState::recovering)) << ring->describe();
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
 TEST(HotConnect, AWrongDeviceIsRefusedNotConfigured) {
   // The group is known by alias 0x0777; what is plugged has alias 0.
   auto ring = ScenarioRing::operational(hot_connect_spec(false, 0x0777));

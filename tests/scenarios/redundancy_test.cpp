@@ -720,6 +720,41 @@ TEST(RedundantPositionAddressing, PowerCycledSlaveBeforeABreakDoesNotReachOneBeh
   power_cycle_behind_break(RingKind::segmented, RedundantTopology::broken_after(2), "inputs");
 }
 
+// Master::scan_wire (the control endpoint's rescan) behind a break: every ring position reached
+// through the frame that reaches it. Sent through both ports as is, position 1 of a ring broken
+// after its first slave would answer from the secondary's side, one slave too far.
+TEST(RedundantPositionAddressing, ScanWireReadsEveryPositionBehindABreak) {
+  for (const auto& cabling :
+       {RedundantTopology::whole_ring(), RedundantTopology::broken_after(1),
+        RedundantTopology::broken_after(2), RedundantTopology::cut_at(RedundantPort::primary)}) {
+    SCOPED_TRACE(sim::describe(cabling));
+    auto spec = redundant_spec();
+    spec.kind = RingKind::segmented;
+    auto ring = ScenarioRing::operational(spec);
+    ASSERT_TRUE(ring);
+    expect_flows_through(*ring, cabling);
+    const auto slaves = ring->master->status().slaves;
+    auto scanned = ring->master->scan_wire();
+    ASSERT_TRUE(scanned) << scanned.error().describe();
+    ASSERT_EQ(scanned->size(), slaves.size());
+    // What each simulated ESC holds, position by position.
+    std::vector<std::pair<std::uint16_t, wire::AlState>> escs;
+    ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+      for (std::size_t i = 0; i < segment.size(); ++i)
+        escs.emplace_back(segment.esc(i).station_address(), segment.esc(i).al_state());
+    });
+    ASSERT_EQ(escs.size(), slaves.size());
+    for (std::size_t i = 0; i < slaves.size(); ++i) {
+      const auto& at = (*scanned)[i];
+      EXPECT_EQ(at.position, i);
+      ASSERT_TRUE(at.station && at.al_status) << "position " << i;
+      EXPECT_EQ(*at.station, slaves[i].station) << "position " << i;
+      EXPECT_EQ(*at.station, escs[i].first) << "position " << i;
+      EXPECT_EQ(*at.al_status & 0x1F, static_cast<unsigned>(escs[i].second)) << "position " << i;
+    }
+  }
+}
+
 // ---- 38, 40, 41: the bus alone on a redundant ring ---------------------------------------------
 
 // The default ring served with two master ports and a bus on a RedundantLink, no master.

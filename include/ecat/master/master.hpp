@@ -60,6 +60,15 @@ struct SlaveSummary {
   std::optional<std::string> startup_error;
 };
 
+// One ring position as the wire shows it now (Master::scan_wire): what a position-addressed read
+// of the station address (0x0010) and the AL status (0x0130) returned; empty where the slave did
+// not answer (the ring changed under the read).
+struct WirePosition {
+  std::uint16_t position = 0;
+  std::optional<std::uint16_t> station;
+  std::optional<std::uint16_t> al_status;
+};
+
 struct DomainSummary {
   std::string id;
   std::chrono::nanoseconds period{};
@@ -222,6 +231,11 @@ class Master {
 
   // The bus, while a session runs (null otherwise).
   bus::Bus* bus() noexcept;
+  // What is on the wire now, read only and without disturbing the session: the slaves a
+  // broadcast counts, and at every ring position its station address and AL status (on a broken
+  // redundant ring, each position through the port whose frame reaches it). Errc::not_ready
+  // without a session; Errc::wkc_mismatch when the ring changed under the read.
+  Result<std::vector<WirePosition>> scan_wire();
   std::vector<SlaveSummary> slaves() const;
   std::vector<DomainSummary> domains() const;
   std::optional<Failure> last_failure() const;

@@ -34,14 +34,18 @@ struct LinkPicture {
   bool complete = true;
 };
 // Nothing (no error) when a position does not answer or `count` is 0 or beyond auto-increment.
-exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(exec::EventLoop& loop,
-                                                                 bus::Bus& bus,
-                                                                 std::uint16_t count);
+// On a redundant link the positions are read through transact_by_position (`addressing`: the
+// session's position-access mutex; null: a private one), so a ring broken between two slaves
+// gives its whole picture too, the break's missing link allowed for.
+exec::Task<Result<std::optional<LinkPicture>>> read_link_picture(
+    exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
+    exec::AsyncMutex* addressing = nullptr);
 
 // Polls count_slaves() until it is non-zero and unchanged for `stable`, or (link_check) unchanged
 // at two consecutive polls with the same complete link picture at both (read_link_picture).
 exec::Task<Result<std::uint16_t>> await_stable_count(exec::EventLoop& loop, bus::Bus& bus,
-                                                     ScanOptions options = {});
+                                                     ScanOptions options = {},
+                                                     exec::AsyncMutex* addressing = nullptr);
 
 // Checks the limits of auto-increment addressing and of the station range (base + count - 1 must
 // stay within 0xFFFF; station 0 is never assigned).
@@ -81,9 +85,10 @@ struct PositionReply {
 // changed"). `addressing` keeps the session's position-addressed accesses one at a time (they
 // share the slot). On one port the transaction goes out as it is. Replies in `tx`'s order;
 // an expected working counter is checked as the bus checks it.
+// `seen`, when given, receives the sides counted (on one port: left as it is).
 exec::Task<Result<std::vector<PositionReply>>> transact_by_position(
     exec::EventLoop& loop, bus::Bus& bus, exec::AsyncMutex& addressing, bus::Transaction tx,
-    bus::TransactOptions options = {});
+    bus::TransactOptions options = {}, RingSides* seen = nullptr);
 
 // Writes station = base + position to every slave (one APWR each, in one transaction) and reads
 // them back by station. Errors name the position and station. On a redundant link (a ring that
