@@ -1,12 +1,12 @@
 #include <array>
 #include <atomic>
-#include <condition_variable>
 #include <cstring>
 #include <exception>
 #include <mutex>
 #include <vector>
 
 #include <fmt/format.h>
+#include <pthread.h>
 
 #include <ecat/link/memory_link.hpp>
 #include <ecat/wire/frame.hpp>
@@ -61,15 +61,51 @@ class FrameQueue {
   std::size_t count_ = 0;
 };
 
-// One direction of a memory pair.
+// The lock of one direction's queue. It is priority-inheriting: the master's cycle thread
+// (SCHED_FIFO) that finds it held by the other end's thread (the embedded simulator, at normal
+// priority) lends that thread its priority until it lets go. With a plain mutex the cycle thread
+// waited until the scheduler gave the preempted holder the CPU back: milliseconds on a busy
+// machine, far beyond a 125 us cycle (docs/BENCHMARKS.md, "Cycle-start lateness").
+class PiMutex {
+ public:
+  PiMutex() noexcept {
+    pthread_mutexattr_t attr;
+    bool inherits = pthread_mutexattr_init(&attr) == 0;
+    inherits = inherits && pthread_mutexattr_setprotocol(&attr, PTHREAD_PRIO_INHERIT) == 0 &&
+               pthread_mutex_init(&mutex_, &attr) == 0;
+    if (!inherits) (void)pthread_mutex_init(&mutex_, nullptr);  // a system without PI futexes
+    (void)pthread_mutexattr_destroy(&attr);
+  }
+  ~PiMutex() { (void)pthread_mutex_destroy(&mutex_); }
+  PiMutex(const PiMutex&) = delete;
+  PiMutex& operator=(const PiMutex&) = delete;
+  void lock() noexcept { (void)pthread_mutex_lock(&mutex_); }
+  void unlock() noexcept { (void)pthread_mutex_unlock(&mutex_); }
+
+ private:
+  pthread_mutex_t mutex_{};
+};
+
+// One direction of a memory pair. The reader sleeps on `sequence` (a futex) without the lock, so
+// a reader woken by its timeout returns without touching the lock at all when nothing came, and a
+// writer never has to take a lock the reader holds to wake it.
 struct Channel {
   explicit Channel(std::size_t depth) : queue(depth) {}
-  std::mutex mutex;
-  std::condition_variable ready;
-  FrameQueue queue;
-  bool writer_closed = false;
-  bool reader_closed = false;
-  bool interrupt = false;  // for the reader
+  PiMutex mutex;
+  FrameQueue queue;            // guarded by mutex
+  bool writer_closed = false;  // guarded by mutex
+  bool reader_closed = false;  // guarded by mutex
+  bool interrupt = false;      // for the reader; guarded by mutex
+  // Bumped after every change the reader may wait for (frame, interrupt, close); the reader
+  // sleeps while it holds the value it read under the lock.
+  std::atomic<std::uint32_t> sequence{0};
+  std::atomic<std::uint32_t> sleepers{0};
+
+  // After a change made under the lock (and the lock released).
+  void changed() noexcept {
+    sequence.fetch_add(1, std::memory_order_seq_cst);
+    if (sleepers.load(std::memory_order_seq_cst) != 0) detail::futex_wake_all(sequence);
+  }
 };
 
 Error too_large(const std::string& name, std::size_t size) {
@@ -103,44 +139,49 @@ class MemoryLink final : public Link {
       detail::AtomicLinkStats::add(stats_.frames_dropped);
       return ok();
     }
-    out_->ready.notify_one();
+    out_->changed();
     stats_.sent(frame.size());
     return ok();
   }
 
   Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
-    using Clock = std::chrono::steady_clock;
-    // Beyond a day counts as forever, which also keeps now() + timeout from overflowing.
+    // Beyond a day counts as forever, which also keeps now + timeout from overflowing.
     const bool forever = timeout >= std::chrono::hours(24);
-    const Clock::time_point deadline =
-        forever ? Clock::time_point::max()
-                : Clock::now() + std::max(timeout, std::chrono::nanoseconds::zero());
-    std::unique_lock lock(in_->mutex);
+    const std::int64_t deadline =
+        forever ? -1 : detail::monotonic_ns() + std::max<std::int64_t>(timeout.count(), 0);
     for (;;) {
-      if (in_->reader_closed) return closed_error();
-      if (!in_->queue.empty()) {
-        const ReceivedFrame frame = in_->queue.pop_into(rx_);
-        lock.unlock();
-        stats_.received(frame.frame.size());
-        return std::optional<ReceivedFrame>(frame);
-      }
-      if (in_->interrupt) {
-        in_->interrupt = false;
-        return std::optional<ReceivedFrame>{};
-      }
-      if (in_->writer_closed) {
-        return Error(Errc::closed, fmt::format("{}: the peer {} closed", name_, peer_name_));
-      }
-      if (forever) {
-        in_->ready.wait(lock);
-      } else if (Clock::now() >= deadline) {
-        return std::optional<ReceivedFrame>{};
-      } else if (in_->ready.wait_until(lock, deadline) == std::cv_status::timeout) {
-        // A frame or an interrupt that raced the timeout still wins.
-        if (in_->reader_closed || in_->interrupt || !in_->queue.empty() || in_->writer_closed) {
-          continue;
+      std::uint32_t seen = 0;
+      {
+        std::unique_lock lock(in_->mutex);
+        if (in_->reader_closed) return closed_error();
+        if (!in_->queue.empty()) {
+          const ReceivedFrame frame = in_->queue.pop_into(rx_);
+          lock.unlock();
+          stats_.received(frame.frame.size());
+          return std::optional<ReceivedFrame>(frame);
         }
-        return std::optional<ReceivedFrame>{};
+        if (in_->interrupt) {
+          in_->interrupt = false;
+          return std::optional<ReceivedFrame>{};
+        }
+        if (in_->writer_closed) {
+          return Error(Errc::closed, fmt::format("{}: the peer {} closed", name_, peer_name_));
+        }
+        seen = in_->sequence.load(std::memory_order_seq_cst);
+      }
+      // Sleep without the lock until something changes or the deadline passes.
+      for (;;) {
+        if (!forever && detail::monotonic_ns() >= deadline) {
+          // Nothing came: done without the lock. Something that raced the timeout still wins.
+          if (in_->sequence.load(std::memory_order_seq_cst) == seen) {
+            return std::optional<ReceivedFrame>{};
+          }
+          break;
+        }
+        in_->sleepers.fetch_add(1, std::memory_order_seq_cst);
+        detail::futex_wait_until(in_->sequence, seen, deadline);
+        in_->sleepers.fetch_sub(1, std::memory_order_seq_cst);
+        if (in_->sequence.load(std::memory_order_seq_cst) != seen) break;
       }
     }
   }
@@ -150,7 +191,7 @@ class MemoryLink final : public Link {
       std::lock_guard lock(in_->mutex);
       in_->interrupt = true;
     }
-    in_->ready.notify_all();
+    in_->changed();
   }
 
   void close() override {
@@ -159,13 +200,13 @@ class MemoryLink final : public Link {
       std::lock_guard lock(out_->mutex);
       out_->writer_closed = true;
     }
-    out_->ready.notify_all();
+    out_->changed();
     {
       std::lock_guard lock(in_->mutex);
       in_->reader_closed = true;
       in_->queue.clear();
     }
-    in_->ready.notify_all();
+    in_->changed();
   }
 
   std::string name() const override { return name_; }

@@ -5,8 +5,10 @@
 #include <cstring>
 
 #include <fmt/format.h>
+#include <linux/futex.h>
 #include <poll.h>
 #include <sys/eventfd.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 namespace ecat::link::detail {
@@ -48,6 +50,31 @@ void UniqueFd::reset(int fd) noexcept {
 
 std::int64_t monotonic_ns() noexcept {
   return clock_ns(CLOCK_MONOTONIC);
+}
+
+namespace {
+std::uint32_t* futex_word(std::atomic<std::uint32_t>& word) noexcept {
+  static_assert(sizeof(std::atomic<std::uint32_t>) == sizeof(std::uint32_t));
+  return reinterpret_cast<std::uint32_t*>(&word);  // NOLINT: the futex ABI wants the word itself
+}
+}  // namespace
+
+void futex_wait_until(std::atomic<std::uint32_t>& word, std::uint32_t expected,
+                      std::int64_t until_ns) noexcept {
+  if (until_ns < 0) {
+    (void)syscall(SYS_futex, futex_word(word), FUTEX_WAIT_PRIVATE, expected, nullptr, nullptr, 0);
+    return;
+  }
+  timespec ts{};
+  ts.tv_sec = static_cast<time_t>(until_ns / 1'000'000'000);
+  ts.tv_nsec = static_cast<long>(until_ns % 1'000'000'000);
+  // FUTEX_WAIT_BITSET takes an absolute CLOCK_MONOTONIC time.
+  (void)syscall(SYS_futex, futex_word(word), FUTEX_WAIT_BITSET_PRIVATE, expected, &ts, nullptr,
+                FUTEX_BITSET_MATCH_ANY);
+}
+
+void futex_wake_all(std::atomic<std::uint32_t>& word) noexcept {
+  (void)syscall(SYS_futex, futex_word(word), FUTEX_WAKE_PRIVATE, INT32_MAX, nullptr, nullptr, 0);
 }
 
 Error os_error(Errc code, std::string message, int err) {

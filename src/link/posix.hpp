@@ -46,6 +46,12 @@ class UniqueFd {
 
 std::int64_t monotonic_ns() noexcept;
 
+// Sleeps while `word` holds `expected`, at most until `until_ns` on CLOCK_MONOTONIC (-1: no
+// limit). Returns at once when the word differs; may return early (spuriously).
+void futex_wait_until(std::atomic<std::uint32_t>& word, std::uint32_t expected,
+                      std::int64_t until_ns) noexcept;
+void futex_wake_all(std::atomic<std::uint32_t>& word) noexcept;
+
 // "message: strerror(err)" with the given code.
 Error os_error(Errc code, std::string message, int err);
 
