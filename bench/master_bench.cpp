@@ -4,9 +4,12 @@
 //   1. cyclic round trip over raw veth: the master's domain cycling against sim::SimServer serving
 //      a raw link on the other end of a veth pair (private network namespace), 1 / 16 / 64
 //      slaves, against a bare echo on the same pair paced at the same period (the floor).
-//   2. cycle-start jitter at 1 kHz and 4 kHz: a CyclicParticipant added to the master's own
+//   2. cycle-start jitter at 1, 4 and 8 kHz: a CyclicParticipant added to the master's own
 //      Cycler records, every tick, how late the bus thread started the tick after its absolute
-//      deadline (the moment the domain's LRW is staged and submitted in the same tick).
+//      deadline (the moment the domain's LRW is staged and submitted in the same tick), with the
+//      simulator in process (memory link) and in a process of its own over veth, beside
+//      cyclictest; the bus's own trace of the same ticks (Bus::set_cycle_trace) says which step
+//      held the late ones.
 //   3. Master::start to operational for 64 / 128 / 256 / 512 / 1024 simulated terminals behind an
 //      EK1100 (in-process memory link), five runs each with --full: min / median / max, the frames
 //      each run sent, and where the time went (discovery, the slaves' bring-up to PREOP, the rest
@@ -26,6 +29,8 @@
 //   --startup runs section 3 alone, five runs per size (--terminals N: at that size only;
 //   --runs N: N runs per size).
 //   --fifo runs the jitter section's cycle thread with SCHED_FIFO at PRIORITY.
+//   --jitter-link memory|veth|both: section 2 against the in-process simulator (memory link), the
+//   simulator in another process over veth (needs root), or both (default).
 //   --only jitter|hot|alloc|redundancy runs one section (--breaks N: section 6's breaks).
 // The veth section needs root (a veth pair in a private network namespace); without it, it
 // prints "skipped: <reason>". docs/BENCHMARKS.md explains every figure.
@@ -48,7 +53,9 @@
 #include <thread>
 #include <vector>
 
+#include <fcntl.h>
 #include <fmt/format.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <ecat/bus/bus.hpp>
@@ -89,6 +96,7 @@ struct Mode {
   std::optional<int> alloc_seconds;   // section 5's window
   std::string only;                   // run one section: jitter, hot, alloc, redundancy
   std::optional<int> breaks;          // section 6's breaks
+  std::string jitter_link = "both";   // section 2: memory, veth or both
 };
 
 double ms_since(Clock::time_point from, Clock::time_point to) {
@@ -500,6 +508,7 @@ void section_veth(const Mode& mode) {
 struct Cyclictest {
   std::string note;  // why there are no figures ("not installed", its error)
   Distribution d;
+  std::uint64_t beyond_period = 0;  // wake-ups later than one period (the machine's own floor)
   bool ok = false;
 };
 
@@ -555,6 +564,10 @@ Cyclictest run_cyclictest(std::chrono::nanoseconds period, std::size_t loops,
     out.note = fmt::format("failed (exit status {}): {}", status, first_line);
     return out;
   }
+  const auto period_us = std::chrono::duration_cast<std::chrono::microseconds>(period).count();
+  for (std::size_t us = static_cast<std::size_t>(period_us) + 1; us < buckets.size(); ++us)
+    out.beyond_period += buckets[us];
+  out.beyond_period += overflows;
   std::vector<std::int64_t> ns;
   ns.reserve(total + overflows);
   for (std::size_t us = 0; us < buckets.size(); ++us)
@@ -566,67 +579,258 @@ Cyclictest run_cyclictest(std::chrono::nanoseconds period, std::size_t loops,
   return out;
 }
 
+// Where a late tick's time went, from the bus's own record of it (Bus::set_cycle_trace), in us
+// after the deadline that was due. Steps that ended before the deadline count nothing.
+struct LateTick {
+  double late = 0;     // woke - due
+  double busy = 0;     // the bus thread went into its last wait only after the deadline
+  double target = 0;   // that wait asked to be woken after the deadline
+  double wake = 0;     // it came back from the wait late (the kernel's wake-up, or a lock)
+  double after = 0;    // from receive() returning to the tick (frames matched, queues taken)
+  bool frame = false;  // the last wait ended with a frame, not at its timeout
+  const ecat::bus::CycleTraceRecord* previous = nullptr;  // the tick before, if recorded
+};
+
+LateTick explain(const ecat::bus::CycleTraceRecord& r, const ecat::bus::CycleTraceRecord* prev) {
+  LateTick t;
+  const auto us = [](std::int64_t ns) {
+    return static_cast<double>(std::max<std::int64_t>(ns, 0)) / 1e3;
+  };
+  const std::int64_t due = r.due_ns;
+  t.late = us(r.woke_ns - due);
+  t.previous = prev;
+  if (r.wait_entered_ns == 0) return t;  // no wait recorded before this tick
+  t.busy = us(r.wait_entered_ns - due);
+  const std::int64_t went = std::max(due, r.wait_entered_ns);
+  t.target = us(r.wait_until_ns - went);
+  t.wake = us(r.wait_returned_ns - std::max(went, r.wait_until_ns));
+  t.after = us(r.woke_ns - std::max(due, r.wait_returned_ns));
+  t.frame = r.wait_got_frame;
+  return t;
+}
+
+// The worst ticks of a traced run, one line each, and which step held the late ones (later than
+// one period).
+void print_late_ticks(const ecat::bus::CycleTrace& trace, std::chrono::nanoseconds period) {
+  const std::size_t n = trace.size();
+  if (n == 0) return;
+  std::vector<std::size_t> order(n);
+  for (std::size_t i = 0; i < n; ++i)
+    order[i] = i;
+  const auto late_ns = [&](std::size_t i) { return trace[i].woke_ns - trace[i].due_ns; };
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t a, std::size_t b) { return late_ns(a) > late_ns(b); });
+  const auto previous = [&](std::size_t i) -> const ecat::bus::CycleTraceRecord* {
+    return i > 0 && trace[i - 1].cycle + 1 == trace[i].cycle ? &trace[i - 1] : nullptr;
+  };
+  std::size_t late = 0, by_busy = 0, by_target = 0, by_wake = 0, by_after = 0, by_frame = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (late_ns(i) <= period.count()) continue;
+    ++late;
+    const LateTick t = explain(trace[i], previous(i));
+    const double top = std::max({t.busy, t.target, t.wake, t.after});
+    if (top == t.wake) {
+      ++by_wake;
+      if (t.frame) ++by_frame;
+    } else if (top == t.busy) {
+      ++by_busy;
+    } else if (top == t.target) {
+      ++by_target;
+    } else {
+      ++by_after;
+    }
+  }
+  fmt::print(
+      "        ticks later than one period: {} of {}; the longest step: wake-up {} ({} of them "
+      "woken by a frame), busy at the deadline {}, wait asked past it {}, after the wake {}\n",
+      late, n, by_wake, by_frame, by_busy, by_target, by_after);
+  fmt::print(
+      "        {:>8} {:>8} {:>8} {:>8} {:>8} {:>6} | previous tick, us after its deadline: "
+      "{:>6} {:>6} {:>6} {:>6} {:>5}\n",
+      "late", "busy", "target", "wake-up", "after", "ended", "ticked", "sent", "reply", "done",
+      "turns");
+  for (std::size_t k = 0; k < std::min<std::size_t>(5, n); ++k) {
+    const std::size_t i = order[k];
+    const LateTick t = explain(trace[i], previous(i));
+    std::string prev = "(not recorded)";
+    if (const auto* q = t.previous) {
+      const auto at = [&](std::int64_t ns) {
+        return ns == 0 ? std::string("-")
+                       : fmt::format("{:.1f}", static_cast<double>(ns - q->due_ns) / 1e3);
+      };
+      prev = fmt::format("{:>6} {:>6} {:>6} {:>6} {:>5}", at(q->participants_ns), at(q->sent_ns),
+                         at(q->reply_ns), at(q->completed_ns), q->turns);
+    }
+    fmt::print("        {:>8.1f} {:>8.1f} {:>8.1f} {:>8.1f} {:>8.1f} {:>6} |{:>38}{}\n", t.late,
+               t.busy, t.target, t.wake, t.after,
+               trace[i].wait_entered_ns == 0 ? "?"
+               : t.frame                     ? "frame"
+                                             : "timer",
+               "", prev);
+  }
+}
+
+// The simulator in a process of its own on the segment's end of a veth pair, as a real ring
+// answers from outside the master's machine: it shares no lock, no memory link and no scheduler
+// class with the master's threads. Stopped (its pipe closed, then reaped) on destruction.
+class ChildSimulator {
+ public:
+  ChildSimulator(ecat::bench::VethPair& pair, std::size_t terminals) {
+    int stop_pipe[2] = {-1, -1};
+    int ready_pipe[2] = {-1, -1};
+    if (::pipe2(stop_pipe, O_CLOEXEC) != 0 || ::pipe2(ready_pipe, O_CLOEXEC) != 0) {
+      problem_ = fmt::format("pipe: {}", std::strerror(errno));
+      return;
+    }
+    std::fflush(stdout);
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      // The child: nothing but the simulator's own thread runs here.
+      ::close(stop_pipe[1]);
+      ::close(ready_pipe[0]);
+      auto server = make_server(terminals);
+      auto end = pair.open("s", true);
+      const char ok = server && end && (*server)->serve(std::move(end)) ? 1 : 0;
+      (void)!::write(ready_pipe[1], &ok, 1);
+      char c = 0;
+      while (::read(stop_pipe[0], &c, 1) < 0 && errno == EINTR) {
+      }
+      if (server) (*server)->stop();
+      ::_exit(0);
+    }
+    ::close(stop_pipe[0]);
+    ::close(ready_pipe[1]);
+    stop_fd_ = stop_pipe[1];
+    if (pid_ < 0) {
+      problem_ = fmt::format("fork: {}", std::strerror(errno));
+      ::close(ready_pipe[0]);
+      return;
+    }
+    char ok = 0;
+    if (::read(ready_pipe[0], &ok, 1) != 1 || ok != 1) {
+      problem_ = "the simulator process could not serve the veth pair's segment end";
+    }
+    ::close(ready_pipe[0]);
+  }
+  ~ChildSimulator() {
+    if (stop_fd_ >= 0) ::close(stop_fd_);
+    if (pid_ > 0) (void)::waitpid(pid_, nullptr, 0);
+  }
+  ChildSimulator(const ChildSimulator&) = delete;
+  ChildSimulator& operator=(const ChildSimulator&) = delete;
+  const std::string& problem() const { return problem_; }
+
+ private:
+  pid_t pid_ = -1;
+  int stop_fd_ = -1;
+  std::string problem_;
+};
+
 void section_jitter(const Mode& mode) {
   heading("2. cycle-start lateness (us after the deadline that was due), ecat vs cyclictest");
-  fmt::print("{:>7} {:<10} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}  {}\n", "rate", "thread", "n",
-             "min", "p50", "p99", "p99.9", "max", "skipped", "setup");
+  fmt::print("{:>7} {:<14} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}  {}\n", "rate", "thread",
+             "n", "min", "p50", "p99", "p99.9", "max", ">period", "skipped", "setup");
+  // In process (the simulator's thread beside the master's, over a memory link) and, with root,
+  // over veth with the simulator in a process of its own.
+  ecat::bench::VethPair pair;
+  const bool veth = mode.jitter_link != "memory" && pair.problem().empty();
+  const bool memory = mode.jitter_link != "veth";
   for (const auto period : {std::chrono::nanoseconds(1ms), std::chrono::nanoseconds(250us),
                             std::chrono::nanoseconds(125us)}) {
     const auto seconds = mode.jitter_seconds ? std::chrono::seconds(*mode.jitter_seconds)
                          : mode.full         ? 60s
                                              : 3s;
     const auto samples = static_cast<std::size_t>(seconds / period);
-    auto config = master_config(2, period);
-    if (mode.fifo) {
-      // A realtime user's setup, as cyclictest makes it: SCHED_FIFO, cpu_dma_latency held at 0,
-      // memory locked (and the cycle thread's stack pre-faulted).
-      config.cycle_thread.fifo_priority = *mode.fifo;
-      config.cycle_thread.cpu_dma_latency_us = 0;
-      config.cycle_thread.lock_memory = true;
-    }
     const auto rate = fmt::format("{} Hz", 1s / period);
-    {
+    const auto run_ecat = [&](const char* label, bool over_veth) {
+      auto config = master_config(2, period);
+      if (mode.fifo) {
+        // A realtime user's setup, as cyclictest makes it: SCHED_FIFO, cpu_dma_latency held at
+        // 0, memory locked (and the cycle thread's stack pre-faulted).
+        config.cycle_thread.fifo_priority = *mode.fifo;
+        config.cycle_thread.cpu_dma_latency_us = 0;
+        config.cycle_thread.lock_memory = true;
+      }
+      std::optional<ChildSimulator> child;
       Session session;
-      (void)session.run_memory(2, std::move(config));
+      if (over_veth) {
+        child.emplace(pair, 2);
+        if (!child->problem().empty()) {
+          fmt::print("{:>7} {:<14} error: {}\n", rate, label, child->problem());
+          return;
+        }
+        auto master_end = pair.open("m", false);
+        if (!master_end) {
+          fmt::print("{:>7} {:<14} error: {}\n", rate, label, pair.problem());
+          return;
+        }
+        (void)session.run(std::move(master_end), std::move(config));
+      } else {
+        (void)session.run_memory(2, std::move(config));
+      }
       if (!session.error.empty()) {
-        fmt::print("{:>7} error: {}\n", rate, session.error);
-        continue;
+        fmt::print("{:>7} {:<14} error: {}\n", rate, label, session.error);
+        return;
       }
       Domain* domain = session.domain();
       ecat::master::Cycler* cycler = domain ? domain->cycler() : nullptr;
       if (!cycler) {
-        fmt::print("{:>7} error: the master's domain is not in a Cycler\n", rate);
-        continue;
+        fmt::print("{:>7} {:<14} error: the master's domain is not in a Cycler\n", rate, label);
+        return;
       }
       TickProbe probe(period, samples);
       if (auto r = cycler->add(probe, ecat::master::Cycler::kPriorityDc); !r) {
-        fmt::print("{:>7} error: {}\n", rate, r.error().describe());
-        continue;
+        fmt::print("{:>7} {:<14} error: {}\n", rate, label, r.error().describe());
+        return;
       }
+      // The bus's own record of every tick in the same window (where a late tick's time went).
+      ecat::bus::CycleTrace trace(samples + samples / 8 + 64);
       std::this_thread::sleep_for(100ms);
+      ecat::bus::Bus* bus = session.master->bus();
+      if (bus) (void)bus->set_cycle_trace(&trace);
       probe.record();
       (void)wait_for([&] { return probe.full(); }, seconds * 3 + 5s);
+      if (bus) (void)bus->set_cycle_trace(nullptr);
       (void)cycler->remove(probe);
-      const auto d = distribution(probe.samples());
+      const auto late = probe.samples();
+      const auto beyond = std::count_if(late.begin(), late.end(),
+                                        [&](std::int64_t ns) { return ns > period.count(); });
+      const auto d = distribution(late);
       const auto thread = session.master->status().cycle_thread;
-      fmt::print("{:>7} {:<10} {:>7} {} {:>8}  {}\n", rate, "ecat", d.n, us_columns(d),
+      fmt::print("{:>7} {:<14} {:>7} {} {:>8} {:>8}  {}\n", rate, label, d.n, us_columns(d), beyond,
                  probe.missed(), thread.empty() ? "default scheduling" : thread);
-    }
+      print_late_ticks(trace, period);
+      (void)session.master->stop();
+    };
+    if (memory) run_ecat("ecat memory", false);
+    if (veth) run_ecat("ecat veth", true);
     const auto ct = run_cyclictest(period, samples, mode.fifo);
     if (ct.ok) {
-      fmt::print("{:>7} {:<10} {:>7} {} {:>8}  {}\n", rate, "cyclictest", ct.d.n, us_columns(ct.d),
-                 "-",
+      fmt::print("{:>7} {:<14} {:>7} {} {:>8} {:>8}  {}\n", rate, "cyclictest", ct.d.n,
+                 us_columns(ct.d), ct.beyond_period, "-",
                  mode.fifo ? fmt::format("-p{} -m, cpu_dma_latency 0", *mode.fifo)
                            : std::string("-p0 -m, cpu_dma_latency 0"));
     } else {
-      fmt::print("{:>7} {:<10} {}\n", rate, "cyclictest", ct.note);
+      fmt::print("{:>7} {:<14} {}\n", rate, "cyclictest", ct.note);
     }
   }
+  if (mode.jitter_link != "memory" && !pair.problem().empty()) {
+    fmt::print("ecat veth: skipped: {}\n", pair.problem());
+  }
   fmt::print(
-      "ecat: a CyclicParticipant added to the master's own Cycler (the domain's) records, every "
-      "tick, CycleTick::woke_at minus the deadline that was due (CycleTick::deadline - missed x "
-      "period), the start of the tick in which the domain stages its outputs and submits its LRW. "
-      "skipped: deadlines passed while the thread was late (it then runs once, never in a burst). "
+      "ecat memory: the simulator's thread in the same process, over a memory link; ecat veth: the "
+      "simulator in a process of its own on the other end of a veth pair (raw sockets, as a real "
+      "ring). ecat: a CyclicParticipant added to the master's own Cycler (the domain's) records, "
+      "every tick, CycleTick::woke_at minus the deadline that was due (CycleTick::deadline - "
+      "missed "
+      "x period), the start of the tick in which the domain stages its outputs and submits its "
+      "LRW. >period: wake-ups later than one period. skipped: deadlines passed while the thread "
+      "was late (it then runs once, never in a burst). Below each ecat line, from the bus's own "
+      "record of the same ticks (Bus::set_cycle_trace): for the ticks later than one period, which "
+      "step took most of the time, and the five latest ticks: busy (the bus thread went into its "
+      "last wait only after the deadline), target (that wait asked to wake after it), wake-up (it "
+      "came back from the wait late: the kernel's wake-up or a lock), after (from the wait to the "
+      "tick), ended (the wait ended by a frame or at its timer), and the previous tick's steps. "
       "cyclictest: one thread, clock_nanosleep to absolute deadlines, the same rate, priority and "
       "number of samples, run right after; 1 us buckets.\n");
 }
@@ -1027,7 +1231,7 @@ int usage(const char* self) {
       stderr,
       "usage: %s [--quick | --full] [--startup [--terminals N] [--runs N]] [--fifo PRIORITY]\n"
       "          [--only jitter|hot|alloc|redundancy] [--jitter-seconds S] [--alloc-seconds S]\n"
-      "          [--breaks N]\n",
+      "          [--breaks N] [--jitter-link memory|veth|both]\n",
       self);
   return 2;
 }
@@ -1053,6 +1257,12 @@ int main(int argc, char** argv) {
       mode.jitter_seconds = std::max(1, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--alloc-seconds") == 0 && i + 1 < argc) {
       mode.alloc_seconds = std::max(1, std::atoi(argv[++i]));
+    } else if (std::strcmp(argv[i], "--jitter-link") == 0 && i + 1 < argc) {
+      mode.jitter_link = argv[++i];
+      if (mode.jitter_link != "memory" && mode.jitter_link != "veth" &&
+          mode.jitter_link != "both") {
+        return usage(argv[0]);
+      }
     } else if (std::strcmp(argv[i], "--breaks") == 0 && i + 1 < argc) {
       mode.breaks = std::max(1, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc) {

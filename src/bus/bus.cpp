@@ -260,6 +260,8 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   std::atomic<bool> sleeping{false};
 
   // ---- reliable submissions (any thread -> bus thread)
+  // Transactions the bus thread finished with, linked through queue_next; freed by submitters.
+  std::atomic<Pending*> graveyard{nullptr};
   std::mutex incoming_mutex;
   Queue incoming;          // guarded by incoming_mutex
   bool accepting = false;  // guarded by incoming_mutex
@@ -294,6 +296,17 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   std::atomic<std::uint64_t> steer_steps{0};
   std::atomic<bool> steer_reset{false};
   double steer_offset_exact = 0.0;  // bus thread (and install_cycle under cycle_mutex)
+
+  // ---- cycle trace (Bus::set_cycle_trace)
+  std::atomic<CycleTrace*> trace_slot{nullptr};    // what the controller asks for
+  std::atomic<CycleTrace*> trace_in_use{nullptr};  // what the bus thread uses (published first)
+  CycleTrace* trace = nullptr;                     // bus thread: this loop turn's
+  CycleTraceRecord trace_tick{};                   // bus thread: the tick being recorded
+  bool trace_open = false;                         // bus thread: trace_tick holds a tick
+  struct {
+    std::int64_t entered = 0, until = 0, returned = 0;
+    bool frame = false;
+  } last_wait;  // bus thread, while tracing
 
   // ---- link failure
   std::atomic<bool> link_failed{false};
@@ -420,6 +433,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       }
     }
     while (!stop_requested.load(std::memory_order_acquire)) {
+      refresh_trace();
       Clock::time_point now = Clock::now();
       take_incoming();
       take_realtime();
@@ -444,11 +458,59 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       publish();
       wait_and_receive();
       publish();
+      if (trace_open) ++trace_tick.turns;
     }
+    // The controller may be waiting for the bus thread to let go of its trace.
+    trace = nullptr;
+    trace_open = false;
+    trace_in_use.store(nullptr, std::memory_order_seq_cst);
     shutdown();
     publish();
     // Thread ids are recycled: a later thread must not pass for this one.
     thread_id.store(std::thread::id(), std::memory_order_release);
+  }
+
+  // ---- cycle trace
+
+  static std::int64_t now_ns() noexcept { return to_ns(Clock::now()); }
+
+  // Takes the trace the controller asked for. The one in use is published before it is used, so
+  // Bus::set_cycle_trace can wait until the previous one is let go.
+  void refresh_trace() noexcept {
+    CycleTrace* asked = trace_slot.load(std::memory_order_acquire);
+    while (asked != trace) {
+      trace_in_use.store(asked, std::memory_order_seq_cst);
+      trace = asked;
+      trace_open = false;
+      last_wait = {};
+      asked = trace_slot.load(std::memory_order_seq_cst);
+    }
+  }
+
+  // Files the tick being recorded (if any) and starts recording `tick` (unless the trace is full).
+  void trace_begin_tick(const CycleTick& tick, nanoseconds period) noexcept {
+    const std::size_t n = trace->size_.load(std::memory_order_relaxed);
+    if (trace_open && n < trace->records_.size()) {
+      trace->records_[n] = trace_tick;
+      trace->size_.store(n + 1, std::memory_order_release);
+    }
+    trace_open = trace->size_.load(std::memory_order_relaxed) < trace->records_.size();
+    if (!trace_open) return;
+    trace_tick = CycleTraceRecord{};
+    trace_tick.cycle = tick.cycle;
+    trace_tick.missed = tick.missed;
+    trace_tick.due_ns =
+        to_ns(tick.deadline) - static_cast<std::int64_t>(tick.missed) * period.count();
+    trace_tick.wait_entered_ns = last_wait.entered;
+    trace_tick.wait_until_ns = last_wait.until;
+    trace_tick.wait_returned_ns = last_wait.returned;
+    trace_tick.wait_got_frame = last_wait.frame;
+    trace_tick.woke_ns = to_ns(tick.woke_at);
+  }
+
+  // Realtime work sent at or after the traced tick began is the tick's.
+  bool traced_tick_owns(const RealtimeTransaction* rt) const noexcept {
+    return trace_open && rt->sent_timestamp_ns_ >= trace_tick.woke_ns;
   }
 
   void take_incoming() {
@@ -715,6 +777,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       ++rt->outstanding_;
     }
     if (f) (void)send_frame(*f, builder);
+    if (trace_open) trace_tick.sent_ns = now_ns();
   }
 
   // Builds and sends one frame of reliable datagrams, oldest transactions first. Returns false
@@ -807,7 +870,15 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
         cycle_changed.load(std::memory_order_seq_cst)) {
       timeout = nanoseconds(0);
     }
+    if (trace) {
+      last_wait.entered = now_ns();
+      last_wait.until = std::min(to_ns(until), to_ns(now) + timeout.count());
+    }
     auto received = link->receive(timeout);
+    if (trace) {
+      last_wait.returned = now_ns();
+      last_wait.frame = received && received.value();
+    }
     sleeping.store(false, std::memory_order_seq_cst);
     cycle_changed.store(false, std::memory_order_relaxed);
     if (!received) {
@@ -883,6 +954,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
         reply.circulating = d.header.circulating;
         rt->reply_timestamp_ns_ = received.timestamp_ns;
         --rt->outstanding_;
+        if (trace_tick.reply_ns == 0 && traced_tick_owns(rt)) trace_tick.reply_ns = to_ns(now);
       }
       s.state = SlotState::free;
       if (k == 0) {
@@ -1121,7 +1193,27 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       p->in_fifo = false;
     }
     live.erase(p);
-    delete p;
+    // The completion's captures go here, as they always did; the memory (the transaction's
+    // buffers, the Pending itself) is freed by the next submitting thread: a free() here would
+    // take the lock of the malloc arena the submitter allocated it from, which a thread of normal
+    // priority may hold while preempted (priority inversion: milliseconds at SCHED_FIFO,
+    // docs/BENCHMARKS.md "Cycle-start lateness").
+    p->completion = nullptr;
+    Pending* head = graveyard.load(std::memory_order_relaxed);
+    do {
+      p->queue_next = head;
+    } while (!graveyard.compare_exchange_weak(head, p, std::memory_order_release,
+                                              std::memory_order_relaxed));
+  }
+
+  // Frees what the bus thread finished with (any thread but the bus thread; or once it ended).
+  void free_finished() noexcept {
+    Pending* p = graveyard.exchange(nullptr, std::memory_order_acquire);
+    while (p != nullptr) {
+      Pending* next = p->queue_next;
+      delete p;
+      p = next;
+    }
   }
 
   void finish_realtime(RealtimeTransaction* rt, Clock::time_point now) {
@@ -1152,6 +1244,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
 
   // The last touch of `rt`: once its mutex is released its owner may destroy it.
   void complete_realtime(RealtimeTransaction* rt, RealtimeStatus status) {
+    const bool traced = traced_tick_owns(rt);
     stats.realtime_completed.add();
     rt->status_.store(status, std::memory_order_release);
     if (rt->completion_) {
@@ -1161,6 +1254,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
         stats.callback_exceptions.add();
       }
     }
+    if (traced) trace_tick.completed_ns = now_ns();
     std::lock_guard lock(rt->wait_mutex_);
     rt->completions_.fetch_add(1, std::memory_order_release);
     rt->stage_.store(RealtimeTransaction::Stage::done, std::memory_order_release);
@@ -1327,6 +1421,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     tick.nominal = cycle.nominal + behind * cycle.period;
     tick.woke_at = now;
     tick.missed = static_cast<std::uint64_t>(behind);
+    if (trace) trace_begin_tick(tick, cycle.period);
     in_cycle_call = true;
     try {
       cycle.function(tick);
@@ -1334,6 +1429,7 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       stats.callback_exceptions.add();
     }
     in_cycle_call = false;
+    if (trace_open) trace_tick.participants_ns = now_ns();
     stats.cycles.add();
     stats.cycle_deadlines_missed.add(tick.missed);
     ++cycle.count;
@@ -1432,6 +1528,7 @@ Bus::~Bus() {
   if (!impl_) return;
   stop();
   impl_->link->close();
+  impl_->free_finished();
 }
 
 Result<void> Bus::start() {
@@ -1520,6 +1617,7 @@ void Bus::stop() {
     s.thread.join();
   }
   s.phase.store(Impl::Phase::stopped);
+  s.free_finished();
 }
 
 bool Bus::running() const noexcept {
@@ -1545,6 +1643,7 @@ Result<void> Bus::submit(Transaction transaction, Completion completion, Transac
     if (s.phase.load() != Impl::Phase::running) return s.not_running_error();
     return s.link_failed_error(summary(transaction));
   }
+  s.free_finished();
   auto p = std::make_unique<Impl::Pending>();
   const auto datagrams = transaction.datagrams();
   p->entries.resize(datagrams.size());
@@ -1734,6 +1833,30 @@ CycleSteering Bus::cycle_steering() const noexcept {
   out.pending = nanoseconds(impl_->steer_pending_ns.load(std::memory_order_relaxed));
   out.steps = impl_->steer_steps.load(std::memory_order_relaxed);
   return out;
+}
+
+Result<void> Bus::set_cycle_trace(CycleTrace* trace) {
+  if (!impl_) return Error(Errc::invalid_argument, "bus created without a link");
+  auto& s = *impl_;
+  if (s.on_bus_thread()) {
+    return Error(Errc::wrong_state,
+                 "set_cycle_trace() called on the bus thread (it would wait for itself)");
+  }
+  CycleTrace* const previous = s.trace_slot.exchange(trace, std::memory_order_seq_cst);
+  if (previous == nullptr || previous == trace) return ok();
+  // The bus thread lets go of it at its next loop turn (or when it ends); wake it from its wait.
+  const auto give_up = Clock::now() + 5s;
+  while (s.trace_in_use.load(std::memory_order_seq_cst) == previous) {
+    if (Clock::now() > give_up) {
+      return Error(Errc::timeout,
+                   fmt::format("bus on link {}: the bus thread did not finish its loop turn "
+                               "within 5 s (a completion or cycle function blocking?)",
+                               s.link_name));
+    }
+    s.wake();
+    std::this_thread::sleep_for(50us);
+  }
+  return ok();
 }
 
 BusStats Bus::stats() const noexcept {

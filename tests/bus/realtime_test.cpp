@@ -307,6 +307,62 @@ TEST(Realtime, CycleFunctionRunsOnAbsoluteDeadlinesOnTheBusThread) {
   EXPECT_FALSE(bus->set_cycle(1ms, CycleFunction{}));
 }
 
+TEST(Realtime, CycleTraceRecordsEveryTicksStepsInOrder) {
+  auto segment = segment_with_process_image();
+  auto bus = start_bus(segment);
+  RealtimeTransaction rt(lrw_layout());
+  constexpr auto kPeriod = 2ms;
+  std::atomic<int> refused_on_bus{0};
+  ASSERT_TRUE(bus->set_cycle(kPeriod, [&](const CycleTick&) {
+    CycleTrace none(1);
+    const auto r = bus->set_cycle_trace(&none);
+    if (!r && r.error().code() == Errc::wrong_state) refused_on_bus.fetch_add(1);
+    if (!rt.pending()) (void)bus->submit_realtime(rt, 1ms);
+  }));
+  CycleTrace trace(12);
+  EXPECT_EQ(trace.size(), 0u);
+  ASSERT_TRUE(bus->set_cycle_trace(&trace));
+  ASSERT_TRUE(eventually([&] { return trace.full(); }));
+  ASSERT_TRUE(bus->set_cycle_trace(nullptr));
+  EXPECT_EQ(trace.size(), trace.capacity());
+  std::size_t exchanged = 0;
+  for (std::size_t i = 0; i < trace.size(); ++i) {
+    const CycleTraceRecord& r = trace[i];
+    if (i > 0) {
+      EXPECT_EQ(r.cycle, trace[i - 1].cycle + 1) << i;
+    }
+    EXPECT_EQ(r.due_ns % std::chrono::nanoseconds(kPeriod).count(), 0) << i;
+    EXPECT_LE(r.due_ns, r.woke_ns) << i;
+    EXPECT_LE(r.woke_ns, r.participants_ns) << i;
+    EXPECT_GE(r.turns, 1u) << i;
+    if (i > 0) {
+      // The wait before the tick never asked to sleep past its deadline.
+      EXPECT_GT(r.wait_entered_ns, 0) << i;
+      EXPECT_LE(r.wait_entered_ns, r.wait_returned_ns) << i;
+      EXPECT_LE(r.wait_returned_ns, r.woke_ns) << i;
+      EXPECT_LE(r.wait_until_ns, r.due_ns) << i;
+    }
+    if (r.sent_ns != 0) {
+      ++exchanged;
+      EXPECT_LE(r.participants_ns, r.sent_ns) << i;
+      EXPECT_LE(r.sent_ns, r.reply_ns) << i;
+      EXPECT_LE(r.reply_ns, r.completed_ns) << i;
+    }
+  }
+  EXPECT_GE(exchanged, trace.size() - 2);
+  EXPECT_GT(refused_on_bus.load(), 0);
+  // Detached: nothing more is written, and a trace can be swapped while the cycle runs.
+  CycleTrace second(1000);
+  ASSERT_TRUE(bus->set_cycle_trace(&second));
+  ASSERT_TRUE(eventually([&] { return second.size() >= 2; }));
+  ASSERT_TRUE(bus->set_cycle_trace(nullptr));
+  const std::size_t kept = second.size();
+  std::this_thread::sleep_for(4 * kPeriod);
+  EXPECT_EQ(second.size(), kept);
+  bus->clear_cycle();
+  ASSERT_TRUE(rt.wait_for(1s));
+}
+
 TEST(Realtime, SteeredCycleMovesItsDeadlinesNotItsGrid) {
   auto segment = segment_with_process_image();
   auto bus = start_bus(segment);

@@ -46,6 +46,7 @@
 // deadline, SCHED_FIFO and CPU pinning (already possible through BusOptions::on_thread_start).
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -53,6 +54,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <ecat/bus/realtime.hpp>
 #include <ecat/bus/transaction.hpp>
@@ -180,6 +182,48 @@ struct CycleSteering {
 };
 using CycleFunction = std::function<void(const CycleTick&)>;
 
+// One tick of the cycle as the bus thread lived it (Bus::set_cycle_trace): where a late tick's
+// time went. Steady-clock nanoseconds since the clock's epoch; 0 where the step did not happen.
+struct CycleTraceRecord {
+  std::uint64_t cycle = 0;   // CycleTick::cycle
+  std::uint64_t missed = 0;  // CycleTick::missed
+  // The deadline that was due: CycleTick::deadline minus `missed` periods.
+  std::int64_t due_ns = 0;
+  // The bus thread's last wait in Link::receive() before this tick (the one the deadline should
+  // have ended): when it went in, the time it asked to be woken at (the deadline, or earlier for
+  // a frame timeout), when receive() returned, and whether it returned with a frame.
+  std::int64_t wait_entered_ns = 0;
+  std::int64_t wait_until_ns = 0;
+  std::int64_t wait_returned_ns = 0;
+  bool wait_got_frame = false;
+  std::int64_t woke_ns = 0;          // CycleTick::woke_at: the loop turn that ran the tick began
+  std::int64_t participants_ns = 0;  // the cycle function (the participants' on_tick) returned
+  std::int64_t sent_ns = 0;          // the realtime work they submitted was handed to the link
+  // The first reply to that work was matched; the last of it completed (its completion, e.g. a
+  // domain publishing its inputs and running its per-cycle callback, returned). 0: not before
+  // the next tick.
+  std::int64_t reply_ns = 0;
+  std::int64_t completed_ns = 0;
+  std::uint32_t turns = 0;  // turns of the bus thread's loop from this tick to the next
+};
+
+// Preallocated storage for Bus::set_cycle_trace: records the ticks from the one after it is
+// attached on, until it is full. Readable from any thread while the bus writes: records below
+// size() are final.
+class CycleTrace {
+ public:
+  explicit CycleTrace(std::size_t capacity) : records_(capacity) {}
+  std::size_t capacity() const noexcept { return records_.size(); }
+  std::size_t size() const noexcept { return size_.load(std::memory_order_acquire); }
+  bool full() const noexcept { return size() >= capacity(); }
+  const CycleTraceRecord& operator[](std::size_t i) const noexcept { return records_[i]; }
+
+ private:
+  friend class Bus;
+  std::vector<CycleTraceRecord> records_;
+  std::atomic<std::size_t> size_{0};
+};
+
 class Bus {
  public:
   explicit Bus(std::unique_ptr<link::Link> link, BusOptions options = {});
@@ -236,6 +280,12 @@ class Bus {
   void shift_cycle(std::chrono::nanoseconds step) noexcept;
   void reset_cycle_steering() noexcept;
   CycleSteering cycle_steering() const noexcept;
+
+  // Diagnostics: records every tick from the next one on into `trace` (see CycleTraceRecord)
+  // until it is full, or until replaced; nullptr stops. Off, it costs the bus thread one atomic
+  // load per loop turn. Returns once the bus thread no longer touches the previous trace (which
+  // may then be destroyed). Refused on the bus thread (Errc::wrong_state).
+  Result<void> set_cycle_trace(CycleTrace* trace);
 
   BusStats stats() const noexcept;
   BusInfo info() const;
