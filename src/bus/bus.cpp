@@ -1643,7 +1643,7 @@ Result<void> Bus::submit(Transaction transaction, Completion completion, Transac
     if (s.phase.load() != Impl::Phase::running) return s.not_running_error();
     return s.link_failed_error(summary(transaction));
   }
-  s.free_finished();
+  if (!s.on_bus_thread()) s.free_finished();  // (a completion submitting leaves it to others)
   auto p = std::make_unique<Impl::Pending>();
   const auto datagrams = transaction.datagrams();
   p->entries.resize(datagrams.size());
