@@ -262,6 +262,11 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   // ---- reliable submissions (any thread -> bus thread)
   // Transactions the bus thread finished with, linked through queue_next; freed by submitters.
   std::atomic<Pending*> graveyard{nullptr};
+  std::atomic<std::size_t> graveyard_size{0};
+  // Beyond this many the bus thread frees them itself: a chain of submissions made only from
+  // completions on the bus thread has no other thread to free them, and the memory must stay
+  // bounded (a rare free() there beats growing without end).
+  static constexpr std::size_t kGraveyardBound = 1024;
   std::mutex incoming_mutex;
   Queue incoming;          // guarded by incoming_mutex
   bool accepting = false;  // guarded by incoming_mutex
@@ -1204,14 +1209,19 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
       p->queue_next = head;
     } while (!graveyard.compare_exchange_weak(head, p, std::memory_order_release,
                                               std::memory_order_relaxed));
+    if (graveyard_size.fetch_add(1, std::memory_order_relaxed) + 1 > kGraveyardBound) {
+      free_finished();
+    }
   }
 
-  // Frees what the bus thread finished with (any thread but the bus thread; or once it ended).
+  // Frees what the bus thread finished with (any thread but the bus thread, or once it ended;
+  // the bus thread only beyond kGraveyardBound).
   void free_finished() noexcept {
     Pending* p = graveyard.exchange(nullptr, std::memory_order_acquire);
     while (p != nullptr) {
       Pending* next = p->queue_next;
       delete p;
+      graveyard_size.fetch_sub(1, std::memory_order_relaxed);
       p = next;
     }
   }
@@ -1886,6 +1896,7 @@ BusStats Bus::stats() const noexcept {
   out.callback_exceptions = c.callback_exceptions.get();
   out.cycles = c.cycles.get();
   out.cycle_deadlines_missed = c.cycle_deadlines_missed.get();
+  out.finished_awaiting_free = impl_->graveyard_size.load(std::memory_order_relaxed);
   return out;
 }
 

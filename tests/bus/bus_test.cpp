@@ -5,6 +5,8 @@
 #include <atomic>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <future>
 #include <string>
 #include <thread>
 #include <vector>
@@ -154,6 +156,38 @@ TEST(Bus, SingleTransactionRoundTrip) {
   EXPECT_TRUE(info.running);
   EXPECT_EQ(info.frame_timeout, 25ms);
   EXPECT_EQ(info.link_stats.frames_sent, 1u);
+}
+
+// Finished transactions are freed by the next thread that submits, never by the bus thread...
+// unless only completions on the bus thread submit: then the bus thread frees them itself
+// beyond a bound, so the memory stays bounded.
+TEST(Bus, FinishedTransactionsAreFreedByTheNextSubmitterAndStayBounded) {
+  auto segment = make_segment();
+  auto bus = start_bus(segment);
+  std::atomic<int> left{3000};
+  std::promise<void> done;
+  std::function<void(Result<TransactionResult>)> again = [&](Result<TransactionResult> r) {
+    EXPECT_TRUE(r);
+    if (--left == 0) {
+      done.set_value();
+      return;
+    }
+    Transaction tx;
+    tx.fprd(0x1001, 0x0130, 2, 1);
+    EXPECT_TRUE(bus->submit(std::move(tx), again));  // on the bus thread
+  };
+  Transaction first;
+  first.fprd(0x1001, 0x0130, 2, 1);
+  ASSERT_TRUE(bus->submit(std::move(first), again));
+  ASSERT_EQ(done.get_future().wait_for(30s), std::future_status::ready);
+  EXPECT_GT(bus->stats().finished_awaiting_free, 0u);
+  EXPECT_LE(bus->stats().finished_awaiting_free, 1024u);
+  // A submission from another thread frees them: what waits after it is at most itself and the
+  // chain's last, which joins the list after its completion said done.
+  Transaction other;
+  other.fprd(0x1001, 0x0130, 2, 1);
+  ASSERT_TRUE(bus->transact(std::move(other)));
+  EXPECT_LE(bus->stats().finished_awaiting_free, 2u);
 }
 
 TEST(Bus, PositionAddressingReachesTheSlaveAtThatPosition) {

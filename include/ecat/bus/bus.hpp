@@ -131,6 +131,9 @@ struct BusStats {
   std::uint64_t callback_exceptions = 0;  // completions that threw (swallowed to keep the bus up)
   std::uint64_t cycles = 0;               // cycle function invocations
   std::uint64_t cycle_deadlines_missed = 0;
+  // Finished reliable transactions whose memory waits for a submitting thread to free it (the
+  // bus thread frees nothing unless more than 1,024 wait: docs/ARCHITECTURE.md, "Bus").
+  std::uint64_t finished_awaiting_free = 0;
 };
 
 struct BusInfo {
