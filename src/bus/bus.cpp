@@ -240,6 +240,21 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     frame_timeout_ns.store(options.frame_timeout.count());
     reliable_timeout_ns.store(options.frame_timeout.count());
     send_buffer.assign(max_frame, 0);
+    tell_link_budget();
+  }
+
+  // The link is told how long a reply may take (Link::set_frame_budget): the frame timeout,
+  // and while a cycle runs no more than three periods, so that a redundant link waiting for a
+  // late side of the ring (half the budget at most) holds a cycle's frame for no longer than a
+  // period and a half, and a cable cut delays the frames then in flight by at most that, once
+  // (with three or more realtime frames in flight per sender, as the master's domains keep by
+  // default, no cycle is lost to it). From the setters, never on the cycle path.
+  void tell_link_budget() {
+    std::lock_guard lock(budget_mutex);
+    nanoseconds budget = frame_timeout();
+    const nanoseconds period(cycle_period_ns.load(std::memory_order_relaxed));
+    if (period > nanoseconds(0)) budget = std::min(budget, 3 * period);
+    link->set_frame_budget(budget);
   }
 
   // ---- configuration (fixed after construction)
@@ -249,6 +264,8 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   std::size_t max_frame = 0;
   std::size_t reliable_index_limit = kIndexCount;
   std::atomic<std::int64_t> frame_timeout_ns{0};
+  std::atomic<std::int64_t> cycle_period_ns{0};      // 0 while no cycle is set
+  std::mutex budget_mutex;                           // tell_link_budget()
   std::atomic<std::int64_t> reliable_timeout_ns{0};  // >= frame_timeout_ns (adaptive)
 
   // ---- lifecycle
@@ -1784,6 +1801,7 @@ Result<void> Bus::set_frame_timeout(nanoseconds timeout) {
   }
   impl_->frame_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
   impl_->reliable_timeout_ns.store(timeout.count(), std::memory_order_relaxed);
+  impl_->tell_link_budget();
   return ok();
 }
 
@@ -1806,11 +1824,16 @@ Result<void> Bus::set_cycle(nanoseconds period, CycleFunction function,
   // No first deadline: install_cycle() takes the next multiple of the period (steered).
   if (first_deadline) next.next = *first_deadline;
   impl_->install_cycle(std::move(next));
+  impl_->cycle_period_ns.store(period.count(), std::memory_order_relaxed);
+  impl_->tell_link_budget();
   return ok();
 }
 
 void Bus::clear_cycle() {
-  if (impl_) impl_->install_cycle(Impl::Cycle{});
+  if (!impl_) return;
+  impl_->install_cycle(Impl::Cycle{});
+  impl_->cycle_period_ns.store(0, std::memory_order_relaxed);
+  impl_->tell_link_budget();
 }
 
 void Bus::set_cycle_rate(double rate_ppm) noexcept {

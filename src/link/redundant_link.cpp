@@ -157,9 +157,15 @@ struct RedundantLink::Impl {
   std::mutex mutex;  // the exchanges and what follows; never held while waiting
   std::vector<Exchange> slots = std::vector<Exchange>(kSlots);
   std::uint64_t next_sequence = 1;
-  // Completed exchanges in a row in which a leg's side of the ring returned nothing: a lone
-  // bounce from the other side then completes at once instead of waiting for the window.
+  // Completed exchanges in a row in which a leg's side of the ring returned nothing (a
+  // conditional NOP selector does not apply while the other side is silent: port_copy_of).
   std::array<unsigned, 2> silent{};
+  // Per side: since when it owes a frame, i.e. the send time of the oldest exchange a lone bounce
+  // waited in for that side's half since the side last returned anything (`kNever`: it owes
+  // nothing). A side that has owed one for the whole patience() is taken as cut off: a lone
+  // bounce then completes at once, so a dead side costs the frames in flight one patience, once.
+  static constexpr Clock::time_point kNever = Clock::time_point::max();
+  std::array<Clock::time_point, 2> owed_since{kNever, kNever};
   std::array<std::uint8_t, wire::kMaxFrameSize> out{};
   // Per-port frame contents (set_port_nop): each port's selector, and the copy a port sends
   // when it differs (send() only: one thread sends at a time).
@@ -181,6 +187,13 @@ struct RedundantLink::Impl {
       send_errors{0}, receive_errors{0}, ignored{0};
   std::atomic<std::uint64_t> forward_crosses{0}, reverse_crosses{0}, passthrough{0}, merged{0},
       lone{0}, merge_timeouts{0}, unknown_sources{0}, stale{0}, breaks{0}, heals{0};
+
+  // How long a side may owe its half of a frame before it is taken as cut off: half the frame
+  // budget (set_frame_budget), and at least merge_window.
+  nanoseconds patience() const {
+    return std::max(options.merge_window,
+                    nanoseconds(frame_budget_ns.load(std::memory_order_relaxed)) / 2);
+  }
 
   void set_ring(RingState state) {
     const RingState was = ring.exchange(state, std::memory_order_relaxed);
@@ -270,6 +283,7 @@ struct RedundantLink::Impl {
       return std::nullopt;
     }
     e->arrived[at] = true;
+    owed_since[at] = kNever;  // this side answers (late, perhaps): it owes nothing any more
     if (wire::is_passthrough_copy(sent, frame.frame)) {
       silent[at] = 0;
       passthrough.fetch_add(1, std::memory_order_relaxed);
@@ -304,15 +318,18 @@ struct RedundantLink::Impl {
         bytes_received.fetch_add(result->size(), std::memory_order_relaxed);
         return ReceivedFrame{*result, e->last_arrival_ns, options.primary_mac};
       }
-      // The other side sent nothing, already came back empty, or has been silent lately.
-      if (!e->leg_sent[other(s)] || e->arrived[other(s)] || silent[other(s)] > 0) {
-        return complete_lone(*e, s, false);
-      }
-      // The window: merge_window from now, or half the frame's budget from its send if later
-      // (the other side's reply may be late on a loaded host; the lone bounce must still reach
-      // the sender within its budget).
-      const auto budget = nanoseconds(frame_budget_ns.load(std::memory_order_relaxed));
-      e->window_end = std::max(Clock::now() + options.merge_window, e->sent_at + budget / 2);
+      // The other side sent nothing, or already came back empty.
+      const std::size_t o = other(s);
+      if (!e->leg_sent[o] || e->arrived[o]) return complete_lone(*e, s, false);
+      // The window: the other side's half is awaited until it has owed a frame for the whole
+      // patience (from the oldest frame it still owes, not from this one: frames sent after a
+      // cable was cut do not each wait it again), and at least merge_window from now. A side that
+      // owed one longer is cut off: no wait.
+      const Clock::time_point now = Clock::now();
+      owed_since[o] = std::min(owed_since[o], e->sent_at);
+      const Clock::time_point patience_end = owed_since[o] + patience();
+      if (now >= patience_end) return complete_lone(*e, s, false);
+      e->window_end = std::max(now + options.merge_window, patience_end);
       return std::nullopt;
     }
     if (e->state != SlotState::waiting) return std::nullopt;  // answered already

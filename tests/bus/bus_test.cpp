@@ -98,6 +98,54 @@ TEST(Transaction, BuilderMistakesAreReportedBySubmit) {
   EXPECT_EQ(segment->frames_sent(), 0u);
 }
 
+// A link that records the frame budget the bus tells it (Link::set_frame_budget).
+class BudgetLink final : public link::Link {
+ public:
+  BudgetLink(std::unique_ptr<link::Link> inner, std::shared_ptr<std::atomic<std::int64_t>> budget)
+      : inner_(std::move(inner)), budget_(std::move(budget)) {}
+  Result<void> send(wire::Bytes frame) override { return inner_->send(frame); }
+  Result<std::optional<link::ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
+    return inner_->receive(timeout);
+  }
+  void interrupt() override { inner_->interrupt(); }
+  void close() override { inner_->close(); }
+  std::string name() const override { return inner_->name(); }
+  link::LinkStats stats() const override { return inner_->stats(); }
+  void set_frame_budget(std::chrono::nanoseconds budget) override {
+    budget_->store(budget.count());
+  }
+
+ private:
+  std::unique_ptr<link::Link> inner_;
+  std::shared_ptr<std::atomic<std::int64_t>> budget_;
+};
+
+// The link is told the frame timeout, bounded by three cycle periods while a cycle runs (a
+// redundant link waits for a late side of the ring up to half of it).
+TEST(Bus, TellsTheLinkItsFrameBudgetBoundedByThreeCyclePeriods) {
+  auto segment = make_segment();
+  auto budget = std::make_shared<std::atomic<std::int64_t>>(-1);
+  const auto told = [&] { return std::chrono::nanoseconds(budget->load()); };
+  BusOptions options;
+  options.frame_timeout = 25ms;
+  Bus bus(std::make_unique<BudgetLink>(FakeSegment::make_link(segment), budget), options);
+  EXPECT_EQ(told(), 25ms);
+  ASSERT_TRUE(bus.start());
+  ASSERT_TRUE(bus.set_frame_timeout(8ms));
+  EXPECT_EQ(told(), 8ms);
+  ASSERT_TRUE(bus.set_cycle(1ms, [](const CycleTick&) {}));
+  EXPECT_EQ(told(), 3ms);
+  ASSERT_TRUE(bus.set_frame_timeout(1500us));
+  EXPECT_EQ(told(), 1500us);
+  ASSERT_TRUE(bus.set_frame_timeout(20ms));
+  EXPECT_EQ(told(), 3ms);
+  ASSERT_TRUE(bus.set_cycle(4ms, [](const CycleTick&) {}));
+  EXPECT_EQ(told(), 12ms);
+  bus.clear_cycle();
+  EXPECT_EQ(told(), 20ms);
+  bus.stop();
+}
+
 // The bus thread carries BusOptions::thread_name (ps, top and perf show it), read back from
 // /proc/self/task/*/comm.
 TEST(Bus, ThreadIsNamed) {

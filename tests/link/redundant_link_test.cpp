@@ -344,6 +344,76 @@ TEST(RedundantLink, ALateSideIsMergedWithinHalfTheFrameBudget) {
   EXPECT_EQ(f.link->status().merge_timeouts, 1u);
 }
 
+// The patience (half the frame budget) runs from the oldest frame a side owes, not from each
+// frame: a side stalled across several frames (a descheduled thread) is waited for and merged for
+// each; one that stops answering delays the frames in flight together, once, and later frames
+// are handed on at once until it answers again.
+TEST(RedundantLink, ASideOwingFramesIsWaitedForFromTheOldestOnce) {
+  Fixture f;                        // merge window 500 us
+  f.link->set_frame_budget(200ms);  // patience 100 ms
+  f.ring.shape = ToyRing::Shape::break_after;
+  f.ring.break_after = 1;
+  const auto lrw_wkc = [](const std::optional<ReceivedFrame>& r) {
+    auto decoded = wire::decode_frame(r->frame);
+    EXPECT_TRUE(decoded);
+    return decoded ? (*decoded.frame->begin()).wkc : std::uint16_t{0};
+  };
+  // Stalled past the merge window for two frames, then answering: both merged.
+  f.ring.held[1] = true;
+  ASSERT_TRUE(f.link->send(lrw_frame(0x80)));
+  auto none = f.link->receive(5ms);
+  ASSERT_TRUE(none);
+  EXPECT_FALSE(*none);
+  ASSERT_TRUE(f.link->send(lrw_frame(0x82)));
+  none = f.link->receive(5ms);
+  ASSERT_TRUE(none);
+  EXPECT_FALSE(*none);
+  f.ring.held[1] = false;
+  for (int i = 0; i < 2; ++i) {
+    auto r = f.link->receive(50ms);
+    ASSERT_TRUE(r);
+    ASSERT_TRUE(*r);
+    EXPECT_EQ(lrw_wkc(*r), 4);
+  }
+  EXPECT_EQ(f.link->status().merged, 2u);
+  EXPECT_EQ(f.link->status().merge_timeouts, 0u);
+
+  // Gone for good: a frame sent well after the first still owed is handed on with it, by the
+  // first's patience, not 60 ms after it.
+  f.ring.held[1] = true;
+  ASSERT_TRUE(f.link->send(lrw_frame(0x84)));
+  none = f.link->receive(60ms);
+  ASSERT_TRUE(none);
+  EXPECT_FALSE(*none);
+  ASSERT_TRUE(f.link->send(lrw_frame(0x86)));
+  auto first = f.link->receive(1s);
+  ASSERT_TRUE(first);
+  ASSERT_TRUE(*first);
+  EXPECT_EQ(lrw_wkc(*first), 1);  // the primary's side alone
+  const auto first_at = std::chrono::steady_clock::now();
+  auto second = f.link->receive(1s);
+  ASSERT_TRUE(second);
+  ASSERT_TRUE(*second);
+  EXPECT_LT(std::chrono::steady_clock::now() - first_at, 40ms);
+  EXPECT_EQ(f.link->status().merge_timeouts, 2u);
+  // Later frames: at once, no window.
+  ASSERT_TRUE(f.link->send(lrw_frame(0x88)));
+  auto third = f.link->receive(0ns);
+  ASSERT_TRUE(third);
+  ASSERT_TRUE(*third);
+  EXPECT_EQ(f.link->status().merge_timeouts, 2u);
+  EXPECT_EQ(f.link->status().lone_bounces, 3u);
+  // Answering again (the held halves arrive late and are no second reply): waited for again.
+  f.ring.held[1] = false;
+  auto late = f.link->receive(5ms);
+  ASSERT_TRUE(late);
+  EXPECT_FALSE(*late);
+  const auto r = exchange(*f.link, 0x8A);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->lrw_wkc, 4);
+  EXPECT_EQ(f.link->status().merged, 3u);
+}
+
 TEST(RedundantLink, CableCutAtTheMasterWaitsOnceThenNotAgain) {
   for (auto shape : {ToyRing::Shape::primary_cut, ToyRing::Shape::secondary_cut}) {
     Fixture f(2ms);

@@ -180,8 +180,12 @@ TEST(Scenario39, RedundantPrimaryCutKeepsOperational) {
   auto status = ring->redundant_link->status();
   EXPECT_EQ(status.ring, RingState::broken);
   EXPECT_GT(status.lone_bounces, 0u);
-  // Only the first lone bounce waited out the merge window: the silent side is remembered.
-  EXPECT_LE(status.merge_timeouts, 2u);
+  EXPECT_GT(status.merge_timeouts, 0u);
+  // Only the frames in flight when the cable was cut waited for the primary's side (together,
+  // for one patience): the silent side is remembered, later lone bounces are handed on at once.
+  ASSERT_TRUE(cycles_pass(*ring, 20));
+  EXPECT_EQ(ring->redundant_link->status().merge_timeouts, status.merge_timeouts);
+  EXPECT_GT(ring->redundant_link->status().lone_bounces, status.lone_bounces + 19);
   expect_flows_through(*ring, RedundantTopology::whole_ring());
   EXPECT_EQ(ring->redundant_link->status().ring, RingState::whole);
   expect_never_recovered(*ring);
@@ -430,13 +434,24 @@ TEST(RedundantReplyFaults, ReorderedAndDelayedRepliesOnABrokenRing) {
   EXPECT_GT(ring->redundant_link->status().merged, status.merged + 40) << debug_status(*ring);
   EXPECT_LE(ring->redundant_link->status().merge_timeouts, status.merge_timeouts + 1)
       << debug_status(*ring);
-  // Beyond it: the lone bounce is handed on after the window (that cycle short), the late half
-  // is no second reply.
+  // Late by more than the merge window but within the patience (half the budget the bus tells
+  // the link: three 5 ms periods, so 7.5 ms from the oldest frame that side owes): still merged
+  // (on a loaded host the bus thread may come to the reply late for one of the two).
   status = ring->redundant_link->status();
   expect_copes_with(
       *ring,
       sim::fault::next(
           sim::fault::at_port(sim::fault::delay_replies(3ms), RedundantPort::secondary), 2),
+      1);
+  EXPECT_LE(ring->redundant_link->status().merge_timeouts, status.merge_timeouts + 1)
+      << debug_status(*ring);
+  // Beyond it: the lone bounce is handed on after the patience (that cycle short), a frame sent
+  // while the side still owes that one waits no longer, the late halves are no second reply.
+  status = ring->redundant_link->status();
+  expect_copes_with(
+      *ring,
+      sim::fault::next(
+          sim::fault::at_port(sim::fault::delay_replies(8ms), RedundantPort::secondary), 2),
       2);
   EXPECT_GT(ring->redundant_link->status().merge_timeouts, status.merge_timeouts)
       << debug_status(*ring);

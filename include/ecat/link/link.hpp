@@ -203,10 +203,10 @@ class Link {
   virtual Result<void> set_port_nop(Port port, NopSlot slot,
                                     std::optional<DatagramSelector> selector);
 
-  // How long the sender waits for the reply to a frame (a sender that talks to the link itself
-  // says so; the bus does not: see docs/ARCHITECTURE.md "Cable redundancy"). A redundant link
-  // lets a lone bounce wait for its complement up to half of it after the send
-  // (RedundantLinkOptions::merge_window). Any thread; ignored by default.
+  // How long the sender waits for the reply to a frame (the bus tells its frame timeout, bounded
+  // by three cycle periods while a cycle runs). A redundant link waits for a late side of the
+  // ring up to half of it from the oldest frame that side owes (RedundantLink, the merge rule).
+  // Any thread; ignored by default.
   virtual void set_frame_budget(std::chrono::nanoseconds budget);
 
   // Largest EtherCAT frame send() accepts.

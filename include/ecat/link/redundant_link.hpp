@@ -6,10 +6,20 @@
 // a whole ring) is the reply; the unprocessed copy that only passed through the ring is dropped;
 // two bounces (each side of a broken ring processed part of the slaves) are merged byte by byte
 // with their working counters summed, so the bus sees one reply with the whole ring's working
-// counter wherever the ring is broken. A lone bounce waits for its complement `merge_window`, or
-// until half the frame budget after the send if that is later, and not at all when the other leg
-// sent nothing or has been silent in the exchanges before (a port cut at the master): a broken ring
-// costs no cycle.
+// counter wherever the ring is broken.
+//
+// How long a lone bounce waits for its complement (the merge rule): the other side is awaited
+// while it "owes" frames for less than the patience, max(merge_window, half the frame budget
+// given by set_frame_budget); the time runs from the send of the oldest frame that side still
+// owes (a lone bounce waited for its half and nothing at all has come back on that port since),
+// not from each frame, and a lone bounce waits at least merge_window from its arrival. A side that
+// has owed a frame for the whole patience is taken as cut off: lone bounces complete at once
+// until anything arrives on its port again. It is never waited for when its port sent nothing or
+// its copy already came back empty. So a side answering late on a loaded host (a descheduled
+// thread, a slow NIC) is merged for every frame as long as it is less than a patience late, and a
+// cable cut at the master delays only the frames then in flight, together, by one patience, once.
+// The bus gives the link its frame timeout, bounded by three cycle periods while a cycle runs
+// (Bus::set_cycle), so on a master the patience is at most a period and a half.
 //
 // Port health is observed (send and receive errors, what arrives), never taken from the carrier:
 // a leg that fails is still tried on every frame, and reopened at most once a second when its
@@ -39,11 +49,9 @@ struct RedundantLinkOptions {
   wire::MacAddress primary_mac{};
   wire::MacAddress secondary_mac{};
   // Least a lone bounce waits for its complement (from its arrival) while the other side may
-  // still answer; with a frame budget (set_frame_budget, from a sender that waits that long) it
-  // waits until
-  // half the budget after the frame was sent if that is later, so that a side answering late on
-  // a loaded host is still merged and the lone bounce still reaches the bus in time. Keep it
-  // below the bus's frame timeout.
+  // still answer, and the least patience (see the merge rule above): with a frame budget
+  // (set_frame_budget) the patience is half of it if that is longer. Keep it below the bus's
+  // frame timeout.
   std::chrono::nanoseconds merge_window = std::chrono::microseconds(500);
   // A failed leg is reopened at most this often (from send(), on the bus thread).
   std::chrono::nanoseconds reopen_interval = std::chrono::seconds(1);
@@ -78,7 +86,8 @@ class RedundantLink final : public Link {
   std::size_t max_frame_size() const override;
   // The datagrams matching `selector` go out as NOP on `port`'s copy only (Link::set_port_nop);
   // an arrival's are given back the request's command before it is classified and merged.
-  // A lone bounce waits up to half of it after the frame was sent (at least merge_window).
+  // The patience a late side gets is half of it (at least merge_window; the merge rule above).
+  // Any thread.
   void set_frame_budget(std::chrono::nanoseconds budget) override;
   Result<void> set_port_nop(Port port, NopSlot slot,
                             std::optional<DatagramSelector> selector) override;
