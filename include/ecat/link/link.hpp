@@ -111,7 +111,7 @@ struct RedundancyStatus {
   std::uint64_t passthrough_copies = 0;  // unprocessed copies dropped
   std::uint64_t merged = 0;              // replies merged from two bounces
   std::uint64_t lone_bounces = 0;        // replies from one bounce (the other side silent)
-  std::uint64_t merge_timeouts = 0;      // lone bounces handed on after the whole merge window
+  std::uint64_t merge_timeouts = 0;      // lone bounces handed on when their wait ran out
   std::uint64_t unknown_sources = 0;     // frames from neither port's address, handed on as is
   std::uint64_t stale = 0;               // arrivals for no frame in flight, dropped
   std::uint64_t ring_breaks = 0;         // whole -> broken changes seen
