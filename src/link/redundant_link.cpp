@@ -139,10 +139,16 @@ std::string describe(const RingBreak& b) {
       return fmt::format("at the primary port's cable (slave {}, station 0x{:04X}, port 0)",
                          b.before_position, b.before_station);
     case RingBreak::Where::secondary_cable:
-      return fmt::format("at the secondary port's cable (slave {}, station 0x{:04X}, port 1)",
-                         b.before_position, b.before_station);
+      return fmt::format("at the secondary port's cable (slave {}, station 0x{:04X}, port {})",
+                         b.before_position, b.before_station, b.before_port);
     case RingBreak::Where::between_slaves:
       break;
+  }
+  if (b.before_port != 1 || b.after_port != 0) {
+    return fmt::format(
+        "between slave {} (station 0x{:04X}, port {}) and slave {} (station 0x{:04X}, port {})",
+        b.before_position, b.before_station, b.before_port, b.after_position, b.after_station,
+        b.after_port);
   }
   return fmt::format("between slave {} (station 0x{:04X}) and slave {} (station 0x{:04X})",
                      b.before_position, b.before_station, b.after_position, b.after_station);

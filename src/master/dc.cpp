@@ -62,6 +62,68 @@ std::vector<std::size_t> DcPlan::dc_positions() const {
   return out;
 }
 
+Result<RingTree> ring_tree(std::span<const std::uint16_t> dl_status,
+                           std::span<const std::uint16_t> stations, bool ring_returns_to_master) {
+  const std::size_t n = dl_status.size();
+  const auto station = [&](std::size_t i) -> std::uint16_t {
+    return i < stations.size() ? stations[i] : 0;
+  };
+  RingTree tree;
+  tree.slaves.resize(n);
+  if (n == 0) return tree;
+  std::vector<std::array<bool, 4>> open(n);
+  for (std::size_t i = 0; i < n; ++i)
+    open[i] = open_ports(dl_status[i]);
+  struct Open {
+    std::size_t position;
+    std::size_t next;  // index into kDownstreamOrder
+  };
+  auto next_port = [&](Open& o) -> std::optional<std::uint8_t> {
+    while (o.next < kDownstreamOrder.size()) {
+      const std::uint8_t port = kDownstreamOrder[o.next];
+      if (open[o.position][port]) return port;
+      ++o.next;
+    }
+    return std::nullopt;
+  };
+  std::vector<Open> stack;
+  stack.push_back({0, 0});
+  for (std::size_t k = 1; k < n; ++k) {
+    std::optional<std::uint8_t> port;
+    while (!stack.empty() && !(port = next_port(stack.back())))
+      stack.pop_back();
+    if (stack.empty()) {
+      return Error(Errc::malformed,
+                   fmt::format("topology: {} has no open port left on any earlier slave to hang "
+                               "on (more slaves than open ports; DL status of slave 0 is 0x{:04X})",
+                               who(k, station(k)), dl_status[0]));
+    }
+    Open& parent = stack.back();
+    tree.slaves[k].parent = parent.position;
+    tree.slaves[k].parent_port = *port;
+    tree.slaves[parent.position].children[*port] = k;
+    ++parent.next;
+    stack.push_back({k, 0});
+  }
+  for (std::size_t k = 0; k < stack.size(); ++k) {
+    Open& o = stack[k];
+    if (auto port = next_port(o)) {
+      // The ring's way back to the master's second port leaves the deepest slave, once.
+      if (ring_returns_to_master && k + 1 == stack.size()) {
+        tree.return_port = *port;
+        ++o.next;
+        if (!next_port(o)) continue;
+        port = next_port(o);
+      }
+      return Error(Errc::malformed,
+                   fmt::format("topology: {} has port {} open (DL status 0x{:04X}) but no "
+                               "slave follows behind it",
+                               who(o.position, station(o.position)), *port, dl_status[o.position]));
+    }
+  }
+  return tree;
+}
+
 Result<DcPlan> plan_dc(std::span<const DcSlaveSnapshot> slaves, std::int64_t master_time_ns,
                        const DcPlanOptions& options) {
   const std::size_t n = slaves.size();
@@ -81,56 +143,19 @@ Result<DcPlan> plan_dc(std::span<const DcSlaveSnapshot> slaves, std::int64_t mas
     out.dc = slaves[i].dc_supported && times[i] && slaves[i].epu_time != 0;
   }
 
-  // Tree: slave k hangs on the next unused downstream port of the deepest earlier slave that
-  // still has one (depth-first frame order).
-  std::vector<std::array<std::optional<std::size_t>, 4>> children(n);
-  struct Open {
-    std::size_t position;
-    std::size_t next;  // index into kDownstreamOrder
-  };
-  auto next_port = [&](Open& o) -> std::optional<std::uint8_t> {
-    while (o.next < kDownstreamOrder.size()) {
-      const std::uint8_t port = kDownstreamOrder[o.next];
-      if (plan.slaves[o.position].open_ports[port]) return port;
-      ++o.next;
-    }
-    return std::nullopt;
-  };
-  std::vector<Open> stack;
-  stack.push_back({0, 0});
-  for (std::size_t k = 1; k < n; ++k) {
-    std::optional<std::uint8_t> port;
-    while (!stack.empty() && !(port = next_port(stack.back())))
-      stack.pop_back();
-    if (!stack.empty()) {
-      Open& parent = stack.back();
-      plan.slaves[k].parent = parent.position;
-      plan.slaves[k].parent_port = *port;
-      children[parent.position][*port] = k;
-      ++parent.next;
-      stack.push_back({k, 0});
-      continue;
-    }
-    return Error(Errc::malformed,
-                 fmt::format("DC topology: {} has no open port left on any earlier slave to hang "
-                             "on (more slaves than open ports; DL status of slave 0 is 0x{:04X})",
-                             who(k, slaves[k].station), slaves[0].dl_status));
+  std::vector<std::uint16_t> dl(n);
+  std::vector<std::uint16_t> stations(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    dl[i] = slaves[i].dl_status;
+    stations[i] = slaves[i].station;
   }
-  for (std::size_t k = 0; k < stack.size(); ++k) {
-    Open& o = stack[k];
-    if (auto port = next_port(o)) {
-      // The ring's way back to the master's second port leaves the deepest slave, once.
-      if (options.ring_returns_to_master && k + 1 == stack.size()) {
-        ++o.next;
-        if (!next_port(o)) continue;
-        port = next_port(o);
-      }
-      return Error(Errc::malformed,
-                   fmt::format("DC topology: {} has port {} open (DL status 0x{:04X}) but no "
-                               "slave follows behind it",
-                               who(o.position, slaves[o.position].station), *port,
-                               slaves[o.position].dl_status));
-    }
+  auto tree = ring_tree(dl, stations, options.ring_returns_to_master);
+  if (!tree) return Error(tree.error().code(), "DC " + tree.error().message());
+  std::vector<std::array<std::optional<std::size_t>, 4>> children(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    plan.slaves[i].parent = tree->slaves[i].parent;
+    plan.slaves[i].parent_port = tree->slaves[i].parent_port;
+    children[i] = tree->slaves[i].children;
   }
 
   // Arrival times: parents come before their children in ring order.

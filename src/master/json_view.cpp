@@ -184,10 +184,13 @@ Json redundancy_json(const link::RedundancyStatus& r) {
            {"merge_timeouts", r.merge_timeouts}};
   if (r.break_location) {
     const auto& b = *r.break_location;
-    out["break"] = {{"where", std::string(link::to_string(b.where))},
-                    {"before", {{"position", b.before_position}, {"station", b.before_station}}},
-                    {"after", {{"position", b.after_position}, {"station", b.after_station}}},
-                    {"text", link::describe(b)}};
+    out["break"] = {
+        {"where", std::string(link::to_string(b.where))},
+        {"before",
+         {{"position", b.before_position}, {"station", b.before_station}, {"port", b.before_port}}},
+        {"after",
+         {{"position", b.after_position}, {"station", b.after_station}, {"port", b.after_port}}},
+        {"text", link::describe(b)}};
   } else {
     out["break"] = nullptr;
   }

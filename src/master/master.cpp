@@ -1716,6 +1716,13 @@ struct Master::Impl : DomainObserver {
     bool locating = false;
     std::optional<exec::Clock::time_point> located_at;
     std::optional<link::RingBreak> reported;  // the break the last event named
+    // The ring's shape (which slave hangs on which port of which: ring_tree), read while the
+    // ring was whole, for the slaves at `shape_stations` in ring order; a break is located on it
+    // (on a ring through junctions the line rule would take a branch's end for a break).
+    std::optional<RingTree> shape;
+    std::vector<std::uint16_t> shape_stations;
+    bool learning_shape = false;
+    std::optional<exec::Clock::time_point> shape_tried_at;
     // DC across a break (apply_dc_reach): the DC slaves the reference's time cannot reach (the
     // secondary's copy of the FRMW is a NOP meanwhile), and a re-step after the heal running.
     std::vector<std::uint16_t> dc_unreached;
@@ -1794,6 +1801,16 @@ struct Master::Impl : DomainObserver {
         w.locating = true;
         exec::spawn(loop, locate_break(s, false));
       }
+      if (!w.shape) seed_ring_shape(*s);
+      if (w.redundancy && w.redundancy->second == link::RingState::whole && !w.learning_shape &&
+          (!w.shape_tried_at || now - *w.shape_tried_at >= kLocatePeriod)) {
+        auto stations = ring_stations(*s);
+        if (stations != w.shape_stations || !w.shape) {
+          w.learning_shape = true;
+          w.shape_tried_at = now;
+          exec::spawn(loop, learn_ring_shape(s, std::move(stations)));
+        }
+      }
     }
     if (info.link_reopens != w.reopens) {
       w.reopens = info.link_reopens;
@@ -1823,36 +1840,107 @@ struct Master::Impl : DomainObserver {
   }
   static constexpr const char* kLinkFaultKey = "link";
 
+  // The stations of the slaves in the ring, in ring order: the session's slaves that are there
+  // (a hot-connect group's only while present; a group on a junction port shifts the positions
+  // of the fixed slaves behind it), or base + position without hot connect.
+  static std::vector<std::uint16_t> ring_stations(const Session& s) {
+    std::vector<std::uint16_t> out;
+    if (s.hot_connect.empty()) {
+      for (std::uint16_t pos = 0; pos < s.slave_count; ++pos)
+        out.push_back(static_cast<std::uint16_t>(s.config.base_station + pos));
+      return out;
+    }
+    std::vector<std::pair<std::uint16_t, std::uint16_t>> at;  // position, station
+    for (const auto& slave : s.slaves) {
+      if (!SlaveAccess::absent(*slave)) at.emplace_back(slave->position(), slave->station());
+    }
+    std::sort(at.begin(), at.end());
+    for (const auto& [pos, station] : at)
+      out.push_back(station);
+    return out;
+  }
+
+  // Every listed slave's DL status (0x0110), one frame through both ports; none where a read
+  // was not answered.
+  exec::Task<Result<std::vector<RingPortReading>>> read_ring_ports(
+      std::shared_ptr<Session> s, const std::vector<std::uint16_t>& stations) {
+    std::vector<RingPortReading> readings(stations.size());
+    if (stations.empty()) co_return readings;
+    bus::Transaction tx;
+    for (std::size_t i = 0; i < stations.size(); ++i) {
+      readings[i].station = stations[i];
+      tx.fprd(stations[i], wire::reg::kDlStatus, 2);
+    }
+    auto reply = co_await exec::transact(loop, *s->bus, std::move(tx));
+    if (!reply) co_return reply.error();
+    for (std::size_t i = 0; i < stations.size(); ++i) {
+      if (reply->wkc(i) == 1) {
+        readings[i].dl_status = wire::DlStatus::decode(wire::load_le16(reply->data(i).data()));
+      }
+    }
+    co_return readings;
+  }
+
+  // The shape from the DL status the startup read (Session::dl_status, by ring position), when
+  // the ring has not changed since and it holds a whole ring's tree (a ring broken between
+  // slaves at the start leaves the slaves behind the break nothing to hang on: learnt once whole).
+  void seed_ring_shape(const Session& s) {
+    LinkWatch& w = link_watch;
+    auto stations = ring_stations(s);
+    if (stations != s.start_ring_stations || s.dl_status.size() != stations.size()) return;
+    std::vector<std::uint16_t> dl;
+    for (const auto& d : s.dl_status)
+      dl.push_back(d.encode());
+    auto tree = ring_tree(dl, stations, true);
+    if (!tree) return;
+    w.shape = std::move(*tree);
+    w.shape_stations = std::move(stations);
+  }
+
+  // The whole ring's shape, from its slaves' DL status (ring_tree, the last slave's free port
+  // the cable back to the secondary port). Kept only when every slave answered, the tree holds
+  // and the ring was still whole.
+  exec::Task<void> learn_ring_shape(std::shared_ptr<Session> s,
+                                    std::vector<std::uint16_t> stations) {
+    auto readings = co_await read_ring_ports(s, stations);
+    if (session != s || s->stopping) co_return;
+    LinkWatch& w = link_watch;
+    w.learning_shape = false;
+    if (!readings || !w.redundancy || w.redundancy->second != link::RingState::whole) co_return;
+    std::vector<std::uint16_t> dl;
+    for (const auto& r : *readings) {
+      if (!r.dl_status) co_return;
+      dl.push_back(r.dl_status->encode());
+    }
+    auto tree = ring_tree(dl, stations, true);
+    if (!tree) co_return;
+    w.shape = std::move(*tree);
+    w.shape_stations = std::move(stations);
+  }
+
   // Where the broken redundant ring is open: every slave's DL status (0x0110), one frame through
   // both ports (locate_ring_break). Publishes link.redundancy naming the break when `announce`
   // (the ring was just seen broken) or when the break moved; the ring healed meanwhile: nothing.
+  // On the ring's shape when one was read for these slaves (learn_ring_shape), else as a line.
   exec::Task<void> locate_break(std::shared_ptr<Session> s, bool announce) {
-    std::vector<RingPortReading> readings(s->slave_count);
-    bus::Transaction tx;
-    for (std::uint16_t pos = 0; pos < s->slave_count; ++pos) {
-      readings[pos].station = static_cast<std::uint16_t>(s->config.base_station + pos);
-      tx.fprd(readings[pos].station, wire::reg::kDlStatus, 2);
-    }
+    const std::vector<std::uint16_t> stations = ring_stations(*s);
+    std::vector<RingPortReading> readings;
     std::optional<Error> failed;
-    if (s->slave_count > 0) {
-      auto reply = co_await exec::transact(loop, *s->bus, std::move(tx));
-      if (reply) {
-        for (std::uint16_t pos = 0; pos < s->slave_count; ++pos) {
-          if (reply->wkc(pos) == 1) {
-            readings[pos].dl_status =
-                wire::DlStatus::decode(wire::load_le16(reply->data(pos).data()));
-          }
-        }
-      } else {
-        failed = reply.error();
-      }
+    if (auto r = co_await read_ring_ports(s, stations)) {
+      readings = std::move(*r);
+    } else {
+      failed = r.error();
     }
     LinkWatch& w = link_watch;
     if (session != s || s->stopping) co_return;
     w.locating = false;
     w.located_at = exec::Clock::now();
     if (!w.redundancy || w.redundancy->second != link::RingState::broken) co_return;
-    const auto found = failed ? std::nullopt : locate_ring_break(readings);
+    std::optional<link::RingBreak> found;
+    if (!failed) {
+      found = w.shape && w.shape_stations == stations ? locate_ring_break(readings, *w.shape)
+                                                      : locate_ring_break(readings);
+    }
     {
       std::lock_guard lock(mutex);
       ring_break = found;

@@ -1,3 +1,5 @@
+#include <vector>
+
 #include <ecat/master/ring_break.hpp>
 
 namespace ecat::master {
@@ -17,6 +19,7 @@ std::optional<link::RingBreak> locate_ring_break(std::span<const RingPortReading
     b.where = where;
     b.before_position = b.after_position = i;
     b.before_station = b.after_station = slaves[i].station;
+    b.before_port = where == link::RingBreak::Where::primary_cable ? 0 : 1;
     return b;
   };
   if (!slaves[0].dl_status) return std::nullopt;
@@ -35,6 +38,55 @@ std::optional<link::RingBreak> locate_ring_break(std::span<const RingPortReading
   }
   const std::size_t last = slaves.size() - 1;
   if (!link_up(slaves[last], 1)) return at(link::RingBreak::Where::secondary_cable, last);
+  return std::nullopt;
+}
+
+std::optional<link::RingBreak> locate_ring_break(std::span<const RingPortReading> slaves,
+                                                 const RingTree& shape) {
+  const std::size_t n = slaves.size();
+  if (n == 0 || shape.slaves.size() != n) return std::nullopt;
+  // The ring: the last slave and its ancestors, in ring order.
+  std::vector<bool> ring(n, false);
+  std::optional<std::size_t> k = n - 1;
+  while (k && !ring[*k]) {
+    ring[*k] = true;
+    k = shape.slaves[*k].parent;
+  }
+  if (!slaves[0].dl_status) return std::nullopt;
+  if (!link_up(slaves[0], 0)) {
+    link::RingBreak b;
+    b.where = link::RingBreak::Where::primary_cable;
+    b.before_station = b.after_station = slaves[0].station;
+    b.before_port = 0;
+    return b;
+  }
+  for (std::size_t c = 1; c < n; ++c) {
+    if (!ring[c] || !shape.slaves[c].parent) continue;
+    const std::size_t p = *shape.slaves[c].parent;
+    const std::uint8_t port = shape.slaves[c].parent_port;
+    if (!slaves[p].dl_status || !slaves[c].dl_status) return std::nullopt;
+    if (!link_up(slaves[p], port) || !link_up(slaves[c], 0)) {
+      link::RingBreak b;
+      b.where = link::RingBreak::Where::between_slaves;
+      b.before_position = p;
+      b.before_station = slaves[p].station;
+      b.before_port = port;
+      b.after_position = c;
+      b.after_station = slaves[c].station;
+      return b;
+    }
+  }
+  const std::size_t last = n - 1;
+  const std::uint8_t back = shape.return_port.value_or(1);
+  if (!slaves[last].dl_status) return std::nullopt;
+  if (!link_up(slaves[last], back)) {
+    link::RingBreak b;
+    b.where = link::RingBreak::Where::secondary_cable;
+    b.before_position = b.after_position = last;
+    b.before_station = b.after_station = slaves[last].station;
+    b.before_port = back;
+    return b;
+  }
   return std::nullopt;
 }
 

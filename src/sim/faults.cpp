@@ -1927,12 +1927,48 @@ struct FaultInjector::Impl {
     const std::size_t n = segment.size();
     auto down = cables_down(cabling->topology, n);
     std::vector<bool> out = down ? std::move(*down) : std::vector<bool>(n + 1, false);
+    const std::vector<bool> ring = ring_slaves();
     for (const auto& g : segment.hot_connect_groups()) {
-      if (g.plugged) continue;
-      out[std::min(g.first, n)] = true;
+      // A group on a branch (a junction port off the ring) is out of the segment's own cabling
+      // when unplugged; the ring stays whole.
+      if (g.plugged || g.first >= n || !ring[g.first]) continue;
+      out[g.first] = true;
       out[std::min(g.first + g.slaves, n)] = true;
     }
     return out;
+  }
+
+  // The slaves the ring passes through: the last slave in frame order (whose port 1 is cabled to
+  // the secondary port) and every slave on the way to it from the first. The others hang on
+  // branches off the ring (junction ports whose subtree ends there): the cable into such a slave
+  // is not one of the ring's, and neither master port reaches it when it is down.
+  std::vector<bool> ring_slaves() const {
+    const std::size_t n = segment.size();
+    std::vector<bool> ring(n, false);
+    std::optional<std::size_t> k;
+    if (n > 0) k = n - 1;
+    while (k && !ring[*k]) {
+      ring[*k] = true;
+      k = segment.parent(*k);
+    }
+    return ring;
+  }
+
+  // Errc::invalid_argument for a cable down (1 .. n-1, numbered by the slave it leads into)
+  // that leads into a branch off the ring rather than along it.
+  Result<void> check_ring_cables(const std::vector<bool>& down) const {
+    const std::vector<bool> ring = ring_slaves();
+    for (std::size_t k = 1; k < ring.size() && k < down.size(); ++k) {
+      if (!down[k] || ring[k]) continue;
+      const std::size_t parent = segment.parent(k).value_or(k - 1);
+      return Error(Errc::invalid_argument,
+                   fmt::format("cable {} leads into '{}' on port {} of '{}', a branch off the "
+                               "ring, not a ring cable (take that link down instead: link_down "
+                               "on '{}' port 0)",
+                               k, segment.name(k), segment.parent_port(k), segment.name(parent),
+                               segment.name(k)));
+    }
+    return ok();
   }
 
   // Sets one cable of the ring (0: the primary's, n: the secondary's) up or down.
@@ -1955,24 +1991,42 @@ struct FaultInjector::Impl {
   void refresh_cabling() {
     const std::size_t n = segment.size();
     for (std::size_t i = 0; i < n; ++i) {
-      segment.set_reported_link(i, 0, std::nullopt);
-      segment.set_reported_link(i, 1, std::nullopt);
+      for (std::uint8_t port = 0; port < 4; ++port)
+        segment.set_reported_link(i, port, std::nullopt);
     }
     routes = {};
     if (!cabling || n == 0) return;
     const std::vector<bool> down = effective_down();
     routes[0] = route_redundant(down, wire::RedundantPort::primary);
     routes[1] = route_redundant(down, wire::RedundantPort::secondary);
-    for (std::size_t cable = 0; cable <= n; ++cable) {
-      if (cable > 0) segment.set_reported_link(cable - 1, 1, !down[cable]);
-      if (cable < n) segment.set_reported_link(cable, 0, !down[cable]);
+    // Cable k (0 < k < n) leads into slave k's port 0 from its parent's port; only the ring's
+    // (branches speak for themselves through the segment's cables). Cable n leaves the last
+    // slave's port 1 for the secondary port.
+    const std::vector<bool> ring = ring_slaves();
+    segment.set_reported_link(0, 0, !down[0]);
+    segment.set_reported_link(n - 1, 1, !down[n]);
+    for (std::size_t cable = 1; cable < n; ++cable) {
+      if (!ring[cable]) continue;
+      segment.set_reported_link(segment.parent(cable).value_or(cable - 1),
+                                segment.parent_port(cable), !down[cable]);
+      segment.set_reported_link(cable, 0, !down[cable]);
     }
   }
 
-  // The ring's cable at a slave's port on a redundant segment (ports 0 and 1 of a line).
+  // The ring's cable at a slave's port on a redundant segment: port 0 of a slave on the ring
+  // (the cable into it), the port of a slave on the ring that the next one along it hangs on,
+  // the last slave's port 1 (the secondary's cable). Ports into branches are not the ring's.
   std::optional<std::size_t> ring_cable(std::size_t slave, std::uint8_t port) const {
-    if (!cabling || port > 1) return std::nullopt;
-    return port == 0 ? slave : slave + 1;
+    const std::size_t n = segment.size();
+    if (!cabling || port > 3 || slave >= n) return std::nullopt;
+    const std::vector<bool> ring = ring_slaves();
+    if (!ring[slave]) return std::nullopt;
+    if (port == 0) return slave;
+    if (slave + 1 == n) return port == 1 ? std::optional<std::size_t>(n) : std::nullopt;
+    for (std::size_t k = slave + 1; k < n; ++k) {
+      if (ring[k] && segment.parent(k) == slave && segment.parent_port(k) == port) return k;
+    }
+    return std::nullopt;
   }
 
   // The cable into an unplugged group's first slave: the group, not a fault, holds it down.
@@ -2046,9 +2100,11 @@ struct FaultInjector::Impl {
                                  to_string(e.kind)));
       }
       if (e.kind == FaultKind::ring_break) {
-        auto route = route_redundant(RedundantTopology::broken_after(e.after), segment.size(),
-                                     wire::RedundantPort::primary);
-        if (!route) return Error(route.error().code(), "ring_break: " + route.error().message());
+        auto down = cables_down(RedundantTopology::broken_after(e.after), segment.size());
+        if (!down) return Error(down.error().code(), "ring_break: " + down.error().message());
+        if (auto r = check_ring_cables(*down); !r) {
+          return Error(r.error().code(), "ring_break: " + r.error().message());
+        }
       }
       return ok();
     }
@@ -2507,6 +2563,7 @@ Result<void> FaultInjector::attach_redundant_ring(const RedundantCabling& base) 
   if (auto r = route_redundant(base.topology, s.segment.size(), wire::RedundantPort::primary); !r) {
     return std::move(r).error();
   }
+  if (auto r = s.check_ring_cables(*cables_down(base.topology, s.segment.size())); !r) return r;
   s.cabling = base;
   s.cabling_base = base;
   // The links the faults took down on the ring's cables become the ring's: one model from now on.
@@ -2564,6 +2621,7 @@ Result<void> FaultInjector::set_redundant_topology(const RedundantTopology& topo
   const std::size_t n = s.segment.size();
   auto down = cables_down(topology, n);
   if (!down) return std::move(down).error();
+  if (auto r = s.check_ring_cables(*down); !r) return r;
   std::vector<std::size_t> list;
   for (std::size_t k = 0; k <= n; ++k) {
     if ((*down)[k]) list.push_back(k);

@@ -159,6 +159,123 @@ TEST(Scenario00, RedundantRingThroughABreakAndBack) {
   EXPECT_GT(sim.bounces, 0u);
 }
 
+// ---- 00 (redundant part) on a ring through a junction ------------------------------------------
+
+// coupler -> inputs -> outputs -> junction (EK1122); on the junction's port 1 a branch that ends
+// there (branch_coupler -> branch_in), on its port 2 the ring goes on (far_coupler -> far_in ->
+// far_out, whose port 1 is cabled to the secondary port). A frame leaves the junction by port 1
+// before port 2: ring positions 0..3, the branch 4..5, the far slaves 6..8.
+RingSpec junction_redundant_spec() {
+  RingSpec spec = redundant_spec();
+  spec.ring_yaml = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: junction, profile: EK1122}
+    - {name: branch_coupler, profile: EK1100, parent: junction, port: 1}
+    - {name: branch_in, profile: EL1809}
+    - {name: far_coupler, profile: EK1100, parent: junction, port: 2}
+    - {name: far_in, profile: EL1809}
+    - {name: far_out, profile: EL2809}
+  wiring:
+    - {from: outputs.channel_1, to: inputs.channel_1}
+    - {from: outputs.channel_16, to: inputs.channel_16}
+)";
+  spec.adjust = [](master::MasterConfig& c) {
+    for (const auto& [name, process_data] :
+         std::vector<std::pair<const char*, bool>>{{"junction", false},
+                                                   {"branch_coupler", false},
+                                                   {"branch_in", true},
+                                                   {"far_coupler", false},
+                                                   {"far_in", true},
+                                                   {"far_out", true}}) {
+      master::SlaveConfig s;
+      s.name = name;
+      if (process_data) s.process_data = master::ProcessDataRequest::all("main");
+      s.health_poll = 20ms;
+      c.slaves.push_back(std::move(s));
+    }
+  };
+  return spec;
+}
+
+// The break is located on the ring's shape (the tree DC planning builds): a cable leaving the
+// junction's port 2 is named with its ports, one between two slaves behind it as on a line, and
+// the branch's end (branch_in's port 1 and the junction's unused port 3, without link) is never
+// taken for one. A cable inside the branch is not the ring's: the simulator refuses to break the
+// ring there.
+TEST(Scenario00, RedundantRingThroughAJunctionLocatesTheBreak) {
+  auto ring = ScenarioRing::operational(junction_redundant_spec());
+  ASSERT_TRUE(ring);
+  Monitor monitor(*ring->master);
+  const auto slaves = ring->master->status().slaves;
+  ASSERT_EQ(slaves.size(), 9u);
+  const auto station = [&](std::string_view name) -> std::uint16_t {
+    for (const auto& s : slaves)
+      if (s.name == name) return s.station;
+    ADD_FAILURE() << name;
+    return 0;
+  };
+  const auto located_as = [&](const link::RingBreak& expected) {
+    return eventually([&] {
+      const auto r = ring->master->status().redundancy;
+      return r && r->break_location == expected;
+    });
+  };
+
+  // Behind the junction's port 2: between the junction (3) and far_coupler (6).
+  expect_flows_through(*ring, RedundantTopology::broken_after(6));
+  const link::RingBreak at_junction{link::RingBreak::Where::between_slaves,
+                                    3,
+                                    station("junction"),
+                                    6,
+                                    station("far_coupler"),
+                                    2,
+                                    0};
+  EXPECT_TRUE(located_as(at_junction)) << ring->describe();
+  EXPECT_TRUE(eventually([&] {
+    return monitor.saw(fmt::format(
+        "redundancy:redundant, ring broken between slave 3 (station 0x{:04X}, port 2) and slave 6 "
+        "(station 0x{:04X}, port 0)",
+        station("junction"), station("far_coupler")));
+  })) << monitor.seen();
+  EXPECT_TRUE(ring->master->status().slaves.size() == 9u);
+
+  // The break moves behind it: between far_in (7) and far_out (8).
+  expect_flows_through(*ring, RedundantTopology::broken_after(8));
+  EXPECT_TRUE(located_as(link::RingBreak{link::RingBreak::Where::between_slaves, 7,
+                                         station("far_in"), 8, station("far_out")}))
+      << ring->describe();
+
+  // The secondary's cable: far_out's port 1.
+  expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::secondary));
+  EXPECT_TRUE(eventually([&] {
+    const auto b = ring->master->status().redundancy->break_location;
+    return b && b->where == link::RingBreak::Where::secondary_cable && b->before_position == 8 &&
+           b->before_port == 1;
+  })) << ring->describe();
+
+  // In front of the junction, between inputs (1) and outputs (2).
+  expect_flows_through(*ring, RedundantTopology::broken_after(2));
+  EXPECT_TRUE(located_as(link::RingBreak{link::RingBreak::Where::between_slaves, 1,
+                                         station("inputs"), 2, station("outputs")}))
+      << ring->describe();
+
+  // Inside the branch: not a ring cable.
+  auto refused = ring->redundant_ports->set_topology(RedundantTopology::broken_after(5));
+  ASSERT_FALSE(refused);
+  EXPECT_NE(refused.error().message().find("leads into 'branch_in' on port 1 of "
+                                           "'branch_coupler', a branch off the ring"),
+            std::string::npos)
+      << refused.error().describe();
+
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  EXPECT_TRUE(eventually([&] { return !ring->master->status().redundancy->break_location; }));
+  expect_never_recovered(*ring);
+}
+
 // ---- 39: the primary's cable cut at the master, then restored --------------------------------
 
 TEST(Scenario39, RedundantPrimaryCutKeepsOperational) {

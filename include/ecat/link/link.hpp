@@ -93,12 +93,18 @@ struct RingBreak {
   std::uint16_t before_station = 0;
   std::size_t after_position = 0;
   std::uint16_t after_station = 0;
+  // The ports that lost the link: `before`'s port the cable leaves (1 on a line, a junction's
+  // port 1..3 on a ring through junctions; 0 for the primary's cable, the port back to the
+  // secondary for its cable) and `after`'s port it enters (always 0: towards the master).
+  std::uint8_t before_port = 1;
+  std::uint8_t after_port = 0;
 
   bool operator==(const RingBreak&) const = default;
 };
 std::string_view to_string(RingBreak::Where where) noexcept;
 // "between slave 1 (station 0x1001) and slave 2 (station 0x1002)", "at the primary port's cable
-// (slave 0, station 0x1001, port 0)".
+// (slave 0, station 0x1001, port 0)"; a cable leaving a port other than 1: "between slave 1
+// (station 0x1002, port 2) and slave 4 (station 0x1005, port 0)".
 std::string describe(const RingBreak& ring_break);
 
 struct RedundancyStatus {

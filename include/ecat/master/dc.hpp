@@ -80,6 +80,28 @@ struct DcPlanOptions {
   bool ring_returns_to_master = false;
 };
 
+// The cabling of a segment as its slaves' DL status (0x0110) shows it: which slave hangs on which
+// port of which earlier one. Frame (ring) order is depth first, ports 0 -> 3 -> 1 -> 2, so slave
+// k hangs on the next unused downstream port of the deepest earlier slave that still has one.
+// DC planning (plan_dc) and the redundant ring's break report (locate_ring_break) share it.
+struct RingTree {
+  struct Node {
+    std::optional<std::size_t> parent;  // ring position of the slave whose port this one hangs on
+    std::uint8_t parent_port = 0;       // 1, 2 or 3 (0 for the first slave: the master)
+    std::array<std::optional<std::size_t>, 4> children{};  // by port; [0] unused
+  };
+  std::vector<Node> slaves;  // ring order
+  // ring_returns_to_master: the last slave's port cabled back to the master's second port.
+  std::optional<std::uint8_t> return_port;
+};
+
+// The tree over the slaves' open ports (DL status: communication up and loop open; `dl_status`
+// raw, one per slave in ring order; `stations` name them in errors). Errors (Errc::malformed)
+// name the slave (position and station): more slaves than open ports, an open port with nothing
+// behind it (the last slave's first free one allowed with `ring_returns_to_master`).
+Result<RingTree> ring_tree(std::span<const std::uint16_t> dl_status,
+                           std::span<const std::uint16_t> stations, bool ring_returns_to_master);
+
 struct DcPlannedSlave {
   std::size_t position = 0;  // ring (frame) order
   std::uint16_t station = 0;

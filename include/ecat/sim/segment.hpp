@@ -105,6 +105,10 @@ class Segment : private EscLayoutObserver {
   const Esc& esc(std::size_t index) const { return *nodes_.at(index).esc; }
   const std::string& name(std::size_t index) const { return nodes_.at(index).name; }
   std::optional<std::size_t> find(std::string_view name) const noexcept;
+  // Where slave `index` is cabled: the slave whose port its port 0 hangs on and that port
+  // (none for the first slave: the master).
+  std::optional<std::size_t> parent(std::size_t index) const { return nodes_.at(index).parent; }
+  std::uint8_t parent_port(std::size_t index) const { return nodes_.at(index).parent_port; }
 
   // Processes one EtherCAT frame (header + datagrams) in place at segment time `now_ns`.
   // Returns false when no reply goes back (lost frame, malformed frame, master link down).
