@@ -431,6 +431,40 @@ TEST(ConfigEni, AnEniHotConnectGroupJoinsOnTheSimulatedRing) {
   (void)master.stop();
 }
 
+// The ENI's group already plugged when the master starts: its fixed slaves all have positions
+// (from AutoIncAddr, counted without the group), and the group on the junction is still found
+// in front of the far slaves, which are placed behind it.
+TEST(ConfigEni, AnEniHotConnectGroupPluggedAtStartIsFoundOnTheJunction) {
+  auto imported = import_eni(read_text(kHotConnectEni), kHotConnectEni);
+  ASSERT_TRUE(imported) << imported.error().describe();
+  for (const auto& s : imported->config.slaves)
+    ASSERT_TRUE(s.position) << s.name;
+  imported->config.hot_connect_poll = 10ms;
+  std::string yaml = kHotConnectRing;
+  yaml.replace(yaml.find("plugged: false"), 14, "plugged: true");
+  auto server = test::make_sim_server(yaml);
+  ASSERT_TRUE(server);
+  auto link = server->serve_memory();
+  ASSERT_TRUE(link);
+  Master master(std::move(imported->config));
+  ASSERT_TRUE(master.start(std::move(*link)));
+  auto op = master.await_operational(20s);
+  ASSERT_TRUE(op) << op.error().describe();
+  EXPECT_TRUE(eventually([&] {
+    const auto st = master.status();
+    return !st.hot_connect.empty() && st.hot_connect[0].state == HotConnectState::present;
+  })) << (master.status().hot_connect.empty() ? "" : master.status().hot_connect[0].detail);
+  auto far = master.slave("far_out");
+  ASSERT_TRUE(far);
+  EXPECT_EQ((*far)->info().position, 8);
+  EXPECT_EQ(master.status().hot_connect[0].position, 4);
+  auto in = master.slave("tool_in");
+  ASSERT_TRUE(in);
+  EXPECT_EQ((*in)->state(), SlaveState::op);
+  EXPECT_EQ(master.state(), MasterState::operational);
+  (void)master.stop();
+}
+
 // The simulated ring of examples/default.yaml, driven by a master configured from the ENI only.
 TEST(ConfigEni, TheDefaultRingReachesOpFromItsEni) {
   auto imported = import_eni(read_text(kExample), kExample);

@@ -662,6 +662,30 @@ TEST(HotConnect, AGroupOnAJunctionPortPluggedAtStartIsFoundAndTheOthersPlacedAro
   EXPECT_EQ(group_status(m).appearances, 2u);
 }
 
+// The same with every fixed slave given its position (counted without the group, as an ENI's
+// import gives them): the group is still found in front of the far slaves.
+TEST(HotConnect, AJunctionGroupPluggedAtStartIsFoundWithTheFixedSlavesPositionsGiven) {
+  RingSpec spec = junction_spec(false, std::nullopt, true);
+  spec.adjust = [inner = spec.adjust](master::MasterConfig& c) {
+    inner(c);
+    for (std::size_t i = 0; i < c.slaves.size(); ++i)
+      c.slaves[i].position = static_cast<std::uint16_t>(i);
+  };
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  EXPECT_EQ(position_of(m, "far_coupler"), 6);
+  EXPECT_EQ(position_of(m, "far_out"), 8);
+  EXPECT_EQ((*m.slave("far_coupler"))->station(), 0x1004);
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }))
+      << group_status(m).detail << "\n"
+      << ring->describe();
+  EXPECT_EQ(group_status(m).position, 4);
+  EXPECT_TRUE(far_loop_follows(m, true));
+  EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", true)) << ring->describe();
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
 TEST(HotConnect, AWrongDeviceOnAJunctionPortIsRefusedTheOthersUntouched) {
   // The group is known by alias 0x0777; what is plugged on the junction has alias 0.
   auto ring = ScenarioRing::operational(junction_spec(false, 0x0777));
