@@ -1255,19 +1255,28 @@ struct Master::Impl : DomainObserver {
 
   // A group left: its DC slaves out of the runtime (absent: no loss of the others' lock), and the
   // delays measured again for the slaves that stay (one behind the junction port it hung on
-  // gets its shorter delay).
+  // gets its shorter delay). A group leaving while the ring is being measured for another is
+  // not dropped: the measurement runs once more after the one under way (coalesced: one more
+  // for any number of leaves meanwhile), so it sees the ring without either.
   exec::Task<void> group_left_dc(std::shared_ptr<Session> s, std::vector<std::uint16_t> stations) {
     if (s->dc) s->dc->leave_stations(stations);
-    if (!s->dc_init || s->dc_adapting) co_return;
-    s->dc_adapting = true;
-    auto adapted = co_await adapt_dc(s, {});
-    if (s->stopping || session != s) co_return;
-    s->dc_adapting = false;
-    if (!adapted) {
-      events.publish(make_event(
-          EventKind::recovery_step, "dc",
-          "distributed clocks after a hot-connect group left: " + adapted.error().describe()));
+    if (!s->dc_init) co_return;
+    if (s->dc_adapting) {
+      s->dc_adapt_again = true;
+      co_return;
     }
+    s->dc_adapting = true;
+    do {
+      s->dc_adapt_again = false;
+      auto adapted = co_await adapt_dc(s, {});
+      if (s->stopping || session != s) co_return;
+      if (!adapted) {
+        events.publish(make_event(
+            EventKind::recovery_step, "dc",
+            "distributed clocks after a hot-connect group left: " + adapted.error().describe()));
+      }
+    } while (s->dc_adapt_again);
+    s->dc_adapting = false;
   }
 
   // A group that was recognised but could not be brought up: its slaves back to INIT with their

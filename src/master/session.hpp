@@ -83,7 +83,8 @@ struct Session : std::enable_shared_from_this<Session> {
   // fixed slaves (place_at_start): then the fixed slaves' positions are not their indices.
   std::vector<std::uint16_t> start_ring_stations;
   bool groups_in_front = false;
-  bool dc_adapting = false;  // a group left: the DC delays are being measured again (loop)
+  bool dc_adapting = false;     // a group left: the DC delays are being measured again (loop)
+  bool dc_adapt_again = false;  // another left meanwhile: measure once more after this one
   std::uint16_t hot_connect_scratch = 0;             // the station a candidate is read at
   std::string hot_connect_refused;                   // the last device that matched no group
   std::uint16_t hot_connect_refused_count = 0;       // ... at this slave count

@@ -917,6 +917,120 @@ TEST(HotConnectDc, AGroupWithADcSlaveJoinsTheClocksAndRunsSync0) {
   EXPECT_FALSE(ring->saw(MasterState::recovering));
 }
 
+// coupler (the reference) -> junction_1 (EK1122): on its port 1 the group `a` (a servo), on its
+// port 2 junction_2 (EK1122): on its port 1 the group `b` (a servo), on its port 2 the fixed
+// `drive` (SYNC0). Both groups' cables are 1 us long, so the frame reaches `drive` over 2 us
+// later with a group in than without it: a delay not measured again after a group left leaves
+// `drive`'s system time that far off the reference's.
+constexpr const char* kTwoDcGroupsRing = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: junction_1, profile: EK1122}
+    - {name: a_drive, profile: servo, parent: junction_1, port: 1, cable_delay_ns: 1000, clock: {drift_ppm: 30, offset_ns: 5000000}, hot_connect: {group: a, plugged: false}}
+    - {name: junction_2, profile: EK1122, parent: junction_1, port: 2}
+    - {name: b_drive, profile: servo, parent: junction_2, port: 1, cable_delay_ns: 1000, clock: {drift_ppm: -30, offset_ns: 7000000}, hot_connect: {group: b, plugged: false}}
+    - {name: drive, profile: servo, parent: junction_2, port: 2, clock: {drift_ppm: -40, offset_ns: 1500000}}
+)";
+
+RingSpec two_dc_groups_spec() {
+  RingSpec spec;
+  spec.ring_yaml = kTwoDcGroupsRing;
+  spec.domain_period = 2ms;
+  spec.adjust = [](master::MasterConfig& c) {
+    master::DcConfig dc;
+    dc.cycle = 2ms;
+    dc.lock_threshold = 200ns;
+    c.dc = dc;
+    master::SyncConfig sync;
+    sync.mode = master::SyncMode::sync0;
+    c.slaves.clear();
+    for (const char* name : {"coupler", "junction_1", "junction_2"}) {
+      master::SlaveConfig s;
+      s.name = name;
+      c.slaves.push_back(s);
+    }
+    master::SlaveConfig drive;
+    drive.name = "drive";
+    drive.process_data = master::ProcessDataRequest::all("main");
+    drive.sync = sync;
+    c.slaves.push_back(drive);
+    for (const char* group : {"a", "b"}) {
+      master::HotConnectGroup g;
+      g.name = group;
+      master::SlaveConfig tool;
+      tool.name = fmt::format("{}_drive", group);
+      tool.vendor_id = 0x00000ACE;
+      tool.product_code = 0x00002402;
+      tool.process_data = master::ProcessDataRequest::all("main");
+      tool.health_poll = 20ms;
+      tool.sync = sync;
+      g.slaves.push_back(tool);
+      c.hot_connect.push_back(g);
+    }
+    c.hot_connect_poll = 10ms;
+  };
+  return spec;
+}
+
+std::optional<master::HotConnectStatus> group_named(master::Master& m, std::string_view name) {
+  for (const auto& g : m.status().hot_connect)
+    if (g.group == name) return g;
+  return std::nullopt;
+}
+
+bool group_in(master::Master& m, std::string_view name, HotConnectState state) {
+  const auto g = group_named(m, name);
+  return g && g->state == state;
+}
+
+// Two DC groups leave one shortly after the other (the second while the ring is being measured
+// again for the first): the measurement runs once more, so the fixed `drive` behind both gets
+// the delay of the ring without either and stays on the reference's time.
+TEST(HotConnectDc, TwoGroupsLeavingTogetherBothHaveTheDelaysMeasuredAgain) {
+  auto ring = ScenarioRing::operational(two_dc_groups_spec());
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(m.await_dc_locked(20s)) << ring->describe();
+  const std::size_t drive_esc = 5;
+  for (const char* group : {"a", "b"}) {
+    ASSERT_TRUE(ring->server->plug(group, true));
+    ASSERT_TRUE(eventually([&] { return group_in(m, group, HotConnectState::present); }, 15s))
+        << group << ": " << (group_named(m, group) ? group_named(m, group)->detail : "") << "\n"
+        << ring->describe();
+  }
+  std::this_thread::sleep_for(500ms);
+  auto clock = sim_clock(*ring, drive_esc);
+  EXPECT_LT(std::llabs(clock.offset_ns), 1000)
+      << "drive off the reference by " << clock.offset_ns << " ns with both groups in";
+
+  for (int round = 0; round < 3; ++round) {
+    SCOPED_TRACE(round);
+    if (round > 0) {
+      for (const char* group : {"a", "b"}) {
+        ASSERT_TRUE(ring->server->plug(group, true));
+        ASSERT_TRUE(eventually([&] { return group_in(m, group, HotConnectState::present); }, 15s))
+            << ring->describe();
+      }
+    }
+    // `a` out; `b` out 3 ms later, within one hot-connect poll (10 ms) of it.
+    ASSERT_TRUE(ring->server->plug("a", false));
+    std::this_thread::sleep_for(3ms);
+    ASSERT_TRUE(ring->server->plug("b", false));
+    ASSERT_TRUE(eventually([&] {
+      return group_in(m, "a", HotConnectState::absent) && group_in(m, "b", HotConnectState::absent);
+    }));
+    std::this_thread::sleep_for(600ms);
+    clock = sim_clock(*ring, drive_esc);
+    EXPECT_LT(std::llabs(clock.offset_ns), 1000)
+        << "drive off the reference by " << clock.offset_ns << " ns after both groups left";
+    auto st = m.dc_status();
+    ASSERT_TRUE(st);
+    EXPECT_TRUE(st->locked);
+  }
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
 // ---- groups known by an explicit device ID ---------------------------------------------------
 
 // coupler -> inputs -> outputs -> junction; on the junction's port 1 the group `a` (device ID 5),
