@@ -422,8 +422,9 @@ TEST(Scenario00, RedundantRingOverTwoVethPairsBreaksAndHealsByTheControlChannel)
         control.call(R"({"op":"fault.inject","fault":{"kind":"ring_cut","port":"primary"}})");
     EXPECT_TRUE(reply.value("ok", false)) << reply.dump();
   });
-  const link::RingBreak primary{link::RingBreak::Where::primary_cable, 0, slaves[0].station, 0,
-                                slaves[0].station};
+  // Slave 0's port 0 lost the link (before_port 0).
+  const link::RingBreak primary{
+      link::RingBreak::Where::primary_cable, 0, slaves[0].station, 0, slaves[0].station, 0, 0};
   EXPECT_TRUE(eventually([&] { return located() == primary; }))
       << (located() ? link::describe(*located()) : std::string("none"));
   expect_flows_through(*ring, RedundantTopology::whole_ring(), [&] {
@@ -676,8 +677,9 @@ TEST(RedundantLinkFaults, LinkDownIsABreakTheMasterLocates) {
   // The master's own cable: the primary's.
   expect_flows_through(*ring, RedundantTopology::cut_at(RedundantPort::primary),
                        inject(sim::fault::master_link_down()));
-  const link::RingBreak primary{link::RingBreak::Where::primary_cable, 0, slaves[0].station, 0,
-                                slaves[0].station};
+  // Slave 0's port 0 lost the link (before_port 0).
+  const link::RingBreak primary{
+      link::RingBreak::Where::primary_cable, 0, slaves[0].station, 0, slaves[0].station, 0, 0};
   EXPECT_TRUE(eventually([&] { return located() == primary; }))
       << (located() ? link::describe(*located()) : std::string("none"));
   expect_flows_through(*ring, RedundantTopology::whole_ring(),
@@ -786,7 +788,7 @@ TEST(Scenario00, RedundantRingStartsBrokenInALongerRing) {
 
 TEST(Scenario00, RedundantRingStartsWithAMasterCableCut) {
   starts_broken(RedundantTopology::cut_at(RedundantPort::primary),
-                {Where::primary_cable, 0, 0x1000, 0, 0x1000});
+                {Where::primary_cable, 0, 0x1000, 0, 0x1000, 0, 0});
   starts_broken(RedundantTopology::cut_at(RedundantPort::secondary),
                 {Where::secondary_cable, 2, 0x1002, 2, 0x1002});
 }
