@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstring>
 #include <limits>
 #include <thread>
@@ -82,17 +83,6 @@ void load_bytes(const std::atomic<std::uint64_t>* words, std::size_t offset, std
     dst += take;
     n -= take;
   }
-}
-
-// The `bit_length` (1..64) bits starting at bit `shift` (0..7) of `n` (<= 9) bytes, LSB first.
-std::uint64_t extract_bits(const std::uint8_t* p, std::size_t n, unsigned shift,
-                           std::size_t bit_length) noexcept {
-  std::uint8_t low[8] = {};
-  std::memcpy(low, p, std::min<std::size_t>(n, 8));
-  std::uint64_t v = wire::load_le64(low) >> shift;
-  if (n == 9 && shift != 0) v |= std::uint64_t{p[8]} << (64 - shift);
-  if (bit_length < 64) v &= (std::uint64_t{1} << bit_length) - 1;
-  return v;
 }
 
 // The seqlocked copy of `n` published input bytes at `offset` (retried while the bus thread
@@ -1209,23 +1199,84 @@ Result<void> Domain::write_bits_entry(const Entry& e, std::size_t bit_offset,
     return error(Errc::invalid_argument,
                  fmt::format("cannot write bits of {}: it is an input", to_string(e.key)));
   }
+  auto f = field(PdoHandle{e.index}, bit_offset, bit_length);
+  if (!f) return std::move(f).error();
+  return write_bits(*f, value);
+}
+
+Result<void> Domain::write_bits(PdoKey key, std::size_t bit_offset, std::size_t bit_length,
+                                std::uint64_t value) {
+  auto e = lookup(key);
+  if (!e) return std::move(e).error();
+  return write_bits_entry(**e, bit_offset, bit_length, value);
+}
+
+Result<void> Domain::write_bits(PdoHandle handle, std::size_t bit_offset, std::size_t bit_length,
+                                std::uint64_t value) {
+  auto e = lookup(handle);
+  if (!e) return std::move(e).error();
+  return write_bits_entry(**e, bit_offset, bit_length, value);
+}
+
+Result<Domain::Field> Domain::field(PdoHandle handle, std::size_t bit_offset,
+                                    std::size_t bit_length) const {
+  auto found = lookup(handle);
+  if (!found) return std::move(found).error();
+  const Entry& e = **found;
   if (bit_length == 0 || bit_length > 64 || bit_offset + bit_length > std::size_t{e.size} * 8) {
     return error(Errc::invalid_argument,
-                 fmt::format("cannot write bits {}..{} of {}: the SM image has {} bits and at "
-                             "most 64 bits are written at once",
-                             bit_offset, bit_offset + bit_length, to_string(e.key),
-                             std::size_t{e.size} * 8));
+                 fmt::format("cannot {} bits {}..{} of {}: the SM image has {} bits and at most 64 "
+                             "bits are {} at once",
+                             e.direction == PdoDirection::input ? "read" : "write", bit_offset,
+                             bit_offset + bit_length, to_string(e.key), std::size_t{e.size} * 8,
+                             e.direction == PdoDirection::input ? "read" : "written"));
   }
+  // Entries never move nor change once registered (but for their atomics): the position is
+  // computed once.
+  const std::size_t bit = std::size_t{e.offset} * 8 + bit_offset;
+  Field f;
+  f.domain_ = this;
+  f.entry_ = &e;
+  f.word_ = static_cast<std::uint32_t>(bit / 64);
+  f.word_shift_ = static_cast<std::uint8_t>(bit % 64);
+  f.byte_ = static_cast<std::uint32_t>(bit / 8);
+  f.byte_shift_ = static_cast<std::uint8_t>(bit % 8);
+  f.bit_length_ = static_cast<std::uint16_t>(bit_length);
+  f.reserved_ = e.reservation != kNoReservation && e.key.kind != RegistrationKind::reserved;
+  f.direction_ = e.direction;
+  return f;
+}
+
+Error Domain::field_refused(const Field& f, PdoDirection direction) const {
+  if (f.domain_ != this) {
+    return error(Errc::invalid_argument, f.bound() ? "a field made by another domain"
+                                                   : "an unbound field (Domain::field makes them)");
+  }
+  if (direction == PdoDirection::input) {
+    return error(
+        Errc::invalid_argument,
+        fmt::format("read_fresh_bits({}): outputs have no freshness", to_string(f.entry_->key)));
+  }
+  return error(Errc::invalid_argument,
+               fmt::format("cannot write bits of {}: it is an input", to_string(f.entry_->key)));
+}
+
+Result<void> Domain::write_bits(const Field& f, std::uint64_t value) {
+  if (f.domain_ != this || f.direction_ != PdoDirection::output) [[unlikely]] {
+    return field_refused(f, PdoDirection::output);
+  }
+  const Entry& e = *f.entry_;
   // While the domain cycles, an output is stamped with the start of the tick in progress (it
   // leaves with the next one): no clock read on the hot path. Otherwise, the clock.
   const std::int64_t tick =
       state() == DomainState::cycling ? counters_->tick_ns.load(std::memory_order_relaxed) : 0;
   const std::int64_t now = tick != 0 ? tick : to_ns(Clock::now());
   lock_staging();
-  std::uint8_t* p = staging_.get() + e.offset + bit_offset / 8;
+  std::uint8_t* p = staging_.get() + f.byte_;
   bool changed = e.output_written_ns.load(std::memory_order_relaxed) == 0;
   // A byte at a time: the field's bits of each byte it covers, the others kept.
-  unsigned bit = static_cast<unsigned>(bit_offset % 8);
+  unsigned bit = f.byte_shift_;
+  const std::size_t bit_length = f.bit_length_;
   std::size_t consumed = 0;
   for (std::size_t i = 0; consumed < bit_length; ++i) {
     const unsigned take =
@@ -1244,20 +1295,6 @@ Result<void> Domain::write_bits_entry(const Entry& e, std::size_t bit_offset,
   if (changed) e.output_changed_ns.store(now, std::memory_order_relaxed);
   unlock_staging();
   return ok();
-}
-
-Result<void> Domain::write_bits(PdoKey key, std::size_t bit_offset, std::size_t bit_length,
-                                std::uint64_t value) {
-  auto e = lookup(key);
-  if (!e) return std::move(e).error();
-  return write_bits_entry(**e, bit_offset, bit_length, value);
-}
-
-Result<void> Domain::write_bits(PdoHandle handle, std::size_t bit_offset, std::size_t bit_length,
-                                std::uint64_t value) {
-  auto e = lookup(handle);
-  if (!e) return std::move(e).error();
-  return write_bits_entry(**e, bit_offset, bit_length, value);
 }
 
 FreshnessInfo Domain::freshness() const noexcept {
@@ -1382,6 +1419,10 @@ Result<void> Domain::check_fresh(const Entry& e, std::int64_t refreshed,
   if (fresh_until != 0 && detail::read_tsc() < fresh_until) [[likely]] {
     return ok();
   }
+  return fresh_by_clock(e, refreshed);
+}
+
+Result<void> Domain::fresh_by_clock(const Entry& e, std::int64_t refreshed) const {
   const std::int64_t age = std::max<std::int64_t>(0, to_ns(Clock::now()) - refreshed);
   const nanoseconds limit = stale_after();
   if (age > limit.count()) [[unlikely]] {
@@ -1419,34 +1460,67 @@ Result<std::size_t> Domain::read_fresh(PdoHandle handle, wire::MutableBytes out)
 Result<std::uint64_t> Domain::read_fresh_bits(PdoHandle handle, std::size_t bit_offset,
                                               std::size_t bit_length) const {
   auto found = lookup(handle);
-  if (!found) [[unlikely]] {
-    return std::move(found).error();
+  if (!found) return std::move(found).error();
+  if ((*found)->direction != PdoDirection::input) {
+    return error(
+        Errc::invalid_argument,
+        fmt::format("read_fresh_bits({}): outputs have no freshness", to_string((*found)->key)));
   }
-  const Entry& e = **found;
-  if (e.direction != PdoDirection::input) [[unlikely]] {
-    return error(Errc::invalid_argument,
-                 fmt::format("read_fresh_bits({}): outputs have no freshness", to_string(e.key)));
+  auto f = field(handle, bit_offset, bit_length);
+  if (!f) return std::move(f).error();
+  return read_fresh(*f);
+}
+
+// The field's bits from the seqlocked input words (one or two: a field of at most 64 bits spans
+// at most two), with the publish's time and TSC stamp from the same section; then read_fresh's
+// checks, the stamp first.
+Result<std::uint64_t> Domain::read_fresh(const Field& f) const {
+  if (f.domain_ != this || f.direction_ != PdoDirection::input) [[unlikely]] {
+    return field_refused(f, PdoDirection::input);
   }
-  if (bit_length == 0 || bit_length > 64 || bit_offset + bit_length > std::size_t{e.size} * 8)
-      [[unlikely]] {
-    return error(Errc::invalid_argument,
-                 fmt::format("cannot read bits {}..{} of {}: the SM image has {} bits and at "
-                             "most 64 bits are read at once",
-                             bit_offset, bit_offset + bit_length, to_string(e.key),
-                             std::size_t{e.size} * 8));
-  }
-  // Only the bytes the field covers (at most 9), from one cycle.
-  const std::size_t first = bit_offset / 8;
-  const std::size_t bytes = (bit_offset % 8 + bit_length + 7) / 8;
-  std::uint8_t field[9];
+  const bool two = f.word_shift_ + f.bit_length_ > 64;
+  std::uint64_t low = 0;
+  std::uint64_t high = 0;
+  std::int64_t refreshed = 0;
   std::uint64_t until = 0;
-  const std::int64_t refreshed =
-      copy_published(input_seq_, refreshed_ns_, input_words_, e.offset + first, field, bytes,
-                     nullptr, nullptr, &fresh_until_tsc_, &until);
-  if (auto fresh = check_fresh(e, refreshed, until); !fresh) [[unlikely]] {
-    return std::move(fresh).error();
+  for (int spins = 0;; ++spins) {
+    const std::uint64_t s1 = input_seq_.load(std::memory_order_acquire);
+    if ((s1 & 1u) == 0) [[likely]] {
+      refreshed = refreshed_ns_.load(std::memory_order_relaxed);
+      until = fresh_until_tsc_.load(std::memory_order_relaxed);
+      const std::atomic<std::uint64_t>* words = input_words_.load(std::memory_order_acquire);
+      low = words[f.word_].load(std::memory_order_relaxed);
+      if (two) high = words[f.word_ + 1].load(std::memory_order_relaxed);
+      std::atomic_thread_fence(std::memory_order_acquire);
+      if (input_seq_.load(std::memory_order_relaxed) == s1) [[likely]] {
+        break;
+      }
+    }
+    if (spins < 64) {
+      cpu_relax();
+    } else {
+      std::this_thread::yield();
+    }
   }
-  return extract_bits(field, bytes, static_cast<unsigned>(bit_offset % 8), bit_length);
+  if (refreshed == 0 || f.reserved_) [[unlikely]] {
+    if (auto checked = check_fresh(*f.entry_, refreshed, until); !checked) {
+      return std::move(checked).error();
+    }
+  } else if (until == 0 || detail::read_tsc() >= until) [[unlikely]] {
+    if (auto checked = fresh_by_clock(*f.entry_, refreshed); !checked) {
+      return std::move(checked).error();
+    }
+  }
+  // The words hold the image's bytes in memory order (store_bytes): image bit n is bit n % 8 of
+  // byte n / 8, that is bit n % 64 of word n / 64 read as little-endian.
+  if constexpr (std::endian::native == std::endian::big) {
+    low = __builtin_bswap64(low);
+    high = __builtin_bswap64(high);
+  }
+  std::uint64_t v = low >> f.word_shift_;
+  if (two) v |= high << (64 - f.word_shift_);
+  if (f.bit_length_ < 64) v &= (std::uint64_t{1} << f.bit_length_) - 1;
+  return v;
 }
 
 Result<std::size_t> Domain::read_fresh(PdoKey key, wire::MutableBytes out) const {

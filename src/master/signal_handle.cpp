@@ -51,7 +51,9 @@ Result<SignalHandle> SignalHandle::resolve(Master& master, std::string_view slav
     if (!domain) return domain.error().context(fmt::format("resolving {}", what()));
     auto pdo = (*domain)->find(PdoKey{info.station, a.sync_manager});
     if (!pdo) return pdo.error().context(fmt::format("resolving {}", what()));
-    handle.targets_.push_back(Target{*domain, *pdo});
+    auto field = (*domain)->field(*pdo, sig->bit_offset, sig->bit_length);
+    if (!field) return field.error().context(fmt::format("resolving {}", what()));
+    handle.targets_.push_back(Target{*domain, *pdo, *field});
     image_size = std::max<std::size_t>(image_size, a.size);
     if (sig->direction == PdoDirection::input) break;  // read from one domain
   }
@@ -59,6 +61,7 @@ Result<SignalHandle> SignalHandle::resolve(Master& master, std::string_view slav
     return Error(Errc::not_found,
                  fmt::format("{} is not routed to a domain (its slave's process_data)", what()));
   }
+  handle.scalar_ = sig->type != SignalType::bytes;
   handle.image_.assign(image_size, 0);
   return handle;
 }
@@ -68,9 +71,9 @@ Result<Value> SignalHandle::read() const {
     return Error(Errc::not_ready, "read() of an unbound signal handle (SignalHandle::resolve)");
   }
   const Target& t = targets_.front();
-  if (signal_.direction == PdoDirection::input) {
-    // Only the field's own bytes, from one cycle, with read_fresh's checks.
-    auto raw = t.domain->read_fresh_bits(t.pdo, signal_.bit_offset, signal_.bit_length);
+  if (signal_.direction == PdoDirection::input && scalar_) {
+    // Only the field's own bits, from one cycle, with read_fresh's checks.
+    auto raw = t.domain->read_fresh(t.field);
     if (!raw) [[unlikely]] {
       return raw.error().context(fmt::format("input \"{}\" of slave {}", signal_.name, slave_));
     }
@@ -94,15 +97,26 @@ Result<void> SignalHandle::write(const Value& value) {
     return Error(Errc::invalid_argument,
                  fmt::format("signal \"{}\" of slave {} is an input", signal_.name, slave_));
   }
-  auto raw = from_engineering(signal_, value);
-  if (!raw) return raw.error();
-  std::uint8_t word[8] = {};
-  if (auto encoded = encode(field_, *raw, std::span<std::uint8_t>(word, sizeof word)); !encoded) {
-    return encoded.error().context(fmt::format("output \"{}\" of slave {}", signal_.name, slave_));
+  std::uint64_t bits = 0;
+  if (scalar_) {
+    auto raw = encode_field(signal_, value);
+    if (!raw) [[unlikely]] {
+      return raw.error().context(fmt::format("output \"{}\" of slave {}", signal_.name, slave_));
+    }
+    bits = *raw;
+  } else {
+    // A `bytes` signal of at most 64 bits: encoded into a word at bit 0.
+    auto raw = from_engineering(signal_, value);
+    if (!raw) return raw.error();
+    std::uint8_t word[8] = {};
+    if (auto encoded = encode(field_, *raw, std::span<std::uint8_t>(word, sizeof word)); !encoded) {
+      return encoded.error().context(
+          fmt::format("output \"{}\" of slave {}", signal_.name, slave_));
+    }
+    bits = wire::load_le64(word);
   }
-  const std::uint64_t bits = wire::load_le64(word);
   for (const Target& t : targets_) {
-    if (auto w = t.domain->write_bits(t.pdo, signal_.bit_offset, signal_.bit_length, bits); !w) {
+    if (auto w = t.domain->write_bits(t.field, bits); !w) [[unlikely]] {
       return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"",
                                            signal_.name, slave_, t.domain->id()));
     }

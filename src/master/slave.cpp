@@ -723,41 +723,79 @@ Result<void> Slave::Impl::check_mailbox() const {
   return ok();
 }
 
-// A cheap hash of a short name: its length and its first and last eight bytes (they overlap
-// below 16), mixed by multiplication. Names are compared in full after it.
-std::uint64_t Slave::Impl::name_hash(std::string_view name) noexcept {
-  std::uint64_t head = 0;
-  std::uint64_t tail = 0;
+detail::SlaveHotPath::NameKey detail::SlaveHotPath::short_name_key(std::string_view name) noexcept {
+  NameKey key;
   const std::size_t n = name.size();
-  if (n >= 8) {
-    std::memcpy(&head, name.data(), 8);
-    std::memcpy(&tail, name.data() + n - 8, 8);
-  } else {
-    std::memcpy(&head, name.data(), n);
+  const char* p = name.data();
+  key.length = n;
+  if (n >= 4) {
+    // Two overlapping four-byte loads, the second moved up to its place: bytes 0..n-1, zeros above.
+    std::uint32_t first = 0;
+    std::uint32_t last = 0;
+    std::memcpy(&first, p, 4);
+    std::memcpy(&last, p + n - 4, 4);
+    std::uint8_t bytes[8] = {};
+    std::memcpy(bytes, &first, 4);
+    std::memcpy(bytes + n - 4, &last, 4);
+    std::memcpy(&key.head, bytes, 8);
+  } else if (n > 0) {
+    std::uint8_t bytes[8] = {};
+    bytes[0] = static_cast<std::uint8_t>(p[0]);
+    bytes[n / 2] = static_cast<std::uint8_t>(p[n / 2]);
+    bytes[n - 1] = static_cast<std::uint8_t>(p[n - 1]);
+    std::memcpy(&key.head, bytes, 8);
   }
-  std::uint64_t h = (head * 0x9E3779B97F4A7C15ull) ^ (tail * 0xC2B2AE3D27D4EB4Full) ^ n;
-  h ^= h >> 29;
-  h *= 0xBF58476D1CE4E5B9ull;
-  return h ^ (h >> 32);
+  return key;
 }
 
-const Signal* Slave::Impl::HotPath::find(std::string_view name) const noexcept {
+std::ptrdiff_t detail::SlaveHotPath::find_index(std::string_view name) const noexcept {
   if (!signal_index.empty()) {
+    const NameKey key = name_key(name);
     const std::size_t mask = signal_index.size() - 1;
-    for (std::size_t i = name_hash(name) & mask;; i = (i + 1) & mask) {
+    for (std::size_t i = hash(key, index_shift);; i = (i + 1) & mask) {
       const std::uint32_t slot = signal_index[i];
-      if (slot == 0) return nullptr;  // the table is at most half full: an empty slot ends it
-      const Signal& s = signals[slot - 1];
-      if (s.name == name) return &s;
+      if (slot == 0) return -1;  // the table is at most half full: an empty slot ends it
+      const std::size_t k = slot - 1;
+      // Up to 16 bytes the key is the name; a longer name compares its middle too.
+      if (slots[k].key == key &&
+          (key.length <= 16 ||
+           std::memcmp(signals[k].name.data() + 8, name.data() + 8, key.length - 16) == 0)) {
+        return static_cast<std::ptrdiff_t>(k);
+      }
     }
   }
-  for (const auto& s : signals) {
-    if (s.name == name) return &s;
+  for (std::size_t k = 0; k < signals.size(); ++k) {
+    if (signals[k].name == name) return static_cast<std::ptrdiff_t>(k);
   }
-  return nullptr;
+  return -1;
 }
 
-const Slave::Impl::Route* Slave::Impl::HotPath::route_for(std::uint8_t sm) const noexcept {
+void detail::SlaveHotPath::index_names() {
+  slots.resize(signals.size());
+  for (std::size_t k = 0; k < signals.size(); ++k)
+    slots[k].key = name_key(signals[k].name);
+  signal_index.clear();
+  index_shift = 64;
+  if (signals.empty()) return;
+  signal_index.assign(std::bit_ceil(signals.size() * 2), 0);
+  const std::size_t mask = signal_index.size() - 1;
+  index_shift = 64 - static_cast<unsigned>(std::countr_zero(signal_index.size()));
+  for (std::size_t k = 0; k < signals.size(); ++k) {
+    for (std::size_t i = hash(slots[k].key, index_shift);; i = (i + 1) & mask) {
+      if (signal_index[i] == 0) {
+        signal_index[i] = static_cast<std::uint32_t>(k + 1);
+        break;
+      }
+      if (signals[signal_index[i] - 1].name == signals[k].name) {
+        // Duplicate names (none expected): the walk in find_index keeps the first one.
+        signal_index.clear();
+        return;
+      }
+    }
+  }
+}
+
+const detail::SlaveRoute* detail::SlaveHotPath::route_for(std::uint8_t sm) const noexcept {
   for (const auto& r : routes) {
     if (r.sync_manager == sm) return &r;
   }
@@ -780,24 +818,44 @@ void Slave::Impl::index_routes() {
     view->routes.push_back(Route{a.sync_manager, a.size, domain, *handle});
   }
   view->all_routed = view->routes.size() == attachments.size();
-  if (!signals.empty()) {
-    auto& index = view->signal_index;
-    index.assign(std::bit_ceil(signals.size() * 2), 0);
-    const std::size_t mask = index.size() - 1;
-    for (std::size_t k = 0; k < signals.size() && !index.empty(); ++k) {
-      for (std::size_t i = name_hash(signals[k].name) & mask;; i = (i + 1) & mask) {
-        if (index[i] == 0) {
-          index[i] = static_cast<std::uint32_t>(k + 1);
-          break;
-        }
-        if (signals[index[i] - 1].name == signals[k].name) {
-          // Duplicate names (none expected): the walk in find keeps the first one.
-          index.clear();
-          break;
-        }
-      }
+  view->slots.resize(signals.size());
+  for (std::size_t k = 0; k < signals.size(); ++k) {
+    const Signal& sig = signals[k];
+    HotPath::Slot& slot = view->slots[k];
+    const Route* route = view->route_for(sig.sync_manager);
+    if (route == nullptr || !is_field(sig, route->size)) continue;
+    if (sig.direction == PdoDirection::input) {
+      auto f = route->domain->field(route->handle, sig.bit_offset, sig.bit_length);
+      if (!f) continue;
+      slot.input = HotPath::Target{route->domain, *f};
+      slot.path = HotPath::Path::input_field;
+      continue;
     }
+    // An output: staged in every domain of its SyncManager, so only when all are routed.
+    auto image = output_images.find(sig.sync_manager);
+    if (!view->all_routed || image == output_images.end()) continue;
+    const auto first = static_cast<std::uint32_t>(view->targets.size());
+    bool made = true;
+    for (const auto& r : view->routes) {
+      if (r.sync_manager != sig.sync_manager) continue;
+      auto f = r.domain->field(r.handle, sig.bit_offset, sig.bit_length);
+      if (!f) {
+        made = false;
+        break;
+      }
+      view->targets.push_back(HotPath::Target{r.domain, *f});
+    }
+    if (!made) {
+      view->targets.resize(first);
+      continue;
+    }
+    slot.first = first;
+    slot.count = static_cast<std::uint32_t>(view->targets.size()) - first;
+    slot.image = &image->second;
+    slot.image_size = route->size;
+    slot.path = HotPath::Path::output_field;
   }
+  view->index_names();
   // Readers may still hold the view published before: it stays (see `views`).
   for (const auto& made : views) {
     if (*made == *view) {
@@ -1264,19 +1322,16 @@ Result<Value> Slave::read_input(std::string_view name) const {
   // The published view, without `mutex` (Impl::HotPath): nullptr before the first configuration.
   const Impl::HotPath* view = impl_->hot.load(std::memory_order_acquire);
   for (;;) {
-    const Signal* sig = view != nullptr ? view->find(name) : nullptr;
-    if (!sig) {
+    const std::ptrdiff_t k = view != nullptr ? view->find_index(name) : -1;
+    if (k < 0) {
       return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
     }
-    // A routed input of a scalar field (a route is made from an attachment): only its own bytes,
-    // from one cycle, with the domain's freshness checks.
-    const Impl::Route* route = view->route_for(sig->sync_manager);
-    if (sig->direction != PdoDirection::input || route == nullptr ||
-        !Impl::is_field(*sig, route->size)) {
-      break;
-    }
-    auto raw = route->domain->read_fresh_bits(route->handle, sig->bit_offset, sig->bit_length);
-    // The bytes were read under this view only if it is still the published one (the read's
+    // A routed input of a scalar field: only its own bits, from one cycle, with the domain's
+    // freshness checks (Domain::read_fresh of the field the view keeps).
+    const Impl::HotPath::Slot& slot = view->slots[static_cast<std::size_t>(k)];
+    if (slot.path != Impl::HotPath::Path::input_field) break;
+    auto raw = slot.input.domain->read_fresh(slot.input.field);
+    // The bits were read under this view only if it is still the published one (the read's
     // seqlock ends with an acquire fence); else reconfigured meanwhile: read again.
     const Impl::HotPath* now = impl_->hot.load(std::memory_order_acquire);
     if (now != view) [[unlikely]] {
@@ -1286,7 +1341,7 @@ Result<Value> Slave::read_input(std::string_view name) const {
     if (!raw) [[unlikely]] {
       return raw.error().context(fmt::format("input \"{}\" of slave {}", name, name_));
     }
-    return decode_field(*sig, *raw);
+    return decode_field(view->signals[static_cast<std::size_t>(k)], *raw);
   }
   // The rest (an output's staged value, a wide or unrouted input) under `mutex`, as configured.
   std::lock_guard lock(impl_->mutex);
@@ -1328,54 +1383,54 @@ Result<Value> Slave::read_input(std::string_view name) const {
 
 Result<void> Slave::write_output(std::string_view name, const Value& value) {
   const Impl::HotPath* view = impl_->hot.load(std::memory_order_acquire);
-  const Signal* sig = view != nullptr ? view->find(name) : nullptr;
-  if (!sig) {
+  const std::ptrdiff_t k = view != nullptr ? view->find_index(name) : -1;
+  if (k < 0) {
     return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
   }
-  if (sig->direction != PdoDirection::output) {
+  const Signal& sig = view->signals[static_cast<std::size_t>(k)];
+  if (sig.direction != PdoDirection::output) {
     return Error(Errc::invalid_argument,
                  fmt::format("signal \"{}\" of slave {} is an input", name, name_));
   }
-  const Impl::Route* route = view->route_for(sig->sync_manager);
-  if (view->all_routed && route != nullptr && Impl::is_field(*sig, route->size)) {
+  const Impl::HotPath::Slot& slot = view->slots[static_cast<std::size_t>(k)];
+  if (slot.path == Impl::HotPath::Path::output_field) {
     // A scalar field, without `mutex`: encoded once into its raw bits and staged as those bits
     // only (under each domain's staging lock, so a multi-byte value leaves whole in one cycle);
     // the retained image takes them when every domain did. Under the output lock throughout, so
     // concurrent writers leave the domains and the retained image with the same value.
-    auto raw = encode_field(*sig, value);
+    auto raw = encode_field(sig, value);
     if (!raw) [[unlikely]] {
       return raw.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
     }
     const Impl::OutputLock images(*impl_);
-    auto it = impl_->output_images.find(sig->sync_manager);
     // The configuration changes the images and the view together under this lock: a view that
     // is no longer the published one was reconfigured meanwhile (the `mutex` path below).
-    if (impl_->hot.load(std::memory_order_relaxed) == view && it != impl_->output_images.end() &&
-        it->second.size() == route->size) [[likely]] {
-      for (const auto& r : view->routes) {
-        if (r.sync_manager != sig->sync_manager) continue;
-        if (auto w = r.domain->write_bits(r.handle, sig->bit_offset, sig->bit_length, *raw); !w)
-            [[unlikely]] {
+    if (impl_->hot.load(std::memory_order_relaxed) == view && slot.image->size() == slot.image_size)
+        [[likely]] {
+      for (std::uint32_t t = slot.first; t < slot.first + slot.count; ++t) {
+        const Impl::HotPath::Target& target = view->targets[t];
+        if (auto w = target.domain->write_bits(target.field, *raw); !w) [[unlikely]] {
           return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,
-                                               name_, r.domain->id()));
+                                               name_, target.domain->id()));
         }
       }
-      return store_field(*sig, *raw, it->second);
+      return store_field(sig, *raw, *slot.image);
     }
   }
   // The rest (a wide value, a field outside its image, an unrouted attachment) under `mutex`.
   std::lock_guard lock(impl_->mutex);
   view = impl_->hot.load(std::memory_order_relaxed);
-  sig = view->find(name);  // again: the configuration may have changed it meanwhile
-  if (!sig) {
+  // Again: the configuration may have changed it meanwhile.
+  const Signal* current = view != nullptr ? view->find(name) : nullptr;
+  if (!current) {
     return Error(Errc::not_found, fmt::format("slave {} has no signal \"{}\"", name_, name));
   }
-  if (sig->direction != PdoDirection::output) {
+  if (current->direction != PdoDirection::output) {
     return Error(Errc::invalid_argument,
                  fmt::format("signal \"{}\" of slave {} is an input", name, name_));
   }
   const Impl::OutputLock images(*impl_);
-  auto it = impl_->output_images.find(sig->sync_manager);
+  auto it = impl_->output_images.find(current->sync_manager);
   if (it == impl_->output_images.end()) {
     return Error(Errc::not_found,
                  fmt::format("signal \"{}\" of slave {} is not routed to a domain", name, name_));
@@ -1384,12 +1439,12 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
   // allocate; it replaces the retained image only when every domain took it.
   auto& staged = impl_->write_scratch;
   staged.assign(it->second.begin(), it->second.end());
-  if (auto encoded = encode_scaled(*sig, value, staged); !encoded) {
+  if (auto encoded = encode_scaled(*current, value, staged); !encoded) {
     return encoded.error().context(fmt::format("output \"{}\" of slave {}", name, name_));
   }
   if (view->all_routed) {
     for (const auto& r : view->routes) {
-      if (r.sync_manager != sig->sync_manager) continue;
+      if (r.sync_manager != current->sync_manager) continue;
       if (auto w = r.domain->write(r.handle, staged); !w) {
         return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"", name,
                                              name_, r.domain->id()));
@@ -1397,7 +1452,7 @@ Result<void> Slave::write_output(std::string_view name, const Value& value) {
     }
   } else {
     for (const auto& a : impl_->attachments) {
-      if (a.sync_manager != sig->sync_manager) continue;
+      if (a.sync_manager != current->sync_manager) continue;
       Domain* domain = impl_->session.find_domain(a.domain);
       if (auto w = domain->write(PdoKey{station_, a.sync_manager}, staged); !w) {
         return w.error().context(

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <atomic>
+#include <cstring>
 #include <functional>
 #include <map>
 #include <memory>
@@ -31,6 +32,101 @@ class EoeClient;  // <ecat/master/eoe.hpp>
 exec::Task<Result<MailboxConfig>> write_mailbox_sync_managers(exec::EventLoop& loop, bus::Bus& bus,
                                                               std::uint16_t station,
                                                               const wire::SiiMailbox& mbx);
+
+namespace detail {
+
+// The hot path's way to its data (read_input / write_output), made when the attachments and
+// signals are: each attachment's domain and registration handle (no lookup by domain name or
+// PDO key per call), and the signals by name.
+struct SlaveRoute {
+  std::uint8_t sync_manager = 0;
+  std::uint16_t size = 0;
+  Domain* domain = nullptr;
+  PdoHandle handle{};
+  bool operator==(const SlaveRoute&) const = default;
+};
+// What read_input / write_output need, as one immutable view read without the slave's `mutex`:
+// index_routes makes a new one under the slave's `mutex` and publishes it through Slave::Impl::hot
+// (release; readers acquire). A view once published is never changed nor freed while the slave
+// lives (a reader may still hold it): Impl::views keeps every one made, and index_routes reuses an
+// equal one, so they number the distinct layouts the slave has had (one, unless reconfigured), not
+// its reconfigurations.
+struct SlaveHotPath {
+  std::vector<Signal> signals;  // a copy of Impl::signals
+  // A name as the lookup compares it: its length and its first and last eight bytes (they
+  // overlap from 8 to 16 bytes; zero-padded below 8), which are the whole name up to 16 bytes;
+  // a longer one compares its middle too. Two loads and no library call for a short name.
+  struct NameKey {
+    std::uint64_t head = 0;
+    std::uint64_t tail = 0;
+    std::size_t length = 0;
+    bool operator==(const NameKey&) const = default;
+  };
+  static NameKey name_key(std::string_view name) noexcept {
+    if (name.size() < 8) return short_name_key(name);
+    NameKey key;
+    key.length = name.size();
+    std::memcpy(&key.head, name.data(), 8);
+    std::memcpy(&key.tail, name.data() + name.size() - 8, 8);
+    return key;
+  }
+  static NameKey short_name_key(std::string_view name) noexcept;  // below 8 bytes
+  // The table slot to probe first: the key's words mixed by one multiplication, its top bits
+  // (`shift`: 64 less the table's size in bits).
+  static std::size_t hash(const NameKey& key, unsigned shift) noexcept {
+    const std::uint64_t h =
+        (key.head ^ (key.tail >> 7) ^ (key.tail << 29) ^ key.length) * 0x9E3779B97F4A7C15ull;
+    return shift >= 64 ? 0 : static_cast<std::size_t>(h >> shift);
+  }
+  // A domain field a scalar signal is read from or staged into (Domain::field: no lookup nor
+  // range check per call).
+  struct Target {
+    Domain* domain = nullptr;
+    Domain::Field field;
+    bool operator==(const Target&) const = default;
+  };
+  // How the hot path reaches each signal (same order as `signals`).
+  enum class Path : std::uint8_t {
+    slow,         // under the slave's `mutex` (a bytes signal, a field outside its image, unrouted)
+    input_field,  // read_fresh of `input` (the first domain of its SyncManager)
+    output_field,  // write_bits into `targets[first, first + count)`, kept in `*image`
+  };
+  struct Slot {
+    NameKey key;
+    Path path = Path::slow;
+    Target input;
+    std::uint32_t first = 0;
+    std::uint32_t count = 0;
+    // The retained image of the signal's SyncManager (a node of Impl::output_images: never
+    // erased, so the pointer stays; its bytes are read and written under the output lock).
+    std::vector<std::uint8_t>* image = nullptr;
+    std::size_t image_size = 0;
+    bool operator==(const Slot&) const = default;
+  };
+  std::vector<Slot> slots;
+  std::vector<Target> targets;
+  // The signals by name: open addressing over a power-of-two table of signal index + 1 (0:
+  // empty), at most half full, probed linearly from hash(name_key(name)); empty when two
+  // signals share a name (find then walks `signals`, keeping the first). Our own rather than
+  // std::unordered_map because it is on read_input/write_output's path (issue #17's 50 ns
+  // target): no node per entry to chase, and two words compared per probe.
+  std::vector<std::uint32_t> signal_index;
+  unsigned index_shift = 64;  // 64 less log2 of signal_index's size
+  std::vector<SlaveRoute> routes;
+  bool all_routed = false;  // a route for every attachment (else writes look domains up)
+  // Sets every slot's key and fills signal_index from `signals` (index_routes).
+  void index_names();
+  // The index of the signal of that name, or -1.
+  std::ptrdiff_t find_index(std::string_view name) const noexcept;
+  const Signal* find(std::string_view name) const noexcept {
+    const std::ptrdiff_t i = find_index(name);
+    return i >= 0 ? &signals[static_cast<std::size_t>(i)] : nullptr;
+  }
+  const SlaveRoute* route_for(std::uint8_t sm) const noexcept;
+  bool operator==(const SlaveHotPath&) const = default;
+};
+
+}  // namespace detail
 
 struct Slave::Impl {
   Impl(Slave& owner, Session& s, SlaveConfig c);
@@ -66,38 +162,11 @@ struct Slave::Impl {
   PdoLayout layout;
   std::vector<Signal> signals;
   std::vector<SmAttachment> attachments;
-  // The hot path's way to its data (read_input / write_output), made when the attachments and
-  // signals are: each attachment's domain and registration handle (no lookup by domain name or
-  // PDO key per call), and the signals by name.
-  struct Route {
-    std::uint8_t sync_manager = 0;
-    std::uint16_t size = 0;
-    Domain* domain = nullptr;
-    PdoHandle handle{};
-    bool operator==(const Route&) const = default;
-  };
-  // What read_input / write_output need, as one immutable view read without `mutex`: index_routes
-  // makes a new one under `mutex` and publishes it through `hot` (release; readers acquire). A
-  // view once published is never changed nor freed while the slave lives (a reader may still
-  // hold it): `views` keeps every one made, and index_routes reuses an equal one, so they number
-  // the distinct layouts the slave has had (one, unless reconfigured), not its reconfigurations.
-  struct HotPath {
-    std::vector<Signal> signals;  // a copy of Impl::signals
-    // The signals by name: open addressing over a power-of-two table of signal index + 1 (0:
-    // empty), at most half full, probed linearly from name_hash(name); empty when two signals
-    // share a name (find then walks `signals`, keeping the first). Our own rather than
-    // std::unordered_map because it is on read_input/write_output's path (issue #17's 50 ns
-    // target): no node per entry to chase, and a hash of at most 16 bytes of the name.
-    std::vector<std::uint32_t> signal_index;
-    std::vector<Route> routes;
-    bool all_routed = false;  // a route for every attachment (else writes look domains up)
-    const Signal* find(std::string_view name) const noexcept;
-    const Route* route_for(std::uint8_t sm) const noexcept;
-    bool operator==(const HotPath&) const = default;
-  };
+  // The hot path's way to its data and the view of it (detail::SlaveRoute, SlaveHotPath).
+  using Route = detail::SlaveRoute;
+  using HotPath = detail::SlaveHotPath;
   std::atomic<const HotPath*> hot{nullptr};
   std::vector<std::unique_ptr<const HotPath>> views;  // under `mutex`
-  static std::uint64_t name_hash(std::string_view name) noexcept;
   // SM1's status mapped into a domain (mailbox status in the cyclic frame), when it is.
   std::optional<detail::MailboxStatusMapping> mailbox_status;
   // The retained output image of each output SyncManager: what write_output staged; written to
@@ -158,7 +227,7 @@ struct Slave::Impl {
   // The signal of that name in the published view (nullptr before the first configuration).
   const Signal* find_signal(std::string_view name) const noexcept;
   const SmAttachment* attachment_for(std::uint8_t sm) const noexcept;
-  // A signal the hot path reads and stages as its own bits (Domain::read_fresh_bits /
+  // A signal the hot path reads and stages as its own bits (a Domain::Field: read_fresh /
   // write_bits, decode_field / encode_field): a scalar of 1..64 bits inside an SM image of
   // `image_bytes`. Others (bytes, a field outside its image) take the whole-image path, whose
   // codecs name what is wrong.

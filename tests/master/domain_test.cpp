@@ -394,6 +394,91 @@ TEST(DomainCycleTest, OutputsAppearAsInputsWithExactWkc) {
   EXPECT_EQ(observer.stopped_count(), 0u);
 }
 
+// Domain::Field: resolved once, then read and staged without a lookup. Five bytes of padding
+// first (no slave serves them, not counted in the WKC) put the two input bytes at image bytes 7
+// and 8, across the image's first two 64-bit words: every field of them reads as the bytes say,
+// as read_fresh_bits does. Fields of the wrong direction or domain, or unbound, are refused.
+TEST(DomainCycleTest, FieldsReadAndStageTheirOwnBitsAcrossWords) {
+  Loopback lb(config(), nullptr, [](Domain& d) {
+    ASSERT_TRUE(d.register_pdo(PdoKey{0x7777, 0}, 5, PdoDirection::output, false).ok());
+  });
+  ASSERT_TRUE(lb.ok());
+  auto& d = *lb.domain;
+  const auto in_handle = d.find(PdoKey{kInputs, 0});
+  const auto out0 = d.find(PdoKey{kOutputs, 0});
+  const auto out1 = d.find(PdoKey{kOutputs, 1});
+  ASSERT_TRUE(in_handle.ok() && out0.ok() && out1.ok());
+  ASSERT_EQ(d.registration(PdoKey{kInputs, 0})->offset, 7u) << "the premise: across two words";
+
+  // Staged through fields: SM0 whole, then the high nibble of SM1 over what write() put there.
+  auto whole = d.field(*out0, 0, 8);
+  auto nibble = d.field(*out1, 4, 4);
+  ASSERT_TRUE(whole.ok() && nibble.ok());
+  EXPECT_EQ(whole->direction(), PdoDirection::output);
+  ASSERT_TRUE(d.write(PdoKey{kOutputs, 1}, Bytes{0x3C}).ok());
+  ASSERT_TRUE(d.write_bits(*whole, 0xA5).ok());
+  ASSERT_TRUE(d.write_bits(*nibble, 0x9).ok());
+  ASSERT_TRUE(lb.inputs_become({0xA5, 0x9C}));
+  const std::uint64_t image = 0x9CA5;  // the two input bytes, LSB first
+  for (std::size_t offset = 0; offset < 16; ++offset) {
+    for (std::size_t length = 1; offset + length <= 16; ++length) {
+      auto f = d.field(*in_handle, offset, length);
+      ASSERT_TRUE(f.ok()) << offset << "+" << length;
+      const std::uint64_t expected = (image >> offset) & ((std::uint64_t{1} << length) - 1);
+      auto got = d.read_fresh(*f);
+      auto bits = d.read_fresh_bits(*in_handle, offset, length);
+      for (int retry = 0; retry < 1000 && !(got && bits); ++retry) {
+        ASSERT_EQ((got ? bits : got).error().code(), Errc::stale);  // a starved bus thread
+        std::this_thread::sleep_for(kPeriod);
+        got = d.read_fresh(*f);
+        bits = d.read_fresh_bits(*in_handle, offset, length);
+      }
+      ASSERT_TRUE(got.ok() && bits.ok());
+      EXPECT_EQ(*got, expected) << offset << "+" << length;
+      EXPECT_EQ(*bits, expected) << offset << "+" << length;
+    }
+  }
+
+  // field() checks what read_fresh_bits / write_bits check, in their words.
+  EXPECT_EQ(d.field(PdoHandle{99}, 0, 1).error().code(), Errc::not_found);
+  auto outside = d.field(*in_handle, 9, 8);
+  ASSERT_FALSE(outside.ok());
+  EXPECT_EQ(outside.error().message(),
+            "domain \"main\": cannot read bits 9..17 of station 0x1002 SM0: the SM image has 16 "
+            "bits and at most 64 bits are read at once");
+  EXPECT_EQ(d.field(*in_handle, 0, 0).error().code(), Errc::invalid_argument);
+  EXPECT_EQ(d.field(*out0, 0, 9).error().message(),
+            "domain \"main\": cannot write bits 0..9 of station 0x1003 SM0: the SM image has 8 "
+            "bits and at most 64 bits are written at once");
+  // An output field has no freshness, an input field is not staged.
+  auto in_field = d.field(*in_handle, 0, 4);
+  ASSERT_TRUE(in_field.ok());
+  auto no_freshness = d.read_fresh(*whole);
+  ASSERT_FALSE(no_freshness.ok());
+  EXPECT_EQ(no_freshness.error().code(), Errc::invalid_argument);
+  EXPECT_EQ(no_freshness.error().message(),
+            "domain \"main\": read_fresh_bits(station 0x1003 SM0): outputs have no freshness");
+  auto to_input = d.write_bits(*in_field, 1);
+  ASSERT_FALSE(to_input.ok());
+  EXPECT_EQ(to_input.error().message(),
+            "domain \"main\": cannot write bits of station 0x1002 SM0: it is an input");
+  // Unbound, or another domain's: refused, nothing read or staged.
+  const Domain::Field unbound;
+  EXPECT_FALSE(unbound.bound());
+  EXPECT_EQ(d.read_fresh(unbound).error().code(), Errc::invalid_argument);
+  EXPECT_EQ(d.write_bits(unbound, 1).error().code(), Errc::invalid_argument);
+  auto other = make_domain(*lb.rig->bus, config("other"));
+  ASSERT_TRUE(other);
+  ASSERT_TRUE(other->register_pdo(PdoKey{kOutputs, 0}, 1, PdoDirection::output).ok());
+  auto foreign = other->field(PdoHandle{0}, 0, 8);
+  ASSERT_TRUE(foreign.ok());
+  auto refused = d.write_bits(*foreign, 0);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().message(), "domain \"main\": a field made by another domain");
+  EXPECT_EQ(other->write_bits(*whole, 0).error().code(), Errc::invalid_argument);
+  EXPECT_TRUE(lb.inputs_become({0xA5, 0x9C})) << "nothing staged by the refused writes";
+}
+
 TEST(DomainCycleTest, FreshnessNotReadyFreshStale) {
   auto rig = make_rig();
   ASSERT_TRUE(rig);

@@ -1,6 +1,7 @@
 // Slave::read_input / write_output on a running master: a scalar signal is read and staged as its
-// own bits (Domain::read_fresh_bits / write_bits) and must say what the whole SM image says, fail
-// closed when stale with the error naming the signal, and stage a multi-byte value whole.
+// own bits (the Domain::Field it keeps: read_fresh / write_bits) and must say what the whole SM
+// image says, fail closed when stale with the error naming the signal, and stage a multi-byte value
+// whole.
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -35,14 +36,14 @@ struct Running {
   std::unique_ptr<sim::SimServer> server;
   std::unique_ptr<Master> master;
 
-  Running() {
+  explicit Running(std::chrono::nanoseconds stale_after = 2s) {
     server = test::make_sim_server(test::kDriveRing);
     if (!server) return;
     MasterConfig config = test::quick_config(2ms);
     config.frame_timeout = 1s;  // no spurious loss on a loaded machine
     config.domains[0].recovery_threshold = 1'000'000;
     config.domains[0].miss_threshold = 1'000'000;
-    config.domains[0].stale_after = 2s;
+    config.domains[0].stale_after = stale_after;
     config.slaves.push_back(test::quick_slave("drive"));
     for (auto& s : config.slaves)
       s.health_poll.reset();
@@ -132,6 +133,53 @@ TEST(SlaveHotPath, FieldReadsSayWhatTheImageSaysAndStaleInputsFail) {
   EXPECT_EQ(stale.error().message(), "input \"channel_2\" of slave inputs");
   ASSERT_NE(stale.error().cause(), nullptr);
   EXPECT_NE(stale.error().cause()->message().find("(input) is stale"), std::string::npos);
+}
+
+// The staleness rule holds exactly on the fast path (a TSC stamp proves freshness without a
+// clock read; past it, one clock read decides): once the domain stops, every read that says
+// fresh began within stale_after of the last valid cycle, every read that says stale ended
+// beyond it, through Slave::read_input and a SignalHandle alike. No timing tolerance: each read
+// is bracketed by clock reads, and the domain's last valid cycle is the publish's own time.
+TEST(SlaveHotPath, AStoppedDomainsInputsTurnStaleExactlyAfterStaleAfter) {
+  constexpr auto kStaleAfter = 100ms;
+  Running r(kStaleAfter);
+  ASSERT_TRUE(r.master);
+  Slave& in = r.slave("inputs");
+  auto handle = r.master->signal_handle("inputs", "channel_2");
+  ASSERT_TRUE(handle.ok()) << handle.error().describe();
+  // Some cycles first: the TSC stamps start after a measured window of 5 ms (tsc_clock.hpp).
+  std::this_thread::sleep_for(50ms);
+  ASSERT_TRUE(eventually([&] { return in.read_input("channel_2").ok() && handle->read().ok(); }));
+  ASSERT_TRUE(r.domain().stop_cycling());
+  std::this_thread::sleep_for(20ms);  // an exchange still in flight completes
+  std::size_t fresh = 0, stale = 0;
+  const auto end = std::chrono::steady_clock::now() + 3 * kStaleAfter;
+  while (std::chrono::steady_clock::now() < end) {
+    const auto before_stats = r.domain().stats().last_valid_at;
+    const auto t0 = std::chrono::steady_clock::now();
+    auto by_name = in.read_input("channel_2");
+    auto by_handle = handle->read();
+    const auto t1 = std::chrono::steady_clock::now();
+    const auto last_valid = r.domain().stats().last_valid_at;
+    ASSERT_TRUE(last_valid.has_value());
+    if (before_stats != last_valid) continue;  // published meanwhile: not this sample
+    for (const auto* got : {&by_name, &by_handle}) {
+      if (got->ok()) {
+        EXPECT_LE(t0 - *last_valid, kStaleAfter) << "fresh, yet older than stale_after";
+        ++fresh;
+      } else {
+        ASSERT_EQ(got->error().code(), Errc::stale) << got->error().describe();
+        EXPECT_GT(t1 - *last_valid, kStaleAfter) << "stale, yet not older than stale_after";
+        ++stale;
+      }
+    }
+    std::this_thread::sleep_for(100us);
+  }
+  EXPECT_GT(fresh, 0u);
+  EXPECT_GT(stale, 0u);
+  // Still stale long after (nothing turns fresh without a valid cycle).
+  EXPECT_EQ(in.read_input("channel_2").error().code(), Errc::stale);
+  EXPECT_EQ(handle->read().error().code(), Errc::stale);
 }
 
 // A writer alternates a 32-bit output between two values whose every byte differs while a reader

@@ -244,6 +244,41 @@ class Domain final : public CyclicParticipant {
   // checks and errors (Errc::invalid_argument for an output or bits outside the image).
   Result<std::uint64_t> read_fresh_bits(PdoHandle handle, std::size_t bit_offset,
                                         std::size_t bit_length) const;
+  // A field of 1..64 bits of one registration, checked once (field()) and then read or staged
+  // without a lookup or a range check per call: what Slave::read_input / write_output and
+  // SignalHandle keep. Only the Domain that made it accepts it; a default-constructed one is
+  // unbound (refused with Errc::invalid_argument).
+ private:
+  struct Entry;
+
+ public:
+  class Field {
+   public:
+    Field() = default;
+    bool bound() const noexcept { return entry_ != nullptr; }
+    PdoDirection direction() const noexcept { return direction_; }
+    bool operator==(const Field&) const = default;
+
+   private:
+    friend class Domain;
+    const Domain* domain_ = nullptr;
+    const Entry* entry_ = nullptr;
+    std::uint32_t word_ = 0;        // inputs: the first 64-bit word of the image it covers
+    std::uint32_t byte_ = 0;        // outputs: its first byte in the image
+    std::uint16_t bit_length_ = 0;  // 1..64
+    std::uint8_t word_shift_ = 0;   // its first bit in word_ (0..63)
+    std::uint8_t byte_shift_ = 0;   // its first bit in byte_ (0..7)
+    bool reserved_ = false;         // in a hot-connect reservation: absent reads as stale
+    PdoDirection direction_ = PdoDirection::input;
+  };
+  // `bit_length` (1..64) bits at `bit_offset` of the registration's image, as read_fresh_bits /
+  // write_bits take them: Errc::not_found for an unknown handle, Errc::invalid_argument for bits
+  // outside the image.
+  Result<Field> field(PdoHandle handle, std::size_t bit_offset, std::size_t bit_length) const;
+  // read_fresh_bits / write_bits of a field made by field(): the same checks and errors, with no
+  // lookup. The freshness check is read_fresh's (a TSC stamp, else one clock read).
+  Result<std::uint64_t> read_fresh(const Field& field) const;
+  Result<void> write_bits(const Field& field, std::uint64_t value);
   // Value plus timestamps and freshness.
   Result<SampleInfo> sample(PdoHandle handle, wire::MutableBytes out) const;
   Result<SampleInfo> sample(PdoKey key, wire::MutableBytes out) const;
@@ -286,7 +321,6 @@ class Domain final : public CyclicParticipant {
   std::chrono::nanoseconds realtime_budget() const noexcept;
 
  private:
-  struct Entry;
   struct Exchange;
   struct Plan;
   struct Reservation;
@@ -302,6 +336,10 @@ class Domain final : public CyclicParticipant {
                                 std::uint64_t value);
   Result<SampleInfo> sample_entry(const Entry& e, wire::MutableBytes out, bool fail_stale) const;
   Result<void> check_fresh(const Entry& e, std::int64_t refreshed, std::uint64_t fresh_until) const;
+  // The field's refusal when it is not this domain's or not of `direction` (cold).
+  Error field_refused(const Field& field, PdoDirection direction) const;
+  // read_fresh(Field)'s verdict when the TSC stamp did not prove the copy fresh (cold).
+  Result<void> fresh_by_clock(const Entry& e, std::int64_t refreshed) const;
   Result<void> build_exchanges_locked();
   std::vector<DomainDatagram> plan_locked() const;
 

@@ -9,9 +9,10 @@
 // Resolution (control side, on a running session whose slaves have their PREOP configuration)
 // looks the slave and the signal up once and keeps where the signal lives: the domain(s) its
 // SyncManager is registered in and its registration there. read() and write() then go straight to
-// the domains' process images (Domain::read_fresh_bits / read / write_bits): they never take a
-// mutex, never wait for the control thread and allocate nothing on success (scalar signals; errors
-// build a message). Values are in engineering units, as Slave::read_input / write_output use them.
+// the domains' process images (the signal's Domain::Field: read_fresh / write_bits): they never
+// take a mutex, never wait for the control thread and allocate nothing on success (scalar signals;
+// errors build a message). Values are in engineering units, as Slave::read_input / write_output use
+// them.
 //
 // Threads: a handle is used by one thread at a time (it owns a scratch copy of its SyncManager
 // image); copy it for another thread. It refers to the session's domains, so it is valid until
@@ -67,11 +68,14 @@ class SignalHandle {
   struct Target {
     Domain* domain = nullptr;
     PdoHandle pdo{};
+    Domain::Field field{};  // the signal's bits in the registration (Domain::field)
   };
   std::string slave_{};
   Signal signal_{};
   // The signal moved to bit 0: encode() fills a 64-bit word with it for Domain::write_bits.
   Signal field_{};
+  bool scalar_ =
+      false;  // not `bytes`: read and staged as its own bits (decode_field / encode_field)
   std::vector<Target> targets_{};  // inputs: one; outputs: every domain of the SyncManager
   mutable std::vector<std::uint8_t> image_{};  // scratch: one SyncManager image
 };
