@@ -291,8 +291,7 @@ TEST(HotConnect, AGroupPluggedBehindABreakOfARedundantRingGetsItsOwnStations) {
   });
   EXPECT_TRUE(loop_follows(m, "tool_out", "tool_in", false)) << ring->describe();
   EXPECT_TRUE(fixed_loop_follows(m, true));
-  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count)
-      << ring->describe();
+  EXPECT_EQ(ring->domain_stats().wkc_mismatch_count, before.wkc_mismatch_count) << ring->describe();
   EXPECT_FALSE(ring->saw(MasterState::recovering)) << ring->describe();
   EXPECT_EQ(m.state(), MasterState::operational);
 }
@@ -803,11 +802,15 @@ simulator:
     - {name: tool_drive, profile: servo, clock: {drift_ppm: 70, offset_ns: 900000000}, hot_connect: {group: tool, plugged: false}}
 )";
 
-RingSpec dc_group_spec() {
+// A DC ring: 2 ms cycle, lock within 200 ns; `plain` fixed slaves without process data, then the
+// fixed servo `drive` (SYNC0), and one hot-connect group per name in `groups`, each one servo
+// `<group>_drive` (SYNC0) identified by its identity.
+RingSpec dc_groups_spec(const char* yaml, std::vector<const char*> plain,
+                        std::vector<std::string> groups) {
   RingSpec spec;
-  spec.ring_yaml = kDcRing;
+  spec.ring_yaml = yaml;
   spec.domain_period = 2ms;
-  spec.adjust = [](master::MasterConfig& c) {
+  spec.adjust = [plain, groups](master::MasterConfig& c) {
     master::DcConfig dc;
     dc.cycle = 2ms;
     dc.lock_threshold = 200ns;
@@ -815,28 +818,36 @@ RingSpec dc_group_spec() {
     master::SyncConfig sync;
     sync.mode = master::SyncMode::sync0;
     c.slaves.clear();
-    master::SlaveConfig coupler;
-    coupler.name = "coupler";
-    c.slaves.push_back(coupler);
+    for (const char* name : plain) {
+      master::SlaveConfig s;
+      s.name = name;
+      c.slaves.push_back(s);
+    }
     master::SlaveConfig drive;
     drive.name = "drive";
     drive.process_data = master::ProcessDataRequest::all("main");
     drive.sync = sync;
     c.slaves.push_back(drive);
-    master::HotConnectGroup g;
-    g.name = "tool";
-    master::SlaveConfig tool;
-    tool.name = "tool_drive";
-    tool.vendor_id = 0x00000ACE;
-    tool.product_code = 0x00002402;
-    tool.process_data = master::ProcessDataRequest::all("main");
-    tool.health_poll = 20ms;
-    tool.sync = sync;
-    g.slaves.push_back(tool);
-    c.hot_connect.push_back(g);
+    for (const auto& group : groups) {
+      master::HotConnectGroup g;
+      g.name = group;
+      master::SlaveConfig tool;
+      tool.name = fmt::format("{}_drive", group);
+      tool.vendor_id = 0x00000ACE;
+      tool.product_code = 0x00002402;
+      tool.process_data = master::ProcessDataRequest::all("main");
+      tool.health_poll = 20ms;
+      tool.sync = sync;
+      g.slaves.push_back(tool);
+      c.hot_connect.push_back(g);
+    }
     c.hot_connect_poll = 10ms;
   };
   return spec;
+}
+
+RingSpec dc_group_spec() {
+  return dc_groups_spec(kDcRing, {"coupler"}, {"tool"});
 }
 
 // How far the group's clock is from the reference's, in truth (the simulator's system times at
@@ -935,43 +946,7 @@ simulator:
 )";
 
 RingSpec two_dc_groups_spec() {
-  RingSpec spec;
-  spec.ring_yaml = kTwoDcGroupsRing;
-  spec.domain_period = 2ms;
-  spec.adjust = [](master::MasterConfig& c) {
-    master::DcConfig dc;
-    dc.cycle = 2ms;
-    dc.lock_threshold = 200ns;
-    c.dc = dc;
-    master::SyncConfig sync;
-    sync.mode = master::SyncMode::sync0;
-    c.slaves.clear();
-    for (const char* name : {"coupler", "junction_1", "junction_2"}) {
-      master::SlaveConfig s;
-      s.name = name;
-      c.slaves.push_back(s);
-    }
-    master::SlaveConfig drive;
-    drive.name = "drive";
-    drive.process_data = master::ProcessDataRequest::all("main");
-    drive.sync = sync;
-    c.slaves.push_back(drive);
-    for (const char* group : {"a", "b"}) {
-      master::HotConnectGroup g;
-      g.name = group;
-      master::SlaveConfig tool;
-      tool.name = fmt::format("{}_drive", group);
-      tool.vendor_id = 0x00000ACE;
-      tool.product_code = 0x00002402;
-      tool.process_data = master::ProcessDataRequest::all("main");
-      tool.health_poll = 20ms;
-      tool.sync = sync;
-      g.slaves.push_back(tool);
-      c.hot_connect.push_back(g);
-    }
-    c.hot_connect_poll = 10ms;
-  };
-  return spec;
+  return dc_groups_spec(kTwoDcGroupsRing, {"coupler", "junction_1", "junction_2"}, {"a", "b"});
 }
 
 std::optional<master::HotConnectStatus> group_named(master::Master& m, std::string_view name) {
