@@ -403,57 +403,77 @@ TEST(ConfigEni, HotConnectByAliasAndMalformedGroupsAreNamed) {
   EXPECT_NE(second.find("a second <HotConnect>"), std::string::npos) << second;
 }
 
+// The hot-connect ENI's master, started on kHotConnectRing (the group plugged from the start when
+// `plugged`) and operational; its group's state once `state` (or the wait gave up).
+struct HotConnectEniRing {
+  std::unique_ptr<sim::SimServer> server;
+  std::unique_ptr<Master> master;
+
+  explicit HotConnectEniRing(bool plugged) {
+    auto imported = import_eni(read_text(kHotConnectEni), kHotConnectEni);
+    EXPECT_TRUE(imported) << imported.error().describe();
+    if (!imported) return;
+    if (plugged) {
+      // Its fixed slaves all have positions (from AutoIncAddr, counted without the group).
+      for (const auto& s : imported->config.slaves)
+        EXPECT_TRUE(s.position) << s.name;
+    }
+    imported->config.hot_connect_poll = 10ms;
+    std::string yaml = kHotConnectRing;
+    if (plugged) yaml.replace(yaml.find("plugged: false"), 14, "plugged: true");
+    server = test::make_sim_server(yaml);
+    EXPECT_TRUE(server);
+    if (!server) return;
+    auto link = server->serve_memory();
+    EXPECT_TRUE(link);
+    if (!link) return;
+    master = std::make_unique<Master>(std::move(imported->config));
+    EXPECT_TRUE(master->start(std::move(*link)));
+    auto op = master->await_operational(20s);
+    EXPECT_TRUE(op) << op.error().describe();
+    if (!op) master.reset();
+  }
+  ~HotConnectEniRing() {
+    if (master) (void)master->stop();
+  }
+  HotConnectEniRing(const HotConnectEniRing&) = delete;
+  HotConnectEniRing& operator=(const HotConnectEniRing&) = delete;
+
+  bool group_present() {
+    return eventually([&] {
+      const auto st = master->status();
+      return !st.hot_connect.empty() && st.hot_connect[0].state == HotConnectState::present;
+    });
+  }
+  std::string group_detail() const {
+    const auto st = master->status();
+    return st.hot_connect.empty() ? "" : st.hot_connect[0].detail;
+  }
+};
+
 // The ENI's group, on a junction port in the middle of a simulated ring: absent at start, then
 // plugged and brought to OP by a master configured from the ENI only.
 TEST(ConfigEni, AnEniHotConnectGroupJoinsOnTheSimulatedRing) {
-  auto imported = import_eni(read_text(kHotConnectEni), kHotConnectEni);
-  ASSERT_TRUE(imported) << imported.error().describe();
-  imported->config.hot_connect_poll = 10ms;
-  auto server = test::make_sim_server(kHotConnectRing);
-  ASSERT_TRUE(server);
-  auto link = server->serve_memory();
-  ASSERT_TRUE(link);
-  Master master(std::move(imported->config));
-  ASSERT_TRUE(master.start(std::move(*link)));
-  auto op = master.await_operational(20s);
-  ASSERT_TRUE(op) << op.error().describe();
-  ASSERT_TRUE(server->plug("tool", true));
-  EXPECT_TRUE(eventually([&] {
-    const auto st = master.status();
-    return !st.hot_connect.empty() && st.hot_connect[0].state == HotConnectState::present;
-  })) << (master.status().hot_connect.empty() ? "" : master.status().hot_connect[0].detail);
-  EXPECT_NE(master.status().hot_connect[0].detail.find("device ID 7"), std::string::npos)
-      << master.status().hot_connect[0].detail;
+  HotConnectEniRing ring(false);
+  ASSERT_TRUE(ring.master);
+  auto& master = *ring.master;
+  ASSERT_TRUE(ring.server->plug("tool", true));
+  EXPECT_TRUE(ring.group_present()) << ring.group_detail();
+  EXPECT_NE(ring.group_detail().find("device ID 7"), std::string::npos) << ring.group_detail();
   auto in = master.slave("tool_in");
   ASSERT_TRUE(in);
   EXPECT_EQ((*in)->state(), SlaveState::op);
   EXPECT_EQ(master.state(), MasterState::operational);
-  (void)master.stop();
 }
 
 // The ENI's group already plugged when the master starts: its fixed slaves all have positions
 // (from AutoIncAddr, counted without the group), and the group on the junction is still found
 // in front of the far slaves, which are placed behind it.
 TEST(ConfigEni, AnEniHotConnectGroupPluggedAtStartIsFoundOnTheJunction) {
-  auto imported = import_eni(read_text(kHotConnectEni), kHotConnectEni);
-  ASSERT_TRUE(imported) << imported.error().describe();
-  for (const auto& s : imported->config.slaves)
-    ASSERT_TRUE(s.position) << s.name;
-  imported->config.hot_connect_poll = 10ms;
-  std::string yaml = kHotConnectRing;
-  yaml.replace(yaml.find("plugged: false"), 14, "plugged: true");
-  auto server = test::make_sim_server(yaml);
-  ASSERT_TRUE(server);
-  auto link = server->serve_memory();
-  ASSERT_TRUE(link);
-  Master master(std::move(imported->config));
-  ASSERT_TRUE(master.start(std::move(*link)));
-  auto op = master.await_operational(20s);
-  ASSERT_TRUE(op) << op.error().describe();
-  EXPECT_TRUE(eventually([&] {
-    const auto st = master.status();
-    return !st.hot_connect.empty() && st.hot_connect[0].state == HotConnectState::present;
-  })) << (master.status().hot_connect.empty() ? "" : master.status().hot_connect[0].detail);
+  HotConnectEniRing ring(true);
+  ASSERT_TRUE(ring.master);
+  auto& master = *ring.master;
+  EXPECT_TRUE(ring.group_present()) << ring.group_detail();
   auto far = master.slave("far_out");
   ASSERT_TRUE(far);
   EXPECT_EQ((*far)->info().position, 8);
@@ -462,7 +482,6 @@ TEST(ConfigEni, AnEniHotConnectGroupPluggedAtStartIsFoundOnTheJunction) {
   ASSERT_TRUE(in);
   EXPECT_EQ((*in)->state(), SlaveState::op);
   EXPECT_EQ(master.state(), MasterState::operational);
-  (void)master.stop();
 }
 
 // The simulated ring of examples/default.yaml, driven by a master configured from the ENI only.
