@@ -1731,6 +1731,7 @@ struct Master::Impl : DomainObserver {
     std::optional<RingTree> shape;
     std::vector<std::uint16_t> shape_stations;
     bool learning_shape = false;
+    bool shape_seeded = false;  // seed_ring_shape built its tree, or found it would not hold
     std::optional<exec::Clock::time_point> shape_tried_at;
     // DC across a break (apply_dc_reach): the DC slaves the reference's time cannot reach (the
     // secondary's copy of the FRMW is a NOP meanwhile), and a re-step after the heal running.
@@ -1810,7 +1811,7 @@ struct Master::Impl : DomainObserver {
         w.locating = true;
         exec::spawn(loop, locate_break(s, false));
       }
-      if (!w.shape) seed_ring_shape(*s);
+      if (!w.shape && !w.shape_seeded) seed_ring_shape(*s);
       if (w.redundancy && w.redundancy->second == link::RingState::whole && !w.learning_shape &&
           (!w.shape_tried_at || now - *w.shape_tried_at >= kLocatePeriod)) {
         auto stations = ring_stations(*s);
@@ -1897,6 +1898,7 @@ struct Master::Impl : DomainObserver {
     LinkWatch& w = link_watch;
     auto stations = ring_stations(s);
     if (stations != s.start_ring_stations || s.dl_status.size() != stations.size()) return;
+    w.shape_seeded = true;  // the start-up's reading is what it is: one try
     std::vector<std::uint16_t> dl;
     for (const auto& d : s.dl_status)
       dl.push_back(d.encode());
