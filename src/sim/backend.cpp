@@ -1,5 +1,6 @@
 #include <fmt/format.h>
 
+#include <ecat/link/forwarding_link.hpp>
 #include <ecat/link/open.hpp>
 #include <ecat/sim/backend.hpp>
 #include <ecat/sim/ring.hpp>
@@ -10,25 +11,14 @@ namespace {
 
 // The function link of an in-process simulator, keeping that simulator alive as long as the
 // master holds the link.
-class SimulatorLink final : public link::Link {
+class SimulatorLink final : public link::ForwardingLink {
  public:
   SimulatorLink(std::shared_ptr<SimServer> server, std::string name)
-      : server_(std::move(server)), inner_(server_->function_link(std::move(name))) {}
-  ~SimulatorLink() override { inner_.reset(); }
-
-  Result<void> send(wire::Bytes frame) override { return inner_->send(frame); }
-  Result<std::optional<link::ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
-    return inner_->receive(timeout);
-  }
-  void interrupt() override { inner_->interrupt(); }
-  void close() override { inner_->close(); }
-  std::string name() const override { return inner_->name(); }
-  link::LinkStats stats() const override { return inner_->stats(); }
-  std::size_t max_frame_size() const override { return inner_->max_frame_size(); }
+      : ForwardingLink(server->function_link(std::move(name))), server_(std::move(server)) {}
+  ~SimulatorLink() override { release_inner(); }  // before the simulator it calls into
 
  private:
   std::shared_ptr<SimServer> server_;
-  std::unique_ptr<link::Link> inner_;
 };
 
 }  // namespace

@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include <ecat/bus/bus.hpp>
+#include <ecat/link/forwarding_link.hpp>
 
 #include "bus/bus_test_support.hpp"
 
@@ -99,24 +100,15 @@ TEST(Transaction, BuilderMistakesAreReportedBySubmit) {
 }
 
 // A link that records the frame budget the bus tells it (Link::set_frame_budget).
-class BudgetLink final : public link::Link {
+class BudgetLink final : public link::ForwardingLink {
  public:
   BudgetLink(std::unique_ptr<link::Link> inner, std::shared_ptr<std::atomic<std::int64_t>> budget)
-      : inner_(std::move(inner)), budget_(std::move(budget)) {}
-  Result<void> send(wire::Bytes frame) override { return inner_->send(frame); }
-  Result<std::optional<link::ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
-    return inner_->receive(timeout);
-  }
-  void interrupt() override { inner_->interrupt(); }
-  void close() override { inner_->close(); }
-  std::string name() const override { return inner_->name(); }
-  link::LinkStats stats() const override { return inner_->stats(); }
+      : ForwardingLink(std::move(inner)), budget_(std::move(budget)) {}
   void set_frame_budget(std::chrono::nanoseconds budget) override {
     budget_->store(budget.count());
   }
 
  private:
-  std::unique_ptr<link::Link> inner_;
   std::shared_ptr<std::atomic<std::int64_t>> budget_;
 };
 

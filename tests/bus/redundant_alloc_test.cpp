@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <ecat/bus/bus.hpp>
+#include <ecat/link/forwarding_link.hpp>
 #include <ecat/link/redundant_link.hpp>
 
 #include "bus/bus_test_support.hpp"
@@ -25,23 +26,17 @@ constexpr wire::MacAddress kPrimaryMac{0x02, 0x00, 0x00, 0x00, 0x00, 0x01};
 constexpr wire::MacAddress kSecondaryMac{0x02, 0x00, 0x00, 0x00, 0x00, 0x02};
 
 // A link whose replies carry a fixed Ethernet source.
-class StampedLink final : public link::Link {
+class StampedLink final : public link::ForwardingLink {
  public:
   StampedLink(std::unique_ptr<link::Link> inner, wire::MacAddress source)
-      : inner_(std::move(inner)), source_(source) {}
-  Result<void> send(wire::Bytes frame) override { return inner_->send(frame); }
+      : ForwardingLink(std::move(inner)), source_(source) {}
   Result<std::optional<link::ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
-    auto received = inner_->receive(timeout);
+    auto received = ForwardingLink::receive(timeout);
     if (received && *received) (*received)->source = source_;
     return received;
   }
-  void interrupt() override { inner_->interrupt(); }
-  void close() override { inner_->close(); }
-  std::string name() const override { return inner_->name(); }
-  link::LinkStats stats() const override { return inner_->stats(); }
 
  private:
-  std::unique_ptr<link::Link> inner_;
   wire::MacAddress source_;
 };
 

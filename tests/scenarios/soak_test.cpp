@@ -36,6 +36,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <ecat/link/forwarding_link.hpp>
 #include <ecat/link/link.hpp>
 #include <ecat/link/redundant_link.hpp>
 #include <ecat/master/config.hpp>
@@ -130,31 +131,22 @@ class FrameLog {
 };
 
 // The master's end of the memory link, logging what it sends.
-class LoggedLink final : public link::Link {
+class LoggedLink final : public link::ForwardingLink {
  public:
   LoggedLink(std::unique_ptr<link::Link> inner, std::shared_ptr<FrameLog> log)
-      : inner_(std::move(inner)), log_(std::move(log)) {}
+      : ForwardingLink(std::move(inner)), log_(std::move(log)) {}
   Result<void> send(wire::Bytes frame) override {
     log_->sent(frame);
-    auto done = inner_->send(frame);
-    const auto dropped = inner_->stats().frames_dropped;
+    auto done = ForwardingLink::send(frame);
+    const auto dropped = inner().stats().frames_dropped;
     if (dropped != dropped_) {
       dropped_ = dropped;
       log_->dropped();
     }
     return done;
   }
-  Result<std::optional<link::ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
-    return inner_->receive(timeout);
-  }
-  void interrupt() override { inner_->interrupt(); }
-  void close() override { inner_->close(); }
-  std::string name() const override { return inner_->name(); }
-  link::LinkStats stats() const override { return inner_->stats(); }
-  std::size_t max_frame_size() const override { return inner_->max_frame_size(); }
 
  private:
-  std::unique_ptr<link::Link> inner_;
   std::shared_ptr<FrameLog> log_;
   std::uint64_t dropped_ = 0;
 };
