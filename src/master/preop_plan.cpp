@@ -289,9 +289,13 @@ Result<ProcessDataPlan> plan_process_data(const PreopFacts& facts, const SlaveCo
       continue;
     }
     const auto& sii_sm = facts.sii.sync_managers[sm.sync_manager];
-    plan.sync_managers.push_back(
-        {sm.sync_manager,
-         sync_manager_config(sii_sm, sii_sm.start, sm.byte_length(), sm.direction)});
+    auto sm_config = sync_manager_config(sii_sm, sii_sm.start, sm.byte_length(), sm.direction);
+    // Nothing writes an output SyncManager routed nowhere: with the SII's watchdog trigger left
+    // on, the process-data watchdog would expire one watchdog time after OP and the slave fall
+    // back to SAFEOP (AL status 0x001B), again after every recovery. Its outputs stay in their
+    // safe state; the watchdog still guards any SyncManager that is written.
+    if (sm.direction == PdoDirection::output) sm_config.control.watchdog = false;
+    plan.sync_managers.push_back({sm.sync_manager, sm_config});
   }
   return plan;
 }

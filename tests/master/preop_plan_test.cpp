@@ -205,7 +205,13 @@ TEST(PreopPlan, SyncManagerRoutedNowhereIsStillConfiguredWithoutFmmu) {
   ASSERT_EQ(pd.attachments.size(), 1u);
   EXPECT_EQ(pd.attachments[0].domain, "fast");
   ASSERT_EQ(pd.sync_managers.size(), 2u);
+  EXPECT_EQ(pd.sync_managers[0].sync_manager, 0);
+  EXPECT_TRUE(pd.sync_managers[0].config.control.watchdog);
   EXPECT_EQ(pd.sync_managers[1].sync_manager, 1);
+  EXPECT_TRUE(pd.sync_managers[1].config.activate.enable);
+  // Nothing writes it: its watchdog trigger is off, or the slave would leave OP one watchdog
+  // time after reaching it.
+  EXPECT_FALSE(pd.sync_managers[1].config.control.watchdog);
   register_all(pd);
   const auto writes = process_data_writes(pd);
   std::vector<std::uint16_t> order;

@@ -522,5 +522,29 @@ TEST(Scenario52, DriveRetreatIsSlaveLocalAndCommandsResume) {
   EXPECT_EQ(ring->master->status().illegal_transitions, 0u);
 }
 
+// ---- outputs routed nowhere --------------------------------------------------------------------
+
+// The mailbox device has a 2-byte output SyncManager with the watchdog trigger on in its SII; the
+// ring file routes none of its process data, so nothing ever writes it. It stays in OP past
+// several watchdog times (100 ms): the master configures that SyncManager without the trigger.
+TEST(SlaveHealth, SlaveWithOutputsRoutedNowhereStaysInOpPastItsWatchdogTime) {
+  RingSpec spec;
+  spec.kind = RingKind::segmented;
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  Monitor monitor(*ring->master);
+  std::this_thread::sleep_for(350ms);
+  monitor.stop();
+  EXPECT_FALSE(monitor.saw("state:mailbox:safeop")) << monitor.seen();
+  EXPECT_TRUE(ring->all_slaves_in(SlaveState::op)) << ring->describe();
+  EXPECT_FALSE(ring->any_slave_fault()) << ring->describe();
+  ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+    for (std::size_t i = 0; i < segment.size(); ++i) {
+      EXPECT_EQ(segment.esc(i).read_u8(wire::reg::kWatchdogCounterProcessData), 0)
+          << segment.name(i);
+    }
+  });
+}
+
 }  // namespace
 }  // namespace ecat::scenarios
