@@ -29,6 +29,7 @@
 //   --startup runs section 3 alone, five runs per size (--terminals N: at that size only;
 //   --runs N: N runs per size).
 //   --fifo runs the jitter section's cycle thread with SCHED_FIFO at PRIORITY.
+//   --cpu N pins the jitter section's cycle thread and its cyclictest runs to CPU N.
 //   --jitter-link memory|veth|both: section 2 against the in-process simulator (memory link), the
 //   simulator in another process over veth (needs root), or both (default).
 //   --only jitter|hot|alloc|redundancy runs one section (--breaks N: section 6's breaks).
@@ -55,6 +56,9 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <sys/klog.h>
+#include <sys/resource.h>
+#include <sys/utsname.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -92,6 +96,7 @@ struct Mode {
   std::optional<std::size_t> terminals;  // section 3 at this size only
   std::optional<std::size_t> runs;       // section 3's runs per size
   std::optional<int> fifo;
+  std::optional<int> cpu;             // section 2: the cycle thread and cyclictest pinned here
   std::optional<int> jitter_seconds;  // section 2's length per rate
   std::optional<int> alloc_seconds;   // section 5's window
   std::string only;                   // run one section: jitter, hot, alloc, redundancy
@@ -127,6 +132,108 @@ Distribution distribution(std::vector<std::int64_t> ns) {
   d.p999 = at(0.999);
   d.max = static_cast<double>(ns.back()) / 1e3;
   return d;
+}
+
+// ---- what the host did meanwhile (the figures' attribution)
+// ------------------------------------------------------------------------
+
+// The guest's steal time summed over its CPUs (/proc/stat "cpu" line, 8th value, in USER_HZ
+// ticks): time a vCPU was runnable but the host ran something else. nullopt: unreadable.
+std::optional<std::uint64_t> steal_ticks() {
+  std::FILE* file = std::fopen("/proc/stat", "r");
+  if (file == nullptr) return std::nullopt;
+  unsigned long long v[8] = {};
+  const int got = std::fscanf(file, "cpu %llu %llu %llu %llu %llu %llu %llu %llu", &v[0], &v[1],
+                              &v[2], &v[3], &v[4], &v[5], &v[6], &v[7]);
+  std::fclose(file);
+  if (got != 8) return std::nullopt;
+  return v[7];
+}
+
+// A thread's involuntary context switches (the guest scheduler took the CPU from it), from
+// /proc/self/task/<tid>/status. nullopt: unreadable.
+std::optional<std::uint64_t> involuntary_switches(pid_t tid) {
+  std::FILE* file = std::fopen(fmt::format("/proc/self/task/{}/status", tid).c_str(), "r");
+  if (file == nullptr) return std::nullopt;
+  std::optional<std::uint64_t> found;
+  char line[256];
+  while (std::fgets(line, sizeof line, file) != nullptr) {
+    unsigned long long n = 0;
+    if (std::sscanf(line, "nonvoluntary_ctxt_switches: %llu", &n) == 1) found = n;
+  }
+  std::fclose(file);
+  return found;
+}
+
+// Steal time over a window, both CPUs together, in ms ("-" when /proc/stat is unreadable).
+class StealWindow {
+ public:
+  StealWindow() : from_(steal_ticks()) {}
+  std::string ms() const {
+    const auto to = steal_ticks();
+    if (!from_ || !to) return "-";
+    const long hz = ::sysconf(_SC_CLK_TCK);
+    return fmt::format("{}", (*to - *from_) * 1000 / static_cast<std::uint64_t>(hz > 0 ? hz : 100));
+  }
+
+ private:
+  std::optional<std::uint64_t> from_;
+};
+
+std::string difference(std::optional<std::uint64_t> from, std::optional<std::uint64_t> to) {
+  return from && to ? fmt::format("{}", *to - *from) : std::string("-");
+}
+
+// The kernel's preemption model as far as it can be read: debugfs (the current model in
+// parentheses), else the boot log's "Dynamic Preempt: X" line (PREEMPT_DYNAMIC kernels), else a
+// preempt= on the command line, else "unknown"; with where it came from.
+std::string preemption_model() {
+  const auto slurp = [](const char* path) {
+    std::string text;
+    if (std::FILE* file = std::fopen(path, "r")) {
+      char buffer[4096];
+      std::size_t n = 0;
+      while ((n = std::fread(buffer, 1, sizeof buffer, file)) > 0)
+        text.append(buffer, n);
+      std::fclose(file);
+    }
+    return text;
+  };
+  const std::string debugfs = slurp("/sys/kernel/debug/sched/preempt");
+  if (const auto open = debugfs.find('('); open != std::string::npos) {
+    const auto close = debugfs.find(')', open);
+    if (close != std::string::npos)
+      return debugfs.substr(open + 1, close - open - 1) + " (/sys/kernel/debug/sched/preempt)";
+  }
+  const int size = ::klogctl(10, nullptr, 0);  // SYSLOG_ACTION_SIZE_BUFFER
+  if (size > 0) {
+    std::string log(static_cast<std::size_t>(size), '\0');
+    const int got = ::klogctl(3, log.data(), size);  // SYSLOG_ACTION_READ_ALL
+    if (got > 0) {
+      log.resize(static_cast<std::size_t>(got));
+      constexpr std::string_view kTag = "Dynamic Preempt: ";
+      if (const auto at = log.rfind(kTag); at != std::string::npos) {
+        const auto from = at + kTag.size();
+        const auto end = log.find_first_of("\r\n", from);
+        return log.substr(from, end == std::string::npos ? std::string::npos : end - from) +
+               " (boot log \"Dynamic Preempt\")";
+      }
+    }
+  }
+  const std::string cmdline = slurp("/proc/cmdline");
+  if (const auto at = cmdline.find("preempt="); at != std::string::npos) {
+    const auto end = cmdline.find_first_of(" \n", at);
+    return cmdline.substr(at + 8, end == std::string::npos ? std::string::npos : end - at - 8) +
+           " (kernel command line)";
+  }
+  return "unknown";
+}
+
+std::string kernel_line() {
+  struct utsname u {};
+  if (::uname(&u) != 0) return "kernel: unknown";
+  return fmt::format("kernel: {} {}; preemption model: {}", u.release, u.version,
+                     preemption_model());
 }
 
 std::string us_columns(const Distribution& d) {
@@ -304,6 +411,8 @@ class TickProbe final : public ecat::master::CyclicParticipant {
 
   void on_tick(const ecat::bus::CycleTick& tick) override {
     allocs::is_bus_thread = true;
+    if (tid_.load(std::memory_order_relaxed) == 0)
+      tid_.store(::gettid(), std::memory_order_release);
     ticks_.fetch_add(1, std::memory_order_relaxed);
     if (!recording_.load(std::memory_order_acquire)) return;
     const std::size_t i = count_.load(std::memory_order_relaxed);
@@ -320,6 +429,8 @@ class TickProbe final : public ecat::master::CyclicParticipant {
   bool full() const { return count_.load(std::memory_order_acquire) >= late_ns_.size(); }
   std::uint64_t ticks() const { return ticks_.load(std::memory_order_relaxed); }
   std::uint64_t missed() const { return missed_.load(std::memory_order_relaxed); }
+  // The cycle (bus) thread's id, once it ticked (0 before).
+  pid_t tid() const { return tid_.load(std::memory_order_acquire); }
   std::vector<std::int64_t> samples() const {
     const auto n = static_cast<std::ptrdiff_t>(count_.load(std::memory_order_acquire));
     return {late_ns_.begin(), late_ns_.begin() + n};
@@ -327,6 +438,7 @@ class TickProbe final : public ecat::master::CyclicParticipant {
 
  private:
   std::chrono::nanoseconds period_;
+  std::atomic<pid_t> tid_{0};
   std::vector<std::int64_t> late_ns_;
   std::atomic<std::size_t> count_{0};
   std::atomic<std::uint64_t> ticks_{0};
@@ -509,6 +621,7 @@ struct Cyclictest {
   std::string note;  // why there are no figures ("not installed", its error)
   Distribution d;
   std::uint64_t beyond_period = 0;  // wake-ups later than one period (the machine's own floor)
+  std::string involuntary = "-";    // the cyclictest process's involuntary context switches
   bool ok = false;
 };
 
@@ -526,16 +639,21 @@ bool on_path(const char* program) {
 }
 
 Cyclictest run_cyclictest(std::chrono::nanoseconds period, std::size_t loops,
-                          std::optional<int> fifo) {
+                          std::optional<int> fifo, std::optional<int> cpu) {
   Cyclictest out;
   if (!on_path("cyclictest")) {
     out.note = "not installed (Debian package rt-tests, which scripts/setup installs)";
     return out;
   }
   constexpr int kHistogramUs = 10000;
-  const auto command = fmt::format(
-      "cyclictest -q -m -t1 -p{} -i{} -l{} -h{} 2>&1", fifo.value_or(0),
-      std::chrono::duration_cast<std::chrono::microseconds>(period).count(), loops, kHistogramUs);
+  const auto command =
+      fmt::format("cyclictest -q -m -t1 -p{} -i{} -l{} -h{}{} 2>&1", fifo.value_or(0),
+                  std::chrono::duration_cast<std::chrono::microseconds>(period).count(), loops,
+                  kHistogramUs, cpu ? fmt::format(" -a{}", *cpu) : std::string());
+  // Its involuntary context switches: the children's rusage gains exactly this child's (the
+  // shell execs cyclictest) when pclose reaps it.
+  struct rusage children_before {};
+  const bool counted = ::getrusage(RUSAGE_CHILDREN, &children_before) == 0;
   FILE* pipe = ::popen(command.c_str(), "r");
   if (pipe == nullptr) {
     out.note = fmt::format("cannot run it: {}", std::strerror(errno));
@@ -558,6 +676,9 @@ Cyclictest run_cyclictest(std::chrono::nanoseconds period, std::size_t loops,
     }
   }
   const int status = ::pclose(pipe);
+  struct rusage children_after {};
+  if (counted && ::getrusage(RUSAGE_CHILDREN, &children_after) == 0)
+    out.involuntary = fmt::format("{}", children_after.ru_nivcsw - children_before.ru_nivcsw);
   if (status != 0 || total + overflows == 0) {
     while (!first_line.empty() && (first_line.back() == '\n' || first_line.back() == '\r'))
       first_line.pop_back();
@@ -728,13 +849,15 @@ class ChildSimulator {
 
 void section_jitter(const Mode& mode) {
   heading("2. cycle-start lateness (us after the deadline that was due), ecat vs cyclictest");
-  fmt::print("{:>7} {:<14} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}  {}\n", "rate", "thread",
-             "n", "min", "p50", "p99", "p99.9", "max", ">period", "skipped", "setup");
+  fmt::print("{:>7} {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>6} {:>6}  {}\n",
+             "rate", "thread", "n", "min", "p50", "p99", "p99.9", "max", ">period", "skipped",
+             "steal", "invol", "setup");
   // In process (the simulator's thread beside the master's, over a memory link) and, with root,
   // over veth with the simulator in a process of its own.
   ecat::bench::VethPair pair;
   const bool veth = mode.jitter_link != "memory" && pair.problem().empty();
   const bool memory = mode.jitter_link != "veth";
+  const std::string pinned = mode.cpu ? fmt::format(", CPU {}", *mode.cpu) : std::string();
   for (const auto period : {std::chrono::nanoseconds(1ms), std::chrono::nanoseconds(250us),
                             std::chrono::nanoseconds(125us)}) {
     const auto seconds = mode.jitter_seconds ? std::chrono::seconds(*mode.jitter_seconds)
@@ -742,26 +865,43 @@ void section_jitter(const Mode& mode) {
                                              : 3s;
     const auto samples = static_cast<std::size_t>(seconds / period);
     const auto rate = fmt::format("{} Hz", 1s / period);
-    const auto run_ecat = [&](const char* label, bool over_veth) {
+    const auto print_cyclictest = [&](const char* label, const Cyclictest& ct,
+                                      const std::string& steal, const std::string& setup) {
+      if (!ct.ok) {
+        fmt::print("{:>7} {:<18} {}\n", rate, label, ct.note);
+        return;
+      }
+      fmt::print("{:>7} {:<18} {:>7} {} {:>8} {:>8} {:>6} {:>6}  {}\n", rate, label, ct.d.n,
+                 us_columns(ct.d), ct.beyond_period, "-", steal, ct.involuntary,
+                 fmt::format("-p{} -m{}, cpu_dma_latency 0{}", mode.fifo.value_or(0),
+                             mode.cpu ? fmt::format(" -a{}", *mode.cpu) : std::string(), setup));
+    };
+    // ecat's own run (`floor` false): the master's cycle thread with the realtime setup asked
+    // for, a probe in its Cycler. The floor under the same load (`floor` true): the same master
+    // and simulator, the same domain at the same period, serving the same frames, but the
+    // master's cycle thread at default scheduling, while cyclictest runs with the realtime
+    // setup ecat had: what this machine gives a SCHED_FIFO thread beside that load.
+    const auto run = [&](const char* label, bool over_veth, bool floor) {
       auto config = master_config(2, period);
-      if (mode.fifo) {
+      if (mode.fifo && !floor) {
         // A realtime user's setup, as cyclictest makes it: SCHED_FIFO, cpu_dma_latency held at
         // 0, memory locked (and the cycle thread's stack pre-faulted).
         config.cycle_thread.fifo_priority = *mode.fifo;
         config.cycle_thread.cpu_dma_latency_us = 0;
         config.cycle_thread.lock_memory = true;
       }
+      if (mode.cpu && !floor) config.cycle_thread.cpu = *mode.cpu;
       std::optional<ChildSimulator> child;
       Session session;
       if (over_veth) {
         child.emplace(pair, 2);
         if (!child->problem().empty()) {
-          fmt::print("{:>7} {:<14} error: {}\n", rate, label, child->problem());
+          fmt::print("{:>7} {:<18} error: {}\n", rate, label, child->problem());
           return;
         }
         auto master_end = pair.open("m", false);
         if (!master_end) {
-          fmt::print("{:>7} {:<14} error: {}\n", rate, label, pair.problem());
+          fmt::print("{:>7} {:<18} error: {}\n", rate, label, pair.problem());
           return;
         }
         (void)session.run(std::move(master_end), std::move(config));
@@ -769,18 +909,43 @@ void section_jitter(const Mode& mode) {
         (void)session.run_memory(2, std::move(config));
       }
       if (!session.error.empty()) {
-        fmt::print("{:>7} {:<14} error: {}\n", rate, label, session.error);
+        fmt::print("{:>7} {:<18} error: {}\n", rate, label, session.error);
         return;
       }
       Domain* domain = session.domain();
       ecat::master::Cycler* cycler = domain ? domain->cycler() : nullptr;
       if (!cycler) {
-        fmt::print("{:>7} {:<14} error: the master's domain is not in a Cycler\n", rate, label);
+        fmt::print("{:>7} {:<18} error: the master's domain is not in a Cycler\n", rate, label);
+        return;
+      }
+      if (floor) {
+        const auto cycles = [&] {
+          const auto counters = session.master->counters();
+          std::uint64_t n = 0;
+          for (const auto& d : counters.domains)
+            n += d.valid;
+          return n;
+        };
+        std::this_thread::sleep_for(100ms);
+        const std::uint64_t before = cycles();
+        const auto t0 = Clock::now();
+        const StealWindow steal;
+        const auto ct = run_cyclictest(period, samples, mode.fifo, mode.cpu);
+        const std::string steal_ms = steal.ms();
+        const std::uint64_t served = cycles() - before;
+        const double window_s = ms_since(t0, Clock::now()) / 1e3;
+        print_cyclictest(
+            label, ct, steal_ms,
+            fmt::format("; beside the {} pair: {:.0f} valid cycles/s served over cyclictest's run "
+                        "(domain at {} Hz), master cycle thread at default scheduling",
+                        over_veth ? "veth" : "memory-link", static_cast<double>(served) / window_s,
+                        1s / period));
+        (void)session.master->stop();
         return;
       }
       TickProbe probe(period, samples);
       if (auto r = cycler->add(probe, ecat::master::Cycler::kPriorityDc); !r) {
-        fmt::print("{:>7} {:<14} error: {}\n", rate, label, r.error().describe());
+        fmt::print("{:>7} {:<18} error: {}\n", rate, label, r.error().describe());
         return;
       }
       // The bus's own record of every tick in the same window (where a late tick's time went).
@@ -788,8 +953,13 @@ void section_jitter(const Mode& mode) {
       std::this_thread::sleep_for(100ms);
       ecat::bus::Bus* bus = session.master->bus();
       if (bus) (void)bus->set_cycle_trace(&trace);
+      const pid_t tid = probe.tid();
+      const auto switches_before = tid != 0 ? involuntary_switches(tid) : std::nullopt;
+      const StealWindow steal;
       probe.record();
       (void)wait_for([&] { return probe.full(); }, seconds * 3 + 5s);
+      const std::string steal_ms = steal.ms();
+      const auto switches_after = tid != 0 ? involuntary_switches(tid) : std::nullopt;
       if (bus) (void)bus->set_cycle_trace(nullptr);
       (void)cycler->remove(probe);
       const auto late = probe.samples();
@@ -797,22 +967,24 @@ void section_jitter(const Mode& mode) {
                                         [&](std::int64_t ns) { return ns > period.count(); });
       const auto d = distribution(late);
       const auto thread = session.master->status().cycle_thread;
-      fmt::print("{:>7} {:<14} {:>7} {} {:>8} {:>8}  {}\n", rate, label, d.n, us_columns(d), beyond,
-                 probe.missed(), thread.empty() ? "default scheduling" : thread);
+      fmt::print("{:>7} {:<18} {:>7} {} {:>8} {:>8} {:>6} {:>6}  {}\n", rate, label, d.n,
+                 us_columns(d), beyond, probe.missed(), steal_ms,
+                 difference(switches_before, switches_after),
+                 thread.empty() ? "default scheduling" : thread);
       print_late_ticks(trace, period);
       (void)session.master->stop();
     };
-    if (memory) run_ecat("ecat memory", false);
-    if (veth) run_ecat("ecat veth", true);
-    const auto ct = run_cyclictest(period, samples, mode.fifo);
-    if (ct.ok) {
-      fmt::print("{:>7} {:<14} {:>7} {} {:>8} {:>8}  {}\n", rate, "cyclictest", ct.d.n,
-                 us_columns(ct.d), ct.beyond_period, "-",
-                 mode.fifo ? fmt::format("-p{} -m, cpu_dma_latency 0", *mode.fifo)
-                           : std::string("-p0 -m, cpu_dma_latency 0"));
-    } else {
-      fmt::print("{:>7} {:<14} {}\n", rate, "cyclictest", ct.note);
+    if (memory) {
+      run("ecat memory", false, false);
+      run("cyclictest+memory", false, true);
     }
+    if (veth) {
+      run("ecat veth", true, false);
+      run("cyclictest+veth", true, true);
+    }
+    const StealWindow steal;
+    const auto ct = run_cyclictest(period, samples, mode.fifo, mode.cpu);
+    print_cyclictest("cyclictest alone", ct, steal.ms(), "; nothing else of the bench running");
   }
   if (mode.jitter_link != "memory" && !pair.problem().empty()) {
     fmt::print("ecat veth: skipped: {}\n", pair.problem());
@@ -822,17 +994,25 @@ void section_jitter(const Mode& mode) {
       "simulator in a process of its own on the other end of a veth pair (raw sockets, as a real "
       "ring). ecat: a CyclicParticipant added to the master's own Cycler (the domain's) records, "
       "every tick, CycleTick::woke_at minus the deadline that was due (CycleTick::deadline - "
-      "missed "
-      "x period), the start of the tick in which the domain stages its outputs and submits its "
-      "LRW. >period: wake-ups later than one period. skipped: deadlines passed while the thread "
-      "was late (it then runs once, never in a burst). Below each ecat line, from the bus's own "
-      "record of the same ticks (Bus::set_cycle_trace): for the ticks later than one period, which "
-      "step took most of the time, and the five latest ticks: busy (the bus thread went into its "
-      "last wait only after the deadline), target (that wait asked to wake after it), wake-up (it "
-      "came back from the wait late: the kernel's wake-up or a lock), after (from the wait to the "
-      "tick), ended (the wait ended by a frame or at its timer), and the previous tick's steps. "
-      "cyclictest: one thread, clock_nanosleep to absolute deadlines, the same rate, priority and "
-      "number of samples, run right after; 1 us buckets.\n");
+      "missed x period), the start of the tick in which the domain stages its outputs and submits "
+      "its LRW. >period: wake-ups later than one period. skipped: deadlines passed while the "
+      "thread was late (it then runs once, never in a burst). Below each ecat line, from the "
+      "bus's own record of the same ticks (Bus::set_cycle_trace): for the ticks later than one "
+      "period, which step took most of the time, and the five latest ticks: busy (the bus thread "
+      "went into its last wait only after the deadline), target (that wait asked to wake after "
+      "it), wake-up (it came back from the wait late: the kernel's wake-up or a lock), after "
+      "(from the wait to the tick), ended (the wait ended by a frame or at its timer), and the "
+      "previous tick's steps. cyclictest: one thread, clock_nanosleep to absolute deadlines, the "
+      "same rate, priority, pinning and number of samples; 1 us buckets. cyclictest+memory / "
+      "cyclictest+veth: the floor under the same load: the same master and simulator pair as the "
+      "ecat row above (same ring, same domain period, so the same frames: its valid cycles per "
+      "second are printed), its cycle thread at default scheduling, while cyclictest runs with "
+      "ecat's realtime setup{}. cyclictest alone: nothing else of the bench running. steal: ms of "
+      "the guest's steal time (/proc/stat, both vCPUs together) during the row's window: the host "
+      "ran something else on a vCPU that had work. invol: involuntary context switches of the "
+      "timed thread in the window (ecat: the cycle thread, /proc/self/task/<tid>/status; "
+      "cyclictest: its whole process, from the children's rusage).\n",
+      pinned);
 }
 
 // ---- 3. start to operational
@@ -944,6 +1124,8 @@ struct HotPathRow {
   double min_ns = 0;
   std::size_t failures = 0;
   double allocations_per_call = 0;
+  std::string steal_ms = "-";     // the guest's steal time over the row's batches
+  std::string involuntary = "-";  // this thread's involuntary context switches meanwhile
 };
 
 // Runs `call` `calls` times in 20 batches; ns per call of the median and the fastest batch, and
@@ -957,6 +1139,9 @@ HotPathRow time_calls(const char* name, std::size_t calls, Call call) {
   row.name = name;
   for (std::size_t i = 0; i < per_batch / 10; ++i)
     (void)call(i);  // warm up
+  struct rusage before {};
+  const bool switches = ::getrusage(RUSAGE_THREAD, &before) == 0;
+  const StealWindow steal;
   const auto counted_before = allocs::counted.load();
   allocs::count_this_thread = true;
   for (std::size_t b = 0; b < kBatches; ++b) {
@@ -968,6 +1153,10 @@ HotPathRow time_calls(const char* name, std::size_t calls, Call call) {
     batch_ns.push_back(static_cast<double>((t1 - t0).count()) / static_cast<double>(per_batch));
   }
   allocs::count_this_thread = false;
+  row.steal_ms = steal.ms();
+  struct rusage after {};
+  if (switches && ::getrusage(RUSAGE_THREAD, &after) == 0)
+    row.involuntary = fmt::format("{}", after.ru_nivcsw - before.ru_nivcsw);
   row.allocations_per_call = static_cast<double>(allocs::counted.load() - counted_before) /
                              static_cast<double>(per_batch * kBatches);
   std::sort(batch_ns.begin(), batch_ns.end());
@@ -1044,16 +1233,18 @@ void section_hot_path(const Mode& mode, Session& session) {
   rows.push_back(time_calls("steady_clock::now", calls, [](std::size_t) {
     return Clock::now().time_since_epoch().count() != 0;
   }));
-  fmt::print("{:<24} {:>10} {:>10} {:>9} {:>12}\n", "call", "ns median", "ns best", "failures",
-             "allocs/call");
+  fmt::print("{:<24} {:>10} {:>10} {:>9} {:>12} {:>6} {:>6}\n", "call", "ns median", "ns best",
+             "failures", "allocs/call", "steal", "invol");
   for (const auto& r : rows) {
-    fmt::print("{:<24} {:>10.1f} {:>10.1f} {:>9} {:>12.3f}\n", r.name, r.median_ns, r.min_ns,
-               r.failures, r.allocations_per_call);
+    fmt::print("{:<24} {:>10.1f} {:>10.1f} {:>9} {:>12.3f} {:>6} {:>6}\n", r.name, r.median_ns,
+               r.min_ns, r.failures, r.allocations_per_call, r.steal_ms, r.involuntary);
   }
   fmt::print(
       "{} calls each in 20 batches; 'median' / 'best' are the batches' mean ns per call. Signals: "
       "channel_1 of an EL1809 (input, 1 bit) and an EL2809 (output, 1 bit); Domain calls on their "
-      "SyncManager images ({} and {} bytes).\n",
+      "SyncManager images ({} and {} bytes). steal: ms of the guest's steal time (/proc/stat, both "
+      "vCPUs) during the row's batches; invol: this thread's involuntary context switches "
+      "meanwhile (getrusage RUSAGE_THREAD).\n",
       calls, in_reg->size, out_reg->size);
 }
 
@@ -1230,6 +1421,7 @@ int usage(const char* self) {
   std::fprintf(
       stderr,
       "usage: %s [--quick | --full] [--startup [--terminals N] [--runs N]] [--fifo PRIORITY]\n"
+      "          [--cpu N]\n"
       "          [--only jitter|hot|alloc|redundancy] [--jitter-seconds S] [--alloc-seconds S]\n"
       "          [--breaks N] [--jitter-link memory|veth|both]\n",
       self);
@@ -1253,6 +1445,8 @@ int main(int argc, char** argv) {
       mode.runs = static_cast<std::size_t>(std::max(1, std::atoi(argv[++i])));
     } else if (std::strcmp(argv[i], "--fifo") == 0 && i + 1 < argc) {
       mode.fifo = std::atoi(argv[++i]);
+    } else if (std::strcmp(argv[i], "--cpu") == 0 && i + 1 < argc) {
+      mode.cpu = std::max(0, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--jitter-seconds") == 0 && i + 1 < argc) {
       mode.jitter_seconds = std::max(1, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--alloc-seconds") == 0 && i + 1 < argc) {
@@ -1278,6 +1472,7 @@ int main(int argc, char** argv) {
   const auto t0 = Clock::now();
   fmt::print("master_bench ({}): figures only, nothing asserted\n", mode.full ? "full" : "quick");
   fmt::print("{}\n", ecat::bench::build_info());
+  fmt::print("{}\n", kernel_line());
   if (mode.startup_only) {
     section_startup(mode);
     fmt::print("\n(total {:.1f} s)\n", ms_since(t0, Clock::now()) / 1e3);
