@@ -1248,6 +1248,19 @@ void section_hot_path(const Mode& mode, Session& session) {
   rows.push_back(time_calls("steady_clock::now", calls, [](std::size_t) {
     return Clock::now().time_since_epoch().count() != 0;
   }));
+  // The CPU's own speed in this run: a chain of 8 dependent multiply-adds (no memory, no clock,
+  // no lock; latency-bound, so a busy sibling hardware thread barely slows it, a lower clock
+  // does).
+  std::uint64_t chain = 1;  // carried from call to call: the calls cannot overlap
+  rows.push_back(time_calls("reference: 8 dep. mul", calls, [&chain](std::size_t) {
+    std::uint64_t x = chain;
+    for (int k = 0; k < 8; ++k) {
+      x = x * 0x9E3779B97F4A7C15ull + 1;
+      asm volatile("" : "+r"(x));  // keeps the chain: no closed form, no vectorising
+    }
+    chain = x;
+    return true;
+  }));
   fmt::print("{:<24} {:>10} {:>10} {:>10} {:>9} {:>12} {:>6} {:>6}\n", "call", "ns median",
              "ns best", "cpu median", "failures", "allocs/call", "steal", "invol");
   for (const auto& r : rows) {
@@ -1260,7 +1273,9 @@ void section_hot_path(const Mode& mode, Session& session) {
       "channel_1 of an EL1809 (input, 1 bit) and an EL2809 (output, 1 bit); Domain calls on their "
       "SyncManager images ({} and {} bytes). cpu median: the median batch by this thread's CPU "
       "clock (CLOCK_THREAD_CPUTIME_ID): as slow as 'ns median', the CPU itself ran slower; "
-      "faster, the thread lost its CPU meanwhile. steal: ms of the guest's steal time "
+      "faster, the thread lost its CPU meanwhile. reference: the CPU's speed in this run, one "
+      "latency-bound chain of 8 dependent 64-bit multiply-adds per call. steal: ms of the guest's "
+      "steal time "
       "(/proc/stat, both vCPUs) during the row's batches; invol: this thread's involuntary context "
       "switches "
       "meanwhile (getrusage RUSAGE_THREAD).\n",
