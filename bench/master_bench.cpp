@@ -8,8 +8,10 @@
 //      Cycler records, every tick, how late the bus thread started the tick after its absolute
 //      deadline (the moment the domain's LRW is staged and submitted in the same tick), with the
 //      simulator in process (memory link) and in a process of its own over veth, beside
-//      cyclictest; the bus's own trace of the same ticks (Bus::set_cycle_trace) says which step
-//      held the late ones.
+//      cyclictest alone and cyclictest run while the same master + simulator pair serves the
+//      same frames (the machine's floor under ecat's load); the bus's own trace of the same
+//      ticks (Bus::set_cycle_trace) says which step held the late ones; steal time and the
+//      timed thread's involuntary context switches per row say what the host did meanwhile.
 //   3. Master::start to operational for 64 / 128 / 256 / 512 / 1024 simulated terminals behind an
 //      EK1100 (in-process memory link), five runs each with --full: min / median / max, the frames
 //      each run sent, and where the time went (discovery, the slaves' bring-up to PREOP, the rest
