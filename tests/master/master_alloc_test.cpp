@@ -106,6 +106,7 @@ TEST(MasterAllocations, SteadyOpCycleAndHotPathAllocateNothing) {
   EXPECT_EQ(allocs::counted.load(), 0u) << "read_input/write_output allocated";
   EXPECT_EQ(allocs::bus_thread.load(), 0u)
       << "the cycle thread allocated over " << cycles.load() - start_cycles << " cycles";
+  if (allocs::bus_thread.load() != 0) allocs::print_first_bus_stack();
   ASSERT_TRUE(master.stop());
 }
 
@@ -163,6 +164,7 @@ TEST(MasterAllocations, HealthPollCompletionsAllocateNothingOnTheBusThread) {
   EXPECT_GE(completed, 100u);
   EXPECT_EQ(allocs::bus_thread.load(), 0u)
       << "the bus thread allocated while completing " << completed << " acyclic transactions";
+  if (allocs::bus_thread.load() != 0) allocs::print_first_bus_stack();
   EXPECT_EQ(master.state(), MasterState::operational);
   ASSERT_TRUE(master.stop());
 }
