@@ -5,6 +5,7 @@
 #include <ecat/drivers/builtin.hpp>
 #include <ecat/master/config.hpp>
 #include <ecat/master/domain.hpp>
+#include <ecat/wire/registers.hpp>
 
 namespace ecat::master {
 
@@ -83,6 +84,11 @@ Result<void> validate(const MasterConfig& config) {
     }
     if (s.health_poll && s.health_poll->count() <= 0) {
       return bad(fmt::format("slave {}: health_poll must be positive", s.name));
+    }
+    if (s.watchdog) {
+      if (auto w = wire::ProcessDataWatchdog::for_time(*s.watchdog); !w) {
+        return bad(fmt::format("slave {}: watchdog: {}", s.name, w.error().message()));
+      }
     }
     if (s.pdo_source == SlaveConfig::PdoSource::configured && !s.pdo_mapping) {
       return bad(fmt::format("slave {}: pdo_source configured needs a pdo_mapping", s.name));

@@ -456,11 +456,11 @@ class Reader {
   Result<SlaveConfig> slave(const SpecNode& item, const std::string& path) {
     {
       if (!item.is_mapping()) return spec_error(ctx_, item, path, "must be a mapping");
-      if (auto r =
-              check_keys(ctx_, item, path,
-                         {"name", "position", "alias", "vendor_id", "product_code", "revision",
-                          "driver", "driver_options", "process_data", "target", "health_poll_ms",
-                          "startup_sdos", "pdo_source", "sync", "esi", "mailbox_status"});
+      if (auto r = check_keys(
+              ctx_, item, path,
+              {"name", "position", "alias", "vendor_id", "product_code", "revision", "driver",
+               "driver_options", "process_data", "target", "health_poll_ms", "startup_sdos",
+               "pdo_source", "sync", "esi", "mailbox_status", "watchdog_us"});
           !r) {
         return r.error();
       }
@@ -541,6 +541,11 @@ class Reader {
               s.health_poll = std::chrono::milliseconds(*x);
             }
           }
+        } else if (e.key == "watchdog_us") {
+          // 0: off; the ESC's registers reach 171.8 s.
+          auto d = duration(v, p, 1000, 0, 171'000'000);
+          if (!d) return d.error();
+          s.watchdog = *d;
         } else if (e.key == "pdo_source") {
           auto x = to_text(ctx_, v, p);
           if (!x) return x.error();

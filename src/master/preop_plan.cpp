@@ -297,6 +297,32 @@ Result<ProcessDataPlan> plan_process_data(const PreopFacts& facts, const SlaveCo
     if (sm.direction == PdoDirection::output) sm_config.control.watchdog = false;
     plan.sync_managers.push_back({sm.sync_manager, sm_config});
   }
+
+  // The process-data watchdog against the periods of the domains that write the outputs.
+  const DomainFacts* slowest = nullptr;
+  for (const auto& a : plan.attachments) {
+    if (a.direction != PdoDirection::output) continue;
+    const auto* d = find_domain(facts, a.domain);
+    if (slowest == nullptr || d->period > slowest->period) slowest = d;
+  }
+  if (config.watchdog) {
+    auto w = wire::ProcessDataWatchdog::for_time(*config.watchdog);
+    if (!w) return w.error().context(fmt::format("{}: watchdog", facts.who));
+    if (slowest != nullptr && !w->off() && w->time() <= slowest->period) {
+      return Error(Errc::invalid_argument,
+                   fmt::format("{}: a watchdog of {} us is not longer than the {} us period of "
+                               "domain \"{}\", which writes its outputs: the slave would leave "
+                               "OP between two writes",
+                               facts.who, w->time().count() / 1000, slowest->period.count() / 1000,
+                               slowest->id));
+    }
+    plan.watchdog = *w;
+  } else if (slowest != nullptr && 3 * slowest->period > wire::ProcessDataWatchdog{}.time()) {
+    auto w = wire::ProcessDataWatchdog::for_time(std::min<std::chrono::nanoseconds>(
+        3 * slowest->period, wire::ProcessDataWatchdog::kMaxTime));
+    if (!w) return w.error().context(fmt::format("{}: watchdog", facts.who));
+    plan.watchdog = *w;
+  }
   return plan;
 }
 
@@ -312,6 +338,14 @@ std::vector<RegisterWrite> process_data_writes(const ProcessDataPlan& plan) {
     out.push_back({base, std::vector<std::uint8_t>(encoded.begin(), encoded.end())});
     written.insert(sm.sync_manager);
   };
+  if (const auto& w = plan.watchdog) {
+    out.push_back({reg::kWatchdogDivider,
+                   {static_cast<std::uint8_t>(w->divider & 0xFF),
+                    static_cast<std::uint8_t>(w->divider >> 8)}});
+    out.push_back(
+        {reg::kWatchdogTimeProcessData,
+         {static_cast<std::uint8_t>(w->ticks & 0xFF), static_cast<std::uint8_t>(w->ticks >> 8)}});
+  }
   for (const auto& a : plan.attachments) {
     if (written.count(a.sync_manager) == 0) {
       for (const auto& sm : plan.sync_managers) {

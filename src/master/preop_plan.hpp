@@ -139,6 +139,10 @@ struct ProcessDataPlan {
   // status in the domain with the shortest period (the one it already is in, after a rebuild).
   // Its registration comes after the attachments' (room included in `room`).
   std::optional<MailboxStatusMapping> mailbox_status;
+  // The process-data watchdog to write (0x0400, 0x0420), when the configuration sets one or the
+  // ESC's 100 ms from power-up is shorter than three periods of the slowest domain writing the
+  // slave's outputs; empty: left as it is.
+  std::optional<wire::ProcessDataWatchdog> watchdog;
 };
 
 // `coe` is what was read from the objects coe_assignments_to_read() named, when
@@ -156,10 +160,10 @@ struct RegisterWrite {
   bool operator==(const RegisterWrite&) const = default;
 };
 
-// The SyncManager and FMMU writes of `plan` once every attachment has its logical address: for
-// each attachment its SyncManager (deactivated, then written with its configuration) the first
-// time it appears, then its FMMU; then the SyncManagers routed to no domain; then the mailbox
-// status FMMU.
+// The SyncManager and FMMU writes of `plan` once every attachment has its logical address: the
+// process-data watchdog first (when planned), then for each attachment its SyncManager
+// (deactivated, then written with its configuration) the first time it appears, then its FMMU; then
+// the SyncManagers routed to no domain; then the mailbox status FMMU.
 std::vector<RegisterWrite> process_data_writes(const ProcessDataPlan& plan);
 
 }  // namespace ecat::master::detail

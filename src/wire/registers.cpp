@@ -214,6 +214,30 @@ std::uint16_t DlStatus::encode() const noexcept {
   return static_cast<std::uint16_t>(raw);
 }
 
+Result<ProcessDataWatchdog> ProcessDataWatchdog::for_time(std::chrono::nanoseconds time) {
+  if (time.count() < 0 || time > kMaxTime) {
+    return Error(Errc::out_of_range,
+                 fmt::format("a process-data watchdog of {} ns is outside 0 (off) to {} ns",
+                             time.count(), kMaxTime.count()));
+  }
+  ProcessDataWatchdog w;
+  if (time.count() == 0) {
+    w.ticks = 0;
+    return w;
+  }
+  const std::int64_t ns = time.count();
+  std::int64_t tick_ns = (std::int64_t{kDefaultDivider} + 2) * 40;
+  if ((ns + tick_ns - 1) / tick_ns > 65535) {
+    // The finest tick (a multiple of 40 ns) with which 65535 ticks reach `time`.
+    const std::int64_t per_tick = (ns + 65535 - 1) / 65535;
+    const std::int64_t units = (per_tick + 40 - 1) / 40;  // divider + 2
+    w.divider = static_cast<std::uint16_t>(units - 2);
+    tick_ns = units * 40;
+  }
+  w.ticks = static_cast<std::uint16_t>((ns + tick_ns - 1) / tick_ns);
+  return w;
+}
+
 DlStatus DlStatus::decode(std::uint16_t raw) noexcept {
   DlStatus s;
   s.pdi_operational = bit(raw, 0);

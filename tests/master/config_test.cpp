@@ -146,6 +146,31 @@ TEST(MasterConfigFile, MailboxStatusOnByDefaultOffByKey) {
   EXPECT_EQ(off->slaves.at(0).mailbox_status, true);
 }
 
+TEST(MasterConfigFile, WatchdogIsTheEscsUnlessSetZeroIsOff) {
+  auto config = parse_master_config(
+      "slaves: [{name: a}, {name: b, watchdog_us: 0}, {name: c, watchdog_us: 250000}]\n");
+  ASSERT_TRUE(config) << config.error().describe();
+  EXPECT_FALSE(config->slaves.at(0).watchdog.has_value());
+  EXPECT_EQ(config->slaves.at(1).watchdog, std::chrono::nanoseconds(0));
+  EXPECT_EQ(config->slaves.at(2).watchdog, std::chrono::nanoseconds(250ms));
+}
+
+TEST(MasterConfig, WatchdogBeyondTheEscsRegistersIsRefused) {
+  MasterConfig config;
+  SlaveConfig slave;
+  slave.name = "io";
+  slave.watchdog = std::chrono::seconds(200);
+  config.slaves.push_back(slave);
+  auto checked = validate(config);
+  ASSERT_FALSE(checked);
+  EXPECT_NE(checked.error().message().find("slave io: watchdog"), std::string::npos)
+      << checked.error().describe();
+  config.slaves[0].watchdog = std::chrono::nanoseconds(-1);
+  EXPECT_FALSE(validate(config));
+  config.slaves[0].watchdog = std::chrono::seconds(171);
+  EXPECT_TRUE(validate(config)) << validate(config).error().describe();
+}
+
 struct BadCase {
   const char* yaml;
   const char* expect;  // in the message
@@ -173,6 +198,9 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"master: {cycle_lock_memory: maybe}\n", "master.cycle_lock_memory"},
         BadCase{"master: {mailbox_status: often}\n", "master.mailbox_status"},
         BadCase{"slaves: [{name: x, mailbox_status: 2}]\n", "slaves[0].mailbox_status"},
+        BadCase{"slaves: [{name: x, watchdog_us: -5}]\n", "slaves[0].watchdog_us"},
+        BadCase{"slaves: [{name: x, watchdog_us: 200000000}]\n", "slaves[0].watchdog_us"},
+        BadCase{"slaves: [{name: x, watchdog_us: often}]\n", "slaves[0].watchdog_us"},
         BadCase{"domains: [{period_us: 1000}]\n", "needs an id"},
         BadCase{"domains: [{id: a, period_us: 10}]\n", "ring.yaml:1"},
         BadCase{"domains: [{id: a}, {id: a}]\n", "used twice"},

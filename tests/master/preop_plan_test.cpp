@@ -220,6 +220,57 @@ TEST(PreopPlan, SyncManagerRoutedNowhereIsStillConfiguredWithoutFmmu) {
   EXPECT_EQ(order, (std::vector<std::uint16_t>{0x0806, 0x0800, 0x0600, 0x080E, 0x0808}));
 }
 
+// The process-data watchdog against the period of the domain writing the outputs: left as the
+// ESC has it (100 ms) while three periods fit, raised to three periods beyond; a configured one is
+// written as it is, 0 turns it off, and one not longer than the period is refused.
+TEST(PreopPlan, WatchdogCoversThreePeriodsOfTheDomainWritingTheOutputs) {
+  auto facts = facts_for("EL2809", {"slow"});
+  SlaveConfig config;
+  config.name = "dut";
+  config.process_data = ProcessDataRequest::all("slow");
+  const auto planned_with = [&](std::chrono::nanoseconds period,
+                                std::optional<std::chrono::nanoseconds> watchdog) {
+    facts.domains[0].period = period;
+    config.watchdog = watchdog;
+    return plan(facts, config);
+  };
+  auto fast = planned_with(std::chrono::milliseconds(10), std::nullopt);
+  ASSERT_TRUE(fast.ok()) << fast.error().describe();
+  EXPECT_FALSE(fast->process_data.watchdog);
+  auto slow = planned_with(std::chrono::milliseconds(50), std::nullopt);
+  ASSERT_TRUE(slow.ok()) << slow.error().describe();
+  ASSERT_TRUE(slow->process_data.watchdog);
+  EXPECT_EQ(slow->process_data.watchdog->time(), std::chrono::milliseconds(150));
+  register_all(slow->process_data);
+  const auto writes = process_data_writes(slow->process_data);
+  ASSERT_GE(writes.size(), 2u);
+  EXPECT_EQ(writes[0], (RegisterWrite{0x0400, {0xC2, 0x09}}));  // 2498: 100 us ticks
+  EXPECT_EQ(writes[1], (RegisterWrite{0x0420, {0xDC, 0x05}}));  // 1500 ticks
+
+  auto off = planned_with(std::chrono::milliseconds(50), std::chrono::nanoseconds(0));
+  ASSERT_TRUE(off.ok()) << off.error().describe();
+  ASSERT_TRUE(off->process_data.watchdog);
+  EXPECT_TRUE(off->process_data.watchdog->off());
+  auto set = planned_with(std::chrono::milliseconds(1), std::chrono::microseconds(2500));
+  ASSERT_TRUE(set.ok()) << set.error().describe();
+  ASSERT_TRUE(set->process_data.watchdog);
+  EXPECT_EQ(set->process_data.watchdog->ticks, 25);
+
+  auto too_short = planned_with(std::chrono::milliseconds(10), std::chrono::milliseconds(10));
+  ASSERT_FALSE(too_short.ok());
+  EXPECT_EQ(too_short.error().code(), Errc::invalid_argument);
+  EXPECT_NE(too_short.error().message().find("domain \"slow\""), std::string::npos)
+      << too_short.error().describe();
+
+  // Inputs only: nothing is written to watch.
+  auto inputs = facts_for("EL1809", {"slow"});
+  inputs.domains[0].period = std::chrono::milliseconds(500);
+  config.watchdog.reset();
+  auto in = plan(inputs, config);
+  ASSERT_TRUE(in.ok()) << in.error().describe();
+  EXPECT_FALSE(in->process_data.watchdog);
+}
+
 TEST(PreopPlan, KeptRegistrationIsReusedNotRegisteredAgain) {
   // A rebuilt slave: its SyncManager is still in the domain, at the address it had.
   auto facts = facts_for("EL1809");

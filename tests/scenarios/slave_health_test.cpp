@@ -546,5 +546,36 @@ TEST(SlaveHealth, SlaveWithOutputsRoutedNowhereStaysInOpPastItsWatchdogTime) {
   });
 }
 
+// A domain slower than a third of the ESC's 100 ms watchdog: the master raises the outputs
+// terminal's watchdog to three periods, so it stays in OP between the domain's writes; set to 0
+// in the configuration, the watchdog is off.
+TEST(SlaveHealth, SlowDomainGetsAWatchdogOfThreePeriods) {
+  for (const std::optional<std::chrono::nanoseconds> configured :
+       {std::optional<std::chrono::nanoseconds>{}, std::optional<std::chrono::nanoseconds>{0}}) {
+    SCOPED_TRACE(configured ? "watchdog off" : "watchdog from the period");
+    RingSpec spec;
+    spec.domain_period = 150ms;
+    spec.adjust = [&](master::MasterConfig& config) {
+      for (auto& slave : config.slaves)
+        slave.watchdog = configured;
+    };
+    auto ring = ScenarioRing::operational(spec);
+    ASSERT_TRUE(ring);
+    Monitor monitor(*ring->master);
+    std::this_thread::sleep_for(600ms);
+    monitor.stop();
+    EXPECT_FALSE(monitor.saw("state:outputs:safeop")) << monitor.seen();
+    EXPECT_TRUE(ring->all_slaves_in(SlaveState::op)) << ring->describe();
+    ring->server->with_segment([&](sim::Segment& segment, sim::FaultInjector&) {
+      for (std::size_t i = 0; i < segment.size(); ++i) {
+        if (segment.name(i) != "outputs") continue;
+        EXPECT_EQ(segment.esc(i).read_u16(wire::reg::kWatchdogTimeProcessData),
+                  configured ? 0 : 4500);
+        EXPECT_EQ(segment.esc(i).read_u8(wire::reg::kWatchdogCounterProcessData), 0);
+      }
+    });
+  }
+}
+
 }  // namespace
 }  // namespace ecat::scenarios

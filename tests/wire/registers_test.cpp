@@ -272,6 +272,45 @@ TEST(SyncManager, DecodeErrors) {
 // ---------------------------------------------------------------------------------------------
 // DL status, features, port descriptor, information block
 
+// The process-data watchdog's registers from a time and back: never shorter than asked, shorter
+// than asked plus one tick; the power-up values are 100 ms.
+TEST(ProcessDataWatchdog, ForTimeRoundTripsWithinOneTick) {
+  using std::chrono::nanoseconds;
+  EXPECT_EQ(ProcessDataWatchdog{}.time(), std::chrono::milliseconds(100));
+  auto hundred = ProcessDataWatchdog::for_time(std::chrono::milliseconds(100));
+  ASSERT_TRUE(hundred);
+  EXPECT_EQ(*hundred, ProcessDataWatchdog{});
+  auto off = ProcessDataWatchdog::for_time(nanoseconds(0));
+  ASSERT_TRUE(off);
+  EXPECT_TRUE(off->off());
+  EXPECT_EQ(off->time(), nanoseconds(0));
+  for (const std::int64_t ns :
+       {std::int64_t{1}, std::int64_t{99'999}, std::int64_t{100'001}, std::int64_t{2'500'000},
+        std::int64_t{6'553'500'000}, std::int64_t{6'553'500'001}, std::int64_t{10'000'000'000},
+        std::int64_t{100'000'000'007}, ProcessDataWatchdog::kMaxTime.count()}) {
+    SCOPED_TRACE(ns);
+    auto w = ProcessDataWatchdog::for_time(nanoseconds(ns));
+    ASSERT_TRUE(w) << w.error().describe();
+    const nanoseconds tick((std::int64_t{w->divider} + 2) * 40);
+    EXPECT_GE(w->time(), nanoseconds(ns));
+    EXPECT_LT(w->time(), nanoseconds(ns) + tick);
+    EXPECT_GT(w->ticks, 0);
+    if (ns <= 6'553'500'000) {
+      EXPECT_EQ(w->divider, ProcessDataWatchdog::kDefaultDivider);
+    }
+  }
+  auto max = ProcessDataWatchdog::for_time(ProcessDataWatchdog::kMaxTime);
+  ASSERT_TRUE(max);
+  EXPECT_EQ(max->divider, 65535);
+  EXPECT_EQ(max->ticks, 65535);
+  for (const auto bad : {nanoseconds(-1), ProcessDataWatchdog::kMaxTime + nanoseconds(1)}) {
+    auto w = ProcessDataWatchdog::for_time(bad);
+    ASSERT_FALSE(w);
+    EXPECT_EQ(w.error().code(), ecat::Errc::out_of_range);
+    EXPECT_NE(w.error().message().find("process-data watchdog"), std::string::npos);
+  }
+}
+
 TEST(DlStatus, DecodeExample) {
   // Last device of a line: PDI up, link and communication on port 0, ports 1..3 closed.
   const auto s = DlStatus::decode(std::uint16_t{0x5613});

@@ -435,6 +435,14 @@ struct SlaveConfig {
   std::optional<bool> mailbox_status{};
   // AL status poll period while the slave is in PREOP or above; empty disables it.
   std::optional<std::chrono::nanoseconds> health_poll = std::chrono::milliseconds(250);
+  // The process-data watchdog (ESC registers 0x0400 divider and 0x0420 time, written in PREOP):
+  // an output SyncManager with the watchdog trigger that is not written for this long takes the
+  // slave to SAFEOP (AL status 0x001B). Empty: the ESC's own (100 ms from power-up), raised to
+  // three periods of the slowest domain writing the slave's outputs when that is longer. Zero:
+  // off (the outputs are not watched). Else this time, rounded up to the ESC's tick (100 us, or
+  // coarser beyond 6.5 s; at most 171 s); it must be longer than the period of every domain
+  // writing the slave's outputs (checked in PREOP, where the domains are known).
+  std::optional<std::chrono::nanoseconds> watchdog{};
   // SDO downloads run in PREOP before process data is set up (after the driver's own).
   std::vector<SdoWrite> startup_sdos{};
   // Where the PDO layout comes from: the SII (the device's default), the device's CoE objects

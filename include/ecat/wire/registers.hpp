@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <string_view>
@@ -358,6 +359,30 @@ constexpr SmControl kMailboxOutControl{SmMode::mailbox, SmDirection::write, fals
 constexpr SmControl kMailboxInControl{SmMode::mailbox, SmDirection::read, false, true, false};
 constexpr SmControl kOutputsControl{SmMode::buffered, SmDirection::write, false, true, true};
 constexpr SmControl kInputsControl{SmMode::buffered, SmDirection::read, false, true, false};
+
+// ---------------------------------------------------------------------------------------------
+// Process-data watchdog (0x0400 divider, 0x0420 time; ESC datasheet section II): one tick is
+// (divider + 2) x 40 ns, the watchdog time is `ticks` ticks, 0 ticks = watchdog off. After
+// power-up divider 2498 (100 us ticks) and 1000 ticks (100 ms).
+
+struct ProcessDataWatchdog {
+  static constexpr std::uint16_t kDefaultDivider = 2498;
+  static constexpr std::uint16_t kDefaultTicks = 1000;
+  std::uint16_t divider = kDefaultDivider;
+  std::uint16_t ticks = kDefaultTicks;
+
+  std::chrono::nanoseconds time() const noexcept {
+    return std::chrono::nanoseconds(std::int64_t{ticks} * (std::int64_t{divider} + 2) * 40);
+  }
+  bool off() const noexcept { return ticks == 0; }
+  // The registers for a watchdog of at least `time` (0 = off): the default 100 us tick while
+  // 65535 ticks reach, else the finest coarser tick that does. Errc::out_of_range when negative
+  // or beyond what the registers hold (kMaxTime).
+  static Result<ProcessDataWatchdog> for_time(std::chrono::nanoseconds time);
+  static constexpr std::chrono::nanoseconds kMaxTime{std::int64_t{65535} * (65535 + 2) * 40};
+
+  bool operator==(const ProcessDataWatchdog&) const = default;
+};
 
 // ---------------------------------------------------------------------------------------------
 // DL status (0x0110, 2 bytes)
