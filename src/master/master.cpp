@@ -500,9 +500,13 @@ struct Master::Impl : DomainObserver {
     }
     s->slave_count = *count;
     if (!s->config.frame_timeout) (void)bus.set_frame_timeout(auto_frame_timeout(*count));
-    if (auto r = co_await assign_stations(loop, bus, *count, s->config.base_station); !r) {
+    s->start_sides.reset();
+    s->port_descriptors.clear();
+    RingSides sides{};
+    if (auto r = co_await assign_stations(loop, bus, *count, s->config.base_station, &sides); !r) {
       co_return r.error();
     }
+    if (bus.info().redundancy) s->start_sides = sides;
     // A group on a junction port in the middle, plugged already: the fixed slaves behind it get
     // their stations as if it were not there (by config order), the group the ones after them
     // (it is claimed by the hot-connect scan once the session runs). `ring_position`: the ring
@@ -543,6 +547,13 @@ struct Master::Impl : DomainObserver {
     s->dl_status = *dl;
     for (std::size_t k = 0; k < ring_position.size() && k < dl->size(); ++k)
       s->dl_status[ring_position[k]] = (*dl)[k];  // read by station: kept by position
+    if (s->start_sides) {
+      auto ports = co_await read_port_descriptors(loop, bus, *count, s->config.base_station);
+      if (!ports) co_return ports.error();
+      s->port_descriptors = *ports;
+      for (std::size_t k = 0; k < ring_position.size() && k < ports->size(); ++k)
+        s->port_descriptors[ring_position[k]] = (*ports)[k];
+    }
     if (auto r = co_await reset_slaves(loop, bus, *count); !r) co_return r.error();
     if (auto r = co_await init_all(loop, bus, *count, s->config.base_station, s->config.init); !r) {
       co_return r.error();
@@ -1727,9 +1738,12 @@ struct Master::Impl : DomainObserver {
     std::optional<link::RingBreak> reported;  // the break the last event named
     // The ring's shape (which slave hangs on which port of which: ring_tree), read while the
     // ring was whole, for the slaves at `shape_stations` in ring order; a break is located on it
-    // (on a ring through junctions the line rule would take a branch's end for a break).
+    // (on a ring through junctions the line rule would take a branch's end for a break). A ring
+    // broken since start has the shape its two sides show (broken_ring_tree), when they fit one
+    // tree only (`shape_whole` false): replaced by the whole ring's once it is whole.
     std::optional<RingTree> shape;
     std::vector<std::uint16_t> shape_stations;
+    bool shape_whole = false;
     bool learning_shape = false;
     bool shape_seeded = false;  // seed_ring_shape built its tree, or found it would not hold
     std::optional<exec::Clock::time_point> shape_tried_at;
@@ -1815,7 +1829,7 @@ struct Master::Impl : DomainObserver {
       if (w.redundancy && w.redundancy->second == link::RingState::whole && !w.learning_shape &&
           (!w.shape_tried_at || now - *w.shape_tried_at >= kLocatePeriod)) {
         auto stations = ring_stations(*s);
-        if (stations != w.shape_stations || !w.shape) {
+        if (stations != w.shape_stations || !w.shape || !w.shape_whole) {
           w.learning_shape = true;
           w.shape_tried_at = now;
           exec::spawn(loop, learn_ring_shape(s, std::move(stations)));
@@ -1892,8 +1906,9 @@ struct Master::Impl : DomainObserver {
   }
 
   // The shape from the DL status the startup read (Session::dl_status, by ring position), when
-  // the ring has not changed since and it holds a whole ring's tree (a ring broken between
-  // slaves at the start leaves the slaves behind the break nothing to hang on: learnt once whole).
+  // the ring has not changed since: a whole ring's tree, or, on a ring broken at the start, the
+  // tree its two sides make (broken_ring_tree, from the sides counted and the port descriptors
+  // read at the start) when they fit only one; otherwise none (the line rule), until it is whole.
   void seed_ring_shape(const Session& s) {
     LinkWatch& w = link_watch;
     auto stations = ring_stations(s);
@@ -1903,8 +1918,17 @@ struct Master::Impl : DomainObserver {
     for (const auto& d : s.dl_status)
       dl.push_back(d.encode());
     auto tree = ring_tree(dl, stations, true);
-    if (!tree) return;
-    w.shape = std::move(*tree);
+    if (tree && tree->return_port) {
+      w.shape = std::move(*tree);
+      w.shape_whole = true;
+      w.shape_stations = std::move(stations);
+      return;
+    }
+    if (!s.start_sides || s.port_descriptors.size() != stations.size()) return;
+    auto broken = broken_ring_tree(dl, s.port_descriptors, stations, s.start_sides->primary);
+    if (!broken) return;
+    w.shape = std::move(*broken);
+    w.shape_whole = false;
     w.shape_stations = std::move(stations);
   }
 
@@ -1926,6 +1950,7 @@ struct Master::Impl : DomainObserver {
     auto tree = ring_tree(dl, stations, true);
     if (!tree) co_return;
     w.shape = std::move(*tree);
+    w.shape_whole = true;
     w.shape_stations = std::move(stations);
   }
 

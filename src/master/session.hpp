@@ -23,6 +23,7 @@
 #include <ecat/master/driver.hpp>
 #include <ecat/master/master.hpp>
 #include <ecat/master/slave.hpp>
+#include <ecat/master/startup.hpp>
 #include <ecat/wire/registers.hpp>
 
 #include "master/cycle_thread.hpp"
@@ -76,6 +77,11 @@ struct Session : std::enable_shared_from_this<Session> {
   DriverRegistry drivers = config.drivers;
   std::uint16_t slave_count = 0;
   std::vector<wire::DlStatus> dl_status;
+  // On a redundant link, what else the start-up read of the ring (by ring position, as
+  // dl_status): the slaves the primary's frame processed, and the port descriptors (0x0007;
+  // none where unanswered). The link watch builds a ring broken since start's shape from them.
+  std::optional<RingSides> start_sides;
+  std::vector<std::optional<wire::PortDescriptor>> port_descriptors;
   // Hot connect: the fixed slaves end before this position; the groups follow it.
   std::uint16_t fixed_end = 0;
   std::vector<HotConnectRuntime> hot_connect;

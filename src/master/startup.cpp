@@ -343,7 +343,7 @@ exec::Task<Result<std::vector<PositionReply>>> transact_by_position(
 }
 
 exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
-                                         std::uint16_t base_station) {
+                                         std::uint16_t base_station, RingSides* seen) {
   if (auto checked = check_addressing(count, base_station); !checked) co_return checked.error();
   if (!bus.info().redundancy) {
     auto assigned = co_await assign_from(loop, bus, std::nullopt, 0, count, base_station);
@@ -362,6 +362,7 @@ exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, s
                                   "counted: the ring changed",
                                   sides->total, count));
     }
+    if (seen) *seen = *sides;
     auto assigned =
         co_await assign_from(loop, bus, link::Port::primary, 0, sides->primary, base_station);
     if (!assigned) co_return assigned.error();
@@ -407,6 +408,21 @@ exec::Task<Result<std::vector<wire::DlStatus>>> read_dl_status(exec::EventLoop& 
                                   base_station + pos, reply->wkc(pos)));
     }
     out.push_back(wire::DlStatus::decode(wire::load_le16(reply->data(pos).data())));
+  }
+  co_return out;
+}
+
+exec::Task<Result<std::vector<std::optional<wire::PortDescriptor>>>> read_port_descriptors(
+    exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count, std::uint16_t base_station) {
+  bus::Transaction tx;
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    tx.fprd(static_cast<std::uint16_t>(base_station + pos), reg::kPortDescriptor, 1);
+  }
+  auto reply = co_await exec::transact(loop, bus, std::move(tx));
+  if (!reply) co_return reply.error().context("reading the port descriptors");
+  std::vector<std::optional<wire::PortDescriptor>> out(count);
+  for (std::uint16_t pos = 0; pos < count; ++pos) {
+    if (reply->wkc(pos) == 1) out[pos] = wire::PortDescriptor::decode(reply->data(pos)[0]);
   }
   co_return out;
 }

@@ -222,6 +222,222 @@ TEST(RingBreak, OnTheShapeABranchNeitherBreaksTheRingNorHidesItsBreak) {
   EXPECT_FALSE(locate_ring_break(std::span(whole).first(5), t));
 }
 
+// ---- the shape of a ring broken since start (broken_ring_tree) ---------------------------------
+
+std::vector<std::uint16_t> raw(const std::vector<RingPortReading>& r) {
+  std::vector<std::uint16_t> out;
+  for (const auto& s : r)
+    out.push_back(s.dl_status->encode());
+  return out;
+}
+
+std::vector<std::uint16_t> stations_of(const std::vector<RingPortReading>& r) {
+  std::vector<std::uint16_t> out;
+  for (const auto& s : r)
+    out.push_back(s.station);
+  return out;
+}
+
+using Ports = std::vector<std::optional<wire::PortDescriptor>>;
+
+wire::PortDescriptor ports_0_to(std::size_t count) {
+  wire::PortDescriptor d;
+  for (std::size_t p = 0; p < count; ++p)
+    d.ports[p] = wire::PortType::ebus;
+  return d;
+}
+
+// The junction ring's ports: the junction has four, slave 4 (the branch's end) `end_ports`, the
+// others two.
+Ports junction_ports(std::size_t end_ports = 2) {
+  Ports out(7, ports_0_to(2));
+  out[1] = ports_0_to(4);
+  out[4] = ports_0_to(end_ports);
+  return out;
+}
+
+Result<RingTree> broken_shape(const std::vector<RingPortReading>& r, const Ports& ports,
+                              std::size_t primary_side) {
+  const auto dl = raw(r);
+  const auto stations = stations_of(r);
+  return broken_ring_tree(dl, ports, stations, primary_side);
+}
+
+void expect_same_tree(const RingTree& got, const RingTree& want) {
+  ASSERT_EQ(got.slaves.size(), want.slaves.size());
+  for (std::size_t i = 0; i < got.slaves.size(); ++i) {
+    EXPECT_EQ(got.slaves[i].parent, want.slaves[i].parent) << "slave " << i;
+    EXPECT_EQ(got.slaves[i].parent_port, want.slaves[i].parent_port) << "slave " << i;
+    EXPECT_EQ(got.slaves[i].children, want.slaves[i].children) << "slave " << i;
+  }
+  EXPECT_EQ(got.return_port, want.return_port);
+}
+
+TEST(RingBreak, ABrokenLineRingsShapeIsTheWholeOnes) {
+  const RingTree whole = shape_of(whole_ring());
+  const Ports ports(4, ports_0_to(2));
+  for (std::size_t after = 1; after < 4; ++after) {
+    SCOPED_TRACE(after);
+    auto r = whole_ring();
+    lose(r, after - 1, 1);
+    lose(r, after, 0);
+    const auto t = broken_shape(r, ports, after);
+    ASSERT_TRUE(t) << t.error().describe();
+    expect_same_tree(*t, whole);
+    const auto b = locate_ring_break(r, *t);
+    ASSERT_TRUE(b);
+    EXPECT_EQ(*b, (link::RingBreak{Where::between_slaves, after - 1,
+                                   static_cast<std::uint16_t>(0x1001 + after - 1), after,
+                                   static_cast<std::uint16_t>(0x1001 + after), 1, 0}));
+  }
+}
+
+TEST(RingBreak, ABrokenJunctionRingsShapeInTheMainLineAndBehindTheJunction) {
+  const RingTree whole = shape_of(junction_ring());
+  // In front of the junction, between 0 and 1: the coupler's port 1 is its only free one.
+  auto r = junction_ring();
+  lose(r, 0, 1);
+  lose(r, 1, 0);
+  auto t = broken_shape(r, junction_ports(), 1);
+  ASSERT_TRUE(t) << t.error().describe();
+  expect_same_tree(*t, whole);
+  // Behind it, between 5 and 6: the line rule takes the terminal's end (slave 2's port 1) for
+  // the break; on the shape it is 5's port 1 (the junction's ports are all used by then).
+  r = junction_ring();
+  lose(r, 5, 1);
+  lose(r, 6, 0);
+  t = broken_shape(r, junction_ports(), 6);
+  ASSERT_TRUE(t) << t.error().describe();
+  expect_same_tree(*t, whole);
+  const auto line = locate_ring_break(r);
+  ASSERT_TRUE(line);
+  EXPECT_EQ(line->before_position, 2u);
+  auto b = locate_ring_break(r, *t);
+  ASSERT_TRUE(b);
+  EXPECT_EQ(*b, (link::RingBreak{Where::between_slaves, 5, 0x1006, 6, 0x1007, 1, 0}));
+  // The break moves while the ring was never whole (to the junction's ring port): the shape
+  // still names it.
+  r = junction_ring();
+  lose(r, 1, 2);
+  lose(r, 5, 0);
+  b = locate_ring_break(r, *t);
+  ASSERT_TRUE(b);
+  EXPECT_EQ(*b, (link::RingBreak{Where::between_slaves, 1, 0x1002, 5, 0x1006, 2, 0}));
+}
+
+TEST(RingBreak, ABrokenJunctionRingsShapeAtTheJunctionsRingPortBehindABranch) {
+  // At the junction's port 2, right behind the branch 3 -> 4: slave 5 may hang on the
+  // junction's port 2 or on the branch's end (4's port 1); nothing tells which.
+  auto r = junction_ring();
+  lose(r, 1, 2);
+  lose(r, 5, 0);
+  auto t = broken_shape(r, junction_ports(), 5);
+  ASSERT_FALSE(t);
+  EXPECT_EQ(t.error().code(), Errc::not_found);
+  EXPECT_NE(t.error().message().find("slave 4 (station 0x1005)'s port 1, slave 1 (station "
+                                     "0x1002)'s port 2"),
+            std::string::npos)
+      << t.error().describe();
+  // Without the port descriptors, every free port could be.
+  EXPECT_FALSE(broken_shape(r, {}, 5));
+  // The branch's end has no port 1: the junction's port 2 it is.
+  t = broken_shape(r, junction_ports(1), 5);
+  ASSERT_TRUE(t) << t.error().describe();
+  expect_same_tree(*t, shape_of(junction_ring()));
+  const auto b = locate_ring_break(r, *t);
+  ASSERT_TRUE(b);
+  EXPECT_EQ(*b, (link::RingBreak{Where::between_slaves, 1, 0x1002, 5, 0x1006, 2, 0}));
+}
+
+TEST(RingBreak, ABrokenJunctionRingsShapeWithABranchCutInside) {
+  // The branch 3 -> 4 lost its cable inside (4 is gone from the ring: 5 and 6 are now 4 and 5)
+  // and the ring is broken behind the junction: 3's free port 1 is off the way to the break.
+  auto r = junction_ring();
+  lose(r, 3, 1);
+  lose(r, 5, 1);
+  lose(r, 6, 0);
+  r.erase(r.begin() + 4);
+  Ports ports = junction_ports();
+  ports.erase(ports.begin() + 4);
+  const auto t = broken_shape(r, ports, 5);
+  ASSERT_TRUE(t) << t.error().describe();
+  EXPECT_EQ(t->slaves[3].parent, 1u);
+  EXPECT_EQ(t->slaves[3].parent_port, 1);
+  EXPECT_EQ(t->slaves[3].children, (std::array<std::optional<std::size_t>, 4>{}));
+  EXPECT_EQ(t->slaves[4].parent, 1u);
+  EXPECT_EQ(t->slaves[4].parent_port, 2);
+  EXPECT_EQ(t->slaves[5].parent, 4u);
+  EXPECT_EQ(t->slaves[5].parent_port, 1);
+  EXPECT_EQ(t->return_port, 1);
+  const auto b = locate_ring_break(r, *t);
+  ASSERT_TRUE(b);
+  EXPECT_EQ(*b, (link::RingBreak{Where::between_slaves, 4, 0x1006, 5, 0x1007, 1, 0}));
+}
+
+TEST(RingBreak, ABrokenJunctionRingsShapeAtEitherMasterCable) {
+  const RingTree whole = shape_of(junction_ring());
+  // The primary's cable: everything on the secondary's side, from slave 0.
+  auto r = junction_ring();
+  lose(r, 0, 0);
+  auto t = broken_shape(r, junction_ports(), 0);
+  ASSERT_TRUE(t) << t.error().describe();
+  expect_same_tree(*t, whole);
+  auto b = locate_ring_break(r, *t);
+  ASSERT_TRUE(b);
+  EXPECT_EQ(b->where, Where::primary_cable);
+  // The secondary's: the last slave's only free port.
+  r = junction_ring();
+  lose(r, 6, 1);
+  t = broken_shape(r, junction_ports(), 7);
+  ASSERT_TRUE(t) << t.error().describe();
+  expect_same_tree(*t, whole);
+  b = locate_ring_break(r, *t);
+  ASSERT_TRUE(b);
+  EXPECT_EQ(*b, (link::RingBreak{Where::secondary_cable, 6, 0x1007, 6, 0x1007, 1, 0}));
+  // ... and with a last slave of four ports, any of three.
+  Ports four = junction_ports();
+  four[6] = ports_0_to(4);
+  EXPECT_FALSE(broken_shape(r, four, 7));
+}
+
+TEST(RingBreak, ABrokenPictureThatIsNoSuchRingHasNoShape) {
+  const auto code = [](const Result<RingTree>& t) {
+    return t ? std::optional<Errc>{} : std::optional<Errc>{t.error().code()};
+  };
+  auto r = junction_ring();
+  lose(r, 5, 1);
+  lose(r, 6, 0);
+  // Counted on another side than the DL status shows.
+  EXPECT_EQ(code(broken_shape(r, junction_ports(), 5)), Errc::malformed);
+  EXPECT_EQ(code(broken_shape(r, junction_ports(), 7)), Errc::malformed);
+  EXPECT_EQ(code(broken_shape(r, junction_ports(), 8)), Errc::invalid_argument);
+  EXPECT_EQ(code(broken_shape({}, {}, 0)), Errc::invalid_argument);
+  // One end of the cable still up: an open port with nothing behind it.
+  r = junction_ring();
+  lose(r, 6, 0);
+  const auto one_end = broken_shape(r, junction_ports(), 6);
+  EXPECT_EQ(code(one_end), Errc::malformed);
+  // A whole ring is not a broken one.
+  EXPECT_EQ(code(broken_shape(junction_ring(), junction_ports(), 7)), Errc::malformed);
+  // Broken twice (the secondary's cable too): no way back to the secondary port.
+  r = junction_ring();
+  lose(r, 5, 1);
+  lose(r, 6, 0);
+  lose(r, 6, 1);
+  const auto twice = broken_shape(r, junction_ports(), 6);
+  ASSERT_FALSE(twice);
+  EXPECT_NE(twice.error().message().find("no open port left for the cable back"), std::string::npos)
+      << twice.error().describe();
+  // Port descriptors that deny a port with a link are not believed: behind the junction then
+  // every free port is a candidate.
+  r = junction_ring();
+  lose(r, 5, 1);
+  lose(r, 6, 0);
+  Ports lying = junction_ports();
+  lying[1] = ports_0_to(2);  // the junction's ports 2 and 3 have links
+  EXPECT_EQ(code(broken_shape(r, lying, 6)), Errc::not_found);
+}
+
 // The control endpoint's status document on a redundant link (detail::redundancy_json).
 TEST(RingBreak, StatusJson) {
   link::RedundancyStatus r;

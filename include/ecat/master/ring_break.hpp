@@ -23,6 +23,7 @@
 
 #include <ecat/link/link.hpp>
 #include <ecat/master/dc.hpp>
+#include <ecat/result.hpp>
 #include <ecat/wire/registers.hpp>
 
 namespace ecat::master {
@@ -44,5 +45,31 @@ std::optional<link::RingBreak> locate_ring_break(std::span<const RingPortReading
 // another size than `slaves`: none (it is not this ring's).
 std::optional<link::RingBreak> locate_ring_break(std::span<const RingPortReading> slaves,
                                                  const RingTree& shape);
+
+// The shape of a redundant ring that was broken when it was read (never seen whole), from what
+// the start-up reads: every slave's DL status (0x0110, raw, by ring position: stations are
+// assigned side by side, so the primary's side comes first in its frame order and then the
+// secondary's from the first slave behind the break), the number of slaves the primary's frame
+// processes (`primary_side`, RingSides::primary: 0 with the primary's cable cut, all of them
+// with the secondary's) and each slave's port descriptor (0x0007; none where unknown).
+//
+// Each side is a tree of its own (ring_tree): the primary's from slave 0 by port 0, the
+// secondary's from the first slave behind the break, whose port 0 is the broken cable's far end,
+// back to the secondary port through the last slave's free port. The break's near end is a port
+// without link on the primary's side that the first slave behind it can hang on in frame order
+// (0 -> 3 -> 1 -> 2): on slave primary_side - 1 or an ancestor of it, after the ports its
+// children use. A port the ESC does not have carries no cable (port descriptors are taken into
+// account only when no slave shows a link on a port its descriptor says it lacks). With the
+// secondary's cable cut, the return port is the last slave's free port.
+//
+// Errors (no shape: the line rule applies): Errc::malformed when the picture is not a ring
+// broken after `primary_side` slaves (a port 0 with or without link where the break says
+// otherwise, an open port with nothing behind it, no way back to the secondary port); Errc::
+// not_found when it fits more than one tree (several ports the break may be at: the DL status
+// cannot tell a broken cable from a port never cabled) or none.
+Result<RingTree> broken_ring_tree(std::span<const std::uint16_t> dl_status,
+                                  std::span<const std::optional<wire::PortDescriptor>> ports,
+                                  std::span<const std::uint16_t> stations,
+                                  std::size_t primary_side);
 
 }  // namespace ecat::master

@@ -95,13 +95,19 @@ exec::Task<Result<std::vector<PositionReply>>> transact_by_position(
 // may be broken already, where position addressing counts from each side's first slave) the
 // primary's side is assigned through the primary port alone and the rest through the
 // secondary's (Link::set_port_nop), so every slave gets its ring position's station.
+// `sides`, when given, receives the sides counted on a redundant link (else left as it is).
 exec::Task<Result<void>> assign_stations(exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count,
-                                         std::uint16_t base_station);
+                                         std::uint16_t base_station, RingSides* sides = nullptr);
 
 // DL status (0x0110) of every station, in station order.
 exec::Task<Result<std::vector<wire::DlStatus>>> read_dl_status(exec::EventLoop& loop, bus::Bus& bus,
                                                                std::uint16_t count,
                                                                std::uint16_t base_station);
+
+// The port descriptor (0x0007) of every station, in station order (one frame); none where the
+// read was not answered.
+exec::Task<Result<std::vector<std::optional<wire::PortDescriptor>>>> read_port_descriptors(
+    exec::EventLoop& loop, bus::Bus& bus, std::uint16_t count, std::uint16_t base_station);
 
 // The reset block (one frame of broadcast writes): loop control, event mask, error counters,
 // FMMUs, SyncManagers, DC activation/system time/filters, alias control, AL control INIT with
