@@ -276,6 +276,116 @@ TEST(Scenario00, RedundantRingThroughAJunctionLocatesTheBreak) {
   expect_never_recovered(*ring);
 }
 
+// A ring through a junction served broken before the master starts, never whole until healed:
+// its shape comes from the two sides the start-up read (master::broken_ring_tree). coupler: on
+// its E-bus (port 1) inputs -> outputs, which ends there; on its X2 (port 2) the junction; on the
+// junction's port 1 a branch that ends there (branch_coupler -> branch_in), on its port 2 the
+// ring goes on (far_in -> far_out, whose port 1 is cabled to the secondary port). Ring positions:
+// 0 coupler, 1 inputs, 2 outputs, 3 junction, 4 branch_coupler, 5 branch_in, 6 far_in, 7 far_out.
+RingSpec junction_on_x2_spec() {
+  RingSpec spec = redundant_spec();
+  spec.ring_yaml = R"(version: 1
+simulator:
+  slaves:
+    - {name: coupler, profile: EK1100}
+    - {name: inputs, profile: EL1809}
+    - {name: outputs, profile: EL2809}
+    - {name: junction, profile: EK1122, parent: coupler, port: 2}
+    - {name: branch_coupler, profile: EK1100, parent: junction, port: 1}
+    - {name: branch_in, profile: EL1809}
+    - {name: far_in, profile: EL1809, parent: junction, port: 2}
+    - {name: far_out, profile: EL2809}
+  wiring:
+    - {from: outputs.channel_1, to: inputs.channel_1}
+    - {from: outputs.channel_16, to: inputs.channel_16}
+)";
+  spec.adjust = [](master::MasterConfig& c) {
+    for (const auto& [name, process_data] :
+         std::vector<std::pair<const char*, bool>>{{"junction", false},
+                                                   {"branch_coupler", false},
+                                                   {"branch_in", true},
+                                                   {"far_in", true},
+                                                   {"far_out", true}}) {
+      master::SlaveConfig s;
+      s.name = name;
+      if (process_data) s.process_data = master::ProcessDataRequest::all("main");
+      s.health_poll = 20ms;
+      c.slaves.push_back(std::move(s));
+    }
+  };
+  return spec;
+}
+
+// Broken between far_in and far_out from the start: the line rule would take the E-bus's end
+// (outputs' free port 1) for the break; the two sides' shape names far_in's port 1 (its only
+// free port, the junction's and the coupler's all used by then). Healed, the whole ring's shape
+// replaces it, and breaks at the junction's ring port and at the coupler's X2 are named with
+// their ports.
+TEST(Scenario00, RedundantRingThroughAJunctionStartsBrokenBehindIt) {
+  auto spec = junction_on_x2_spec();
+  spec.redundant_cabling = RedundantTopology::broken_after(7);
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  ASSERT_NE(ring->redundant_link, nullptr);
+  EXPECT_EQ(ring->redundant_link->status().ring, RingState::broken);
+  const auto slaves = ring->master->status().slaves;
+  ASSERT_EQ(slaves.size(), 8u);
+  const auto station = [&](std::string_view name) -> std::uint16_t {
+    for (const auto& s : slaves)
+      if (s.name == name) return s.station;
+    ADD_FAILURE() << name;
+    return 0;
+  };
+  for (std::size_t i = 0; i < slaves.size(); ++i)
+    EXPECT_EQ(slaves[i].station, 0x1000 + i) << slaves[i].name;
+  const auto located_as = [&](const link::RingBreak& expected) {
+    return eventually([&] {
+      const auto r = ring->master->status().redundancy;
+      return r && r->break_location == expected;
+    });
+  };
+  const link::RingBreak behind{
+      link::RingBreak::Where::between_slaves, 6, station("far_in"), 7, station("far_out"), 1, 0};
+  EXPECT_TRUE(located_as(behind)) << ring->describe();
+  // As a line (the DL status the start-up read), the E-bus's end would be the break.
+  std::vector<master::RingPortReading> start;
+  for (const auto& s : slaves) {
+    auto slave = ring->master->slave(s.name);
+    ASSERT_TRUE(slave);
+    start.push_back({s.station, (*slave)->info().dl_status});
+  }
+  const auto line = master::locate_ring_break(start);
+  ASSERT_TRUE(line);
+  EXPECT_EQ(line->before_position, 2u);
+  EXPECT_EQ(line->after_position, 3u);
+  ASSERT_TRUE(cycles_pass(*ring, 20));
+  EXPECT_EQ(ring->master->status().redundancy->break_location, behind);  // and stays
+
+  Monitor monitor(*ring->master);
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  EXPECT_TRUE(eventually([&] { return !ring->master->status().redundancy->break_location; }));
+
+  // At the junction's ring port: right behind the branch's end.
+  expect_flows_through(*ring, RedundantTopology::broken_after(6));
+  EXPECT_TRUE(located_as(link::RingBreak{link::RingBreak::Where::between_slaves, 3,
+                                         station("junction"), 6, station("far_in"), 2, 0}))
+      << ring->describe();
+  EXPECT_TRUE(eventually([&] {
+    return monitor.saw(fmt::format(
+        "redundancy:redundant, ring broken between slave 3 (station 0x{:04X}, port 2) and slave 6 "
+        "(station 0x{:04X}, port 0)",
+        station("junction"), station("far_in")));
+  })) << monitor.seen();
+  // At the coupler's X2, in front of the junction: right behind the E-bus's end.
+  expect_flows_through(*ring, RedundantTopology::broken_after(3));
+  EXPECT_TRUE(located_as(link::RingBreak{link::RingBreak::Where::between_slaves, 0,
+                                         station("coupler"), 3, station("junction"), 2, 0}))
+      << ring->describe();
+  expect_flows_through(*ring, RedundantTopology::whole_ring());
+  EXPECT_TRUE(eventually([&] { return !ring->master->status().redundancy->break_location; }));
+  expect_never_recovered(*ring);
+}
+
 // ---- 39: the primary's cable cut at the master, then restored --------------------------------
 
 TEST(Scenario39, RedundantPrimaryCutKeepsOperational) {
