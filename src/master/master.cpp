@@ -548,10 +548,10 @@ struct Master::Impl : DomainObserver {
     for (std::size_t k = 0; k < ring_position.size() && k < dl->size(); ++k)
       s->dl_status[ring_position[k]] = (*dl)[k];  // read by station: kept by position
     if (s->start_sides) {
+      // Only for a broken ring's shape (seed_ring_shape): unread, there is none.
       auto ports = co_await read_port_descriptors(loop, bus, *count, s->config.base_station);
-      if (!ports) co_return ports.error();
-      s->port_descriptors = *ports;
-      for (std::size_t k = 0; k < ring_position.size() && k < ports->size(); ++k)
+      if (ports) s->port_descriptors = *ports;
+      for (std::size_t k = 0; ports && k < ring_position.size() && k < ports->size(); ++k)
         s->port_descriptors[ring_position[k]] = (*ports)[k];
     }
     if (auto r = co_await reset_slaves(loop, bus, *count); !r) co_return r.error();
