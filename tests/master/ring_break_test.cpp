@@ -1,5 +1,7 @@
 // Where a redundant ring is open, from the slaves' DL status (master/ring_break.hpp).
+#include <array>
 #include <optional>
+#include <random>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -436,6 +438,128 @@ TEST(RingBreak, ABrokenPictureThatIsNoSuchRingHasNoShape) {
   Ports lying = junction_ports();
   lying[1] = ports_0_to(2);  // the junction's ports 2 and 3 have links
   EXPECT_EQ(code(broken_shape(r, lying, 6)), Errc::not_found);
+}
+
+// Random rings through junctions (each slave with random ports, hung in frame order on a random
+// free port of the way to the last slave), each broken at a random cable of the ring: a shape
+// given is the true one and locates the true break; many are given. Random pictures of no ring:
+// no crash, and a shape given is a tree in frame order.
+TEST(RingBreak, ABrokenRingsShapeIsNeverAWrongOne) {
+  std::mt19937 rng(16);
+  const auto pick = [&](std::size_t n) {
+    return std::uniform_int_distribution<std::size_t>(0, n - 1)(rng);
+  };
+  constexpr std::array<std::uint8_t, 3> kOrder{3, 1, 2};
+  std::size_t given = 0;
+  std::size_t tried = 0;
+  for (int round = 0; round < 4000; ++round) {
+    const std::size_t n = 1 + pick(10);
+    Ports ports(n);
+    for (auto& d : ports) {
+      d = wire::PortDescriptor{};
+      d->ports[0] = wire::PortType::ebus;
+      for (std::uint8_t p = 1; p < 4; ++p)
+        if (pick(3) != 0) d->ports[p] = pick(2) ? wire::PortType::ebus : wire::PortType::mii;
+    }
+    // The tree: slave k hangs on a free port (after the used ones) of a slave on the way from
+    // 0 to k - 1.
+    RingTree truth;
+    truth.slaves.resize(n);
+    std::vector<std::size_t> used(n, 0);  // ports used, as a position in kOrder + 1
+    bool ok = true;
+    for (std::size_t k = 1; k < n && ok; ++k) {
+      std::vector<std::pair<std::size_t, std::uint8_t>> free;
+      for (std::optional<std::size_t> s = k - 1; s; s = truth.slaves[*s].parent) {
+        for (std::size_t o = used[*s]; o < kOrder.size(); ++o)
+          if (ports[*s]->ports[kOrder[o]] != wire::PortType::not_implemented)
+            free.emplace_back(*s, kOrder[o]);
+      }
+      if (free.empty()) {
+        ok = false;
+        break;
+      }
+      const auto [parent, port] = free[pick(free.size())];
+      truth.slaves[k].parent = parent;
+      truth.slaves[k].parent_port = port;
+      truth.slaves[parent].children[port] = k;
+      for (std::size_t o = 0; o < kOrder.size(); ++o)
+        if (kOrder[o] == port) used[parent] = o + 1;
+    }
+    if (!ok) continue;
+    std::vector<std::uint8_t> back;
+    for (const auto p : kOrder)
+      if (ports[n - 1]->ports[p] != wire::PortType::not_implemented) back.push_back(p);
+    if (back.empty()) continue;
+    truth.return_port = back[pick(back.size())];
+    std::vector<RingPortReading> r(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      r[i].station = static_cast<std::uint16_t>(0x1001 + i);
+      wire::DlStatus dl;
+      for (std::uint8_t p = 0; p < 4; ++p) {
+        const bool up =
+            p == 0 || truth.slaves[i].children[p] || (i == n - 1 && p == *truth.return_port);
+        dl.ports[p].physical_link = up;
+        dl.ports[p].communication = up;
+        dl.ports[p].loop_closed = !up;
+      }
+      r[i].dl_status = dl;
+    }
+    // The ring's cables: the primary's (0), into each slave on the way to the last, the
+    // secondary's (n).
+    std::vector<std::size_t> cables{0, n};
+    for (std::optional<std::size_t> s = n - 1; s && *s > 0; s = truth.slaves[*s].parent)
+      cables.push_back(*s);
+    const std::size_t cable = cables[pick(cables.size())];
+    link::RingBreak expected;
+    if (cable == 0) {
+      lose(r, 0, 0);
+      expected = {Where::primary_cable, 0, 0x1001, 0, 0x1001, 0, 0};
+    } else if (cable == n) {
+      lose(r, n - 1, *truth.return_port);
+      const auto st = static_cast<std::uint16_t>(0x1001 + n - 1);
+      expected = {Where::secondary_cable, n - 1, st, n - 1, st, *truth.return_port, 0};
+    } else {
+      const std::size_t parent = *truth.slaves[cable].parent;
+      lose(r, parent, truth.slaves[cable].parent_port);
+      lose(r, cable, 0);
+      expected = {Where::between_slaves,
+                  parent,
+                  static_cast<std::uint16_t>(0x1001 + parent),
+                  cable,
+                  static_cast<std::uint16_t>(0x1001 + cable),
+                  truth.slaves[cable].parent_port,
+                  0};
+    }
+    ++tried;
+    const auto t = broken_shape(r, ports, cable);
+    if (!t) continue;
+    ++given;
+    SCOPED_TRACE(::testing::Message()
+                 << "round " << round << ", " << n << " slaves, cable " << cable);
+    expect_same_tree(*t, truth);
+    EXPECT_EQ(locate_ring_break(r, *t), expected);
+    if (HasFailure()) return;
+  }
+  EXPECT_GT(tried, 1000u);
+  EXPECT_GT(given, tried / 4) << given << " of " << tried;
+
+  for (int round = 0; round < 4000; ++round) {
+    const std::size_t n = 1 + pick(8);
+    std::vector<std::uint16_t> dl(n);
+    Ports ports(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      dl[i] = static_cast<std::uint16_t>(rng());
+      if (pick(4) != 0) ports[i] = wire::PortDescriptor::decode(static_cast<std::uint8_t>(rng()));
+    }
+    const auto t = broken_ring_tree(dl, ports, {}, pick(n + 2));
+    if (!t) continue;
+    ASSERT_EQ(t->slaves.size(), n);
+    for (std::size_t i = 1; i < n; ++i) {
+      ASSERT_TRUE(t->slaves[i].parent);
+      ASSERT_LT(*t->slaves[i].parent, i);
+      EXPECT_EQ(t->slaves[*t->slaves[i].parent].children[t->slaves[i].parent_port], i);
+    }
+  }
 }
 
 // The control endpoint's status document on a redundant link (detail::redundancy_json).
