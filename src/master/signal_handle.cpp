@@ -8,6 +8,8 @@
 #include <ecat/master/signal_handle.hpp>
 #include <ecat/wire/bytes.hpp>
 
+#include "master/slave_access.hpp"
+
 namespace ecat::master {
 
 Result<SignalHandle> SignalHandle::resolve(Master& master, std::string_view slave_name,
@@ -40,6 +42,7 @@ Result<SignalHandle> SignalHandle::resolve(Master& master, std::string_view slav
                              what(), sig->bit_length));
   }
   SignalHandle handle;
+  handle.owner_ = *slave;
   handle.slave_ = std::string(slave_name);
   handle.signal_ = *sig;
   handle.field_ = *sig;
@@ -115,13 +118,26 @@ Result<void> SignalHandle::write(const Value& value) {
     }
     bits = wire::load_le64(word);
   }
-  for (const Target& t : targets_) {
-    if (auto w = t.domain->write_bits(t.field, bits); !w) [[unlikely]] {
-      return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"",
-                                           signal_.name, slave_, t.domain->id()));
-    }
-  }
-  return ok();
+  // Staged in every domain and kept in the slave's retained image under its output lock, as
+  // Slave::write_output does (detail::SlaveAccess::stage_output).
+  struct Staging {
+    const SignalHandle* handle;
+    std::uint64_t bits;
+  };
+  const Staging staging{this, bits};
+  return detail::SlaveAccess::stage_output(
+      *owner_, signal_, bits,
+      [](const void* context) -> Result<void> {
+        const auto& [self, staged_bits] = *static_cast<const Staging*>(context);
+        for (const Target& t : self->targets_) {
+          if (auto w = t.domain->write_bits(t.field, staged_bits); !w) [[unlikely]] {
+            return w.error().context(fmt::format("staging \"{}\" of slave {} in domain \"{}\"",
+                                                 self->signal_.name, self->slave_, t.domain->id()));
+          }
+        }
+        return ok();
+      },
+      &staging);
 }
 
 Result<SignalHandle> Master::signal_handle(std::string_view slave, std::string_view signal) {

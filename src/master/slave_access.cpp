@@ -3,6 +3,8 @@
 #include <mutex>
 #include <utility>
 
+#include <fmt/format.h>
+
 #include "slave_impl.hpp"
 
 namespace ecat::master::detail {
@@ -104,6 +106,37 @@ MasterCounters::SlaveCounters SlaveAccess::counters(const Slave& slave) {
   return {slave.name(), c.wkc_errors.load(std::memory_order_relaxed),
           c.mailbox_retries.load(std::memory_order_relaxed),
           c.sdo_failures.load(std::memory_order_relaxed)};
+}
+
+Result<void> SlaveAccess::stage_output(Slave& slave, const Signal& signal, std::uint64_t raw,
+                                       Result<void> (*stage)(const void*), const void* context) {
+  Slave::Impl& impl = slave.impl();
+  const Slave::Impl::OutputLock images(impl);
+  if (auto staged = stage(context); !staged) [[unlikely]] {
+    return staged;
+  }
+  // output_images' nodes are never erased (the hot path keeps pointers to them); a SyncManager
+  // without one was never configured, and only the domains hold the value.
+  auto it = impl.output_images.find(signal.sync_manager);
+  if (it == impl.output_images.end()) [[unlikely]] {
+    return ok();
+  }
+  if (signal.type != SignalType::bytes) return store_field(signal, raw, it->second);
+  // A `bytes` signal of at most 64 bits (the handle's word, LSB first): bit by bit.
+  auto& image = it->second;
+  if (signal.bit_length > 64 || signal.bit_offset + signal.bit_length > 8 * image.size()) {
+    return Error(Errc::out_of_range,
+                 fmt::format("signal \"{}\" of slave {} lies outside its SyncManager's {} bytes",
+                             signal.name, slave.name(), image.size()));
+  }
+  for (std::uint32_t b = 0; b < signal.bit_length; ++b) {
+    const std::uint32_t at = signal.bit_offset + b;
+    const auto mask = static_cast<std::uint8_t>(1u << (at % 8));
+    auto& byte = image[at / 8];
+    byte = ((raw >> b) & 1u) != 0 ? static_cast<std::uint8_t>(byte | mask)
+                                  : static_cast<std::uint8_t>(byte & ~mask);
+  }
+  return ok();
 }
 
 }  // namespace ecat::master::detail

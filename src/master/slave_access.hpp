@@ -81,6 +81,14 @@ class SlaveAccess {
   // Any thread.
   static std::uint64_t refused_transitions(const Slave& slave) noexcept;
   static MasterCounters::SlaveCounters counters(const Slave& slave);
+
+  // ---- signal handles (any thread) -------------------------------------------------------------
+  // SignalHandle::write: `stage(context)` (the handle's writes of the signal's bits into every
+  // domain of its SyncManager) runs under the slave's output lock, then `raw` is kept in the
+  // retained image of the signal's SyncManager, as write_output does: the domains and the image
+  // stay alike, and a reconnect restages what the handle wrote. No allocation, no `mutex`.
+  static Result<void> stage_output(Slave& slave, const Signal& signal, std::uint64_t raw,
+                                   Result<void> (*stage)(const void*), const void* context);
 };
 
 }  // namespace ecat::master::detail

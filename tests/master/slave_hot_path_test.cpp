@@ -342,5 +342,40 @@ TEST(SlaveHotPath, ConcurrentWritersLeaveTheDomainAndTheRetainedImageAlike) {
   }
 }
 
+// A handle's write is kept in the slave's retained image too: Slave::read_input of the output
+// says what the handle staged, and a reconfiguration (as after a reconnect), which restages the
+// retained image, keeps it; write_output and the handle may then write the same SyncManager.
+TEST(SlaveHotPath, HandleWritesSurviveAReconfiguration) {
+  Running r;
+  ASSERT_TRUE(r.master);
+  Slave& out = r.slave("outputs");
+  Slave& in = r.slave("inputs");
+  // channel_2 (wired to the inputs' channel_2) through a handle, channel_3 of the same
+  // SyncManager through the Slave.
+  auto handle = r.master->signal_handle("outputs", "channel_2");
+  ASSERT_TRUE(handle) << handle.error().describe();
+  ASSERT_TRUE(out.write_output("channel_3", Value(true)));
+  ASSERT_TRUE(handle->write(Value(true)));
+  EXPECT_EQ(*out.read_input("channel_2"), Value(true));
+  ASSERT_TRUE(out.request(wire::AlState::preop));
+  auto reconfigured = out.configure(test::quick_slave("outputs"));
+  ASSERT_TRUE(reconfigured) << reconfigured.error().describe();
+  ASSERT_TRUE(out.request(wire::AlState::op));
+  // Both stayed staged, and the handle's reaches the input wired to it.
+  const auto signals = out.signals();
+  for (const char* name : {"channel_2", "channel_3"}) {
+    const Signal* sig = find(signals, name);
+    ASSERT_NE(sig, nullptr);
+    EXPECT_EQ(*decode_scaled(*sig, r.image_of(out, *sig)), Value(true)) << name;
+  }
+  EXPECT_TRUE(eventually([&] {
+    auto v = in.read_input("channel_2");
+    return v && *v == Value(true);
+  }));
+  ASSERT_TRUE(handle->write(Value(false)));
+  EXPECT_EQ(*out.read_input("channel_2"), Value(false));
+  EXPECT_EQ(*out.read_input("channel_3"), Value(true));
+}
+
 }  // namespace
 }  // namespace ecat::master

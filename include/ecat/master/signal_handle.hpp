@@ -20,10 +20,10 @@
 // unbound and its calls fail with Errc::not_ready.
 //
 // Writes change only the signal's own bits of the staged output image (Domain::write_bits): two
-// handles of one SyncManager do not disturb each other. Slave::write_output stages a scalar
-// signal's own bits too, but the slave keeps a retained copy of each SyncManager image that does
-// not see handle writes and restages it whole (after a reconnect, and for a `bytes` signal's
-// write): write one SyncManager's outputs either through handles or through the Slave, not both.
+// handles of one SyncManager do not disturb each other. Like Slave::write_output, a write also
+// keeps the bits in the slave's retained copy of the SyncManager image (under the slave's output
+// lock), which the slave restages whole after a reconnect and for a `bytes` signal's
+// write_output: handles and the Slave may write outputs of one SyncManager alike.
 #pragma once
 
 #include <cstdint>
@@ -39,6 +39,7 @@
 namespace ecat::master {
 
 class Master;
+class Slave;
 
 class SignalHandle {
  public:
@@ -70,6 +71,7 @@ class SignalHandle {
     PdoHandle pdo{};
     Domain::Field field{};  // the signal's bits in the registration (Domain::field)
   };
+  Slave* owner_ = nullptr;  // valid until Master::stop(), like the handle
   std::string slave_{};
   Signal signal_{};
   // The signal moved to bit 0: encode() fills a 64-bit word with it for Domain::write_bits.
