@@ -243,16 +243,23 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
     tell_link_budget();
   }
 
-  // The link is told how long a reply may take (Link::set_frame_budget): the frame timeout,
-  // and while a cycle runs no more than three periods, so that a redundant link waiting for a
-  // late side of the ring (half the budget at most) holds a cycle's frame for no longer than a
-  // period and a half, and a cable cut delays the frames then in flight by at most that, once
-  // (with three or more realtime frames in flight per sender, as the master's domains keep by
-  // default, no cycle is lost to it). From the setters, never on the cycle path.
+  // The link is told how long a reply may take (Link::set_frame_budget): the frame timeout, and
+  // while a cycle runs no more than three periods of the fastest work it carries (the fastest
+  // domain: set_fastest_work_period; the cycle's own period when not told). A redundant link
+  // waits for a late side of the ring half the budget at most, counted once from the oldest frame
+  // that side owes, so a cable cut delays the frames then in flight together by at most a period
+  // and a half of the fastest domain, once: its exchanges in flight (three or more, as the
+  // master's domains keep by default) absorb it and no cycle of it is lost. The cap is not the
+  // base tick (with domains at 2 ms and 3 ms the cycle ticks at 1 ms): that would shorten the
+  // wait below what any domain needs and hand every domain's frames on short of a side that is
+  // merely late. A slower domain's frames get the same wait, never less than the fastest's, and
+  // the bus's frame timeout still bounds them all. From the setters, never on the cycle path.
   void tell_link_budget() {
     std::lock_guard lock(budget_mutex);
     nanoseconds budget = frame_timeout();
-    const nanoseconds period(cycle_period_ns.load(std::memory_order_relaxed));
+    nanoseconds period(cycle_period_ns.load(std::memory_order_relaxed));
+    const nanoseconds fastest(fastest_work_period_ns.load(std::memory_order_relaxed));
+    if (period > nanoseconds(0) && fastest > nanoseconds(0)) period = fastest;
     if (period > nanoseconds(0)) budget = std::min(budget, 3 * period);
     link->set_frame_budget(budget);
   }
@@ -264,9 +271,10 @@ struct Bus::Impl {  // NOLINT(clang-analyzer-optin.performance.Padding)
   std::size_t max_frame = 0;
   std::size_t reliable_index_limit = kIndexCount;
   std::atomic<std::int64_t> frame_timeout_ns{0};
-  std::atomic<std::int64_t> cycle_period_ns{0};      // 0 while no cycle is set
-  std::mutex budget_mutex;                           // tell_link_budget()
-  std::atomic<std::int64_t> reliable_timeout_ns{0};  // >= frame_timeout_ns (adaptive)
+  std::atomic<std::int64_t> cycle_period_ns{0};         // 0 while no cycle is set
+  std::atomic<std::int64_t> fastest_work_period_ns{0};  // set_fastest_work_period; 0: not told
+  std::mutex budget_mutex;                              // tell_link_budget()
+  std::atomic<std::int64_t> reliable_timeout_ns{0};     // >= frame_timeout_ns (adaptive)
 
   // ---- lifecycle
   std::mutex lifecycle_mutex;
@@ -1833,7 +1841,20 @@ void Bus::clear_cycle() {
   if (!impl_) return;
   impl_->install_cycle(Impl::Cycle{});
   impl_->cycle_period_ns.store(0, std::memory_order_relaxed);
+  impl_->fastest_work_period_ns.store(0, std::memory_order_relaxed);
   impl_->tell_link_budget();
+}
+
+Result<void> Bus::set_fastest_work_period(nanoseconds period) {
+  if (!impl_) return Error(Errc::invalid_argument, "bus created without a link");
+  if (period < nanoseconds(0)) {
+    return Error(
+        Errc::invalid_argument,
+        fmt::format("fastest work period must not be negative, got {} ns", period.count()));
+  }
+  impl_->fastest_work_period_ns.store(period.count(), std::memory_order_relaxed);
+  impl_->tell_link_budget();
+  return ok();
 }
 
 void Bus::set_cycle_rate(double rate_ppm) noexcept {

@@ -16,6 +16,10 @@ std::size_t Link::max_frame_size() const {
 
 void Link::set_frame_budget(std::chrono::nanoseconds) {}
 
+int Link::wait_fd() {
+  return -1;
+}
+
 Result<void> Link::set_port_nop(Port, NopSlot, std::optional<DatagramSelector>) {
   return Error(Errc::unsupported,
                "link " + name() + " has one port: per-port frame contents need a redundant link");

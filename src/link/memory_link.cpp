@@ -100,11 +100,13 @@ struct Channel {
   // sleeps while it holds the value it read under the lock.
   std::atomic<std::uint32_t> sequence{0};
   std::atomic<std::uint32_t> sleepers{0};
+  detail::WakeFd wake;  // the reader's Link::wait_fd
 
   // After a change made under the lock (and the lock released).
   void changed() noexcept {
     sequence.fetch_add(1, std::memory_order_seq_cst);
     if (sleepers.load(std::memory_order_seq_cst) != 0) detail::futex_wake_all(sequence);
+    wake.signal();
   }
 };
 
@@ -160,6 +162,7 @@ class MemoryLink final : public Link {
           stats_.received(frame.frame.size());
           return std::optional<ReceivedFrame>(frame);
         }
+        in_->wake.drain();  // nothing waits: quiet until the next change
         if (in_->interrupt) {
           in_->interrupt = false;
           return std::optional<ReceivedFrame>{};
@@ -212,6 +215,20 @@ class MemoryLink final : public Link {
   std::string name() const override { return name_; }
   LinkStats stats() const override { return stats_.snapshot(); }
 
+  int wait_fd() override {
+    if (closed_.load(std::memory_order_acquire)) return -1;
+    if (in_->wake.opened()) return in_->wake.get_or_open();
+    const int fd = in_->wake.get_or_open();
+    // Frames queued before it was opened signalled nothing.
+    bool waiting = false;
+    {
+      std::lock_guard lock(in_->mutex);
+      waiting = !in_->queue.empty() || in_->interrupt || in_->writer_closed;
+    }
+    if (waiting) in_->wake.signal();
+    return fd;
+  }
+
  private:
   Error closed_error() const {
     return Error(Errc::closed, fmt::format("{}: link is closed", name_));
@@ -253,6 +270,7 @@ class FunctionLink final : public Link, private ReplySink {
     std::unique_lock lock(mutex_);
     if (replies_.empty()) {
       interrupted_.store(false);
+      wake_.drain();
       return std::optional<ReceivedFrame>{};
     }
     const ReceivedFrame frame = replies_.pop_into(rx_);
@@ -272,6 +290,20 @@ class FunctionLink final : public Link, private ReplySink {
   std::string name() const override { return name_; }
   LinkStats stats() const override { return stats_.snapshot(); }
 
+  // Replies are queued by send() (any thread): signalled from then on.
+  int wait_fd() override {
+    if (closed_.load(std::memory_order_acquire)) return -1;
+    if (wake_.opened()) return wake_.get_or_open();
+    const int fd = wake_.get_or_open();
+    bool waiting = false;
+    {
+      std::lock_guard lock(mutex_);
+      waiting = !replies_.empty();
+    }
+    if (waiting) wake_.signal();
+    return fd;
+  }
+
  private:
   bool reply(wire::Bytes frame) override {
     bool queued = false;
@@ -280,6 +312,7 @@ class FunctionLink final : public Link, private ReplySink {
       queued = replies_.push(frame, detail::monotonic_ns());
     }
     if (!queued) detail::AtomicLinkStats::add(stats_.frames_dropped);
+    if (queued) wake_.signal();
     return queued;
   }
 
@@ -293,6 +326,7 @@ class FunctionLink final : public Link, private ReplySink {
   FrameQueue replies_;
   std::atomic<bool> closed_{false};
   std::atomic<bool> interrupted_{false};
+  detail::WakeFd wake_;
   detail::AtomicLinkStats stats_;
   std::array<std::uint8_t, wire::kMaxFrameSize> rx_{};
 };

@@ -107,6 +107,33 @@ Result<void> Interrupter::open(std::string_view link_name) {
   return ok();
 }
 
+WakeFd::~WakeFd() {
+  const int fd = fd_.load();
+  if (fd >= 0) ::close(fd);
+}
+
+int WakeFd::get_or_open() noexcept {
+  int fd = fd_.load(std::memory_order_seq_cst);
+  if (fd >= 0) return fd;
+  fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+  if (fd >= 0) fd_.store(fd, std::memory_order_seq_cst);
+  return fd;
+}
+
+void WakeFd::signal() noexcept {
+  const int fd = fd_.load(std::memory_order_seq_cst);
+  if (fd < 0) return;
+  const std::uint64_t one = 1;
+  [[maybe_unused]] const auto n = ::write(fd, &one, sizeof one);
+}
+
+void WakeFd::drain() noexcept {
+  const int fd = fd_.load(std::memory_order_seq_cst);
+  if (fd < 0) return;
+  std::uint64_t value = 0;
+  [[maybe_unused]] const auto n = ::read(fd, &value, sizeof value);
+}
+
 void Interrupter::signal() noexcept {
   pending_.store(true, std::memory_order_release);
   if (fd_.valid()) {

@@ -79,12 +79,34 @@ class Interrupter {
   void signal() noexcept;
   // True (and cleared) when an interrupt is pending.
   bool consume() noexcept;
+  bool pending() const noexcept { return pending_.load(std::memory_order_acquire); }
   void drain() noexcept;
   int fd() const noexcept { return fd_.get(); }
 
  private:
   UniqueFd fd_;
   std::atomic<bool> pending_{false};
+};
+
+// An in-process link's Link::wait_fd: an eventfd the reader opens at its first wait_fd() call;
+// from then on the writer signals it after every change the reader may wait for (a frame, an
+// interrupt, a close) and the reader drains it whenever it finds nothing to receive, so it is
+// readable while something may be waiting. Before it is opened, signal() and drain() cost one
+// atomic load.
+class WakeFd {
+ public:
+  WakeFd() = default;
+  WakeFd(const WakeFd&) = delete;
+  WakeFd& operator=(const WakeFd&) = delete;
+  ~WakeFd();
+  // The reader only. -1 when no eventfd can be created.
+  int get_or_open() noexcept;
+  bool opened() const noexcept { return fd_.load(std::memory_order_seq_cst) >= 0; }
+  void signal() noexcept;
+  void drain() noexcept;
+
+ private:
+  std::atomic<int> fd_{-1};
 };
 
 // Lets close() release a socket while another thread may be inside send() or receive() on it:

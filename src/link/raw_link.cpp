@@ -345,6 +345,11 @@ Result<std::optional<ReceivedFrame>> RawLink::receive(std::chrono::nanoseconds t
   }
 }
 
+int RawLink::wait_fd() {
+  if (impl_->options.spin || impl_->guard.closed()) return -1;
+  return impl_->socket.get();
+}
+
 void RawLink::interrupt() {
   impl_->interrupter.signal();
 }

@@ -356,6 +356,9 @@ LinkStats RecordingLink::stats() const {
 std::size_t RecordingLink::max_frame_size() const {
   return inner_->max_frame_size();
 }
+int RecordingLink::wait_fd() {
+  return inner_->wait_fd();
+}
 std::optional<RedundancyStatus> RecordingLink::redundancy() const {
   return inner_->redundancy();
 }

@@ -6,11 +6,14 @@
 #include <vector>
 
 #include <fmt/format.h>
+#include <poll.h>
 
 #include <ecat/link/raw_link.hpp>
 #include <ecat/link/redundant_link.hpp>
 #include <ecat/link/udp_link.hpp>
 #include <ecat/wire/redundancy.hpp>
+
+#include "link/posix.hpp"
 
 namespace ecat::link {
 
@@ -24,7 +27,9 @@ namespace {
 // Frames in flight (and recently answered, so that their late copies are recognised): more than
 // the bus ever has in flight at once.
 constexpr std::size_t kSlots = 64;
-// How long one blocking wait on a leg lasts before the other leg is looked at.
+// With a leg that has no descriptor to wait on (Link::wait_fd: a spinning or busy-polling leg, a
+// link of the caller's own): how long one blocking wait on a leg lasts before the other leg is
+// looked at.
 constexpr nanoseconds kSlice = std::chrono::microseconds(100);
 // Datagrams of one frame a port's copy may carry as NOP (Link::set_port_nop): every datagram a
 // frame can hold.
@@ -187,12 +192,13 @@ struct RedundantLink::Impl {
   // The sender's wait for a reply (set_frame_budget), 0 when not told.
   std::atomic<std::int64_t> frame_budget_ns{0};
   std::atomic<bool> closed{false};
-  std::atomic<bool> interrupted{false};
+  // interrupt() and close(): wakes a receive() waiting on both legs' descriptors.
+  detail::Interrupter interrupter;
   std::atomic<RingState> ring{RingState::unknown};
   std::atomic<std::uint64_t> frames_sent{0}, frames_received{0}, bytes_sent{0}, bytes_received{0},
       send_errors{0}, receive_errors{0}, ignored{0};
   std::atomic<std::uint64_t> forward_crosses{0}, reverse_crosses{0}, passthrough{0}, merged{0},
-      lone{0}, merge_timeouts{0}, unknown_sources{0}, stale{0}, breaks{0}, heals{0};
+      lone{0}, merge_timeouts{0}, late_halves{0}, unknown_sources{0}, stale{0}, breaks{0}, heals{0};
 
   // How long a side may owe its half of a frame before it is taken as cut off: half the frame
   // budget (set_frame_budget), and at least merge_window.
@@ -207,16 +213,30 @@ struct RedundantLink::Impl {
     if (was == RingState::broken && state == RingState::whole) heals.fetch_add(1);
   }
 
-  Exchange* find(std::uint8_t index, std::size_t count) {
-    Exchange* best = nullptr;
+  // The exchange an arrival on side `at` belongs to. A port returns its frames in the order they
+  // were sent, so among the exchanges sent with this first index and datagram count it is the
+  // oldest whose copy on that side has not come back yet: a late half finds its own exchange
+  // (answered or expired already), never a later one that reuses the index and is waiting. An
+  // answered exchange stops owing a half once its send is older than claim_horizon() (that half
+  // is lost: a cut cable). When none owes one: the newest (a duplicate).
+  Exchange* find(std::size_t at, std::uint8_t index, std::size_t count, Clock::time_point now) {
+    Exchange* owed = nullptr;
+    Exchange* newest = nullptr;
+    const Clock::time_point horizon = now - claim_horizon();
     for (auto& e : slots) {
       if (e.state == SlotState::free || e.first_index != index || e.count != count) continue;
-      if (best == nullptr || (e.state == SlotState::waiting && best->state != SlotState::waiting) ||
-          (e.state == best->state && e.sequence > best->sequence)) {
-        best = &e;
-      }
+      if (newest == nullptr || e.sequence > newest->sequence) newest = &e;
+      const bool owes = e.leg_sent[at] && !e.arrived[at] &&
+                        (e.state == SlotState::waiting || e.sent_at >= horizon);
+      if (owes && (owed == nullptr || e.sequence < owed->sequence)) owed = &e;
     }
-    return best;
+    return owed != nullptr ? owed : newest;
+  }
+
+  // How long an answered exchange still owns the halves that come back late: the frame budget
+  // (the sender has given it up by then), and at least twice the patience.
+  nanoseconds claim_horizon() const {
+    return std::max(nanoseconds(frame_budget_ns.load(std::memory_order_relaxed)), 2 * patience());
   }
 
   Exchange& allocate() {
@@ -280,7 +300,7 @@ struct RedundantLink::Impl {
     }
     const wire::DatagramView first = *decoded.frame->begin();
     std::lock_guard lock(mutex);
-    Exchange* e = find(first.header.index, decoded.frame->datagram_count());
+    Exchange* e = find(at, first.header.index, decoded.frame->datagram_count(), Clock::now());
     const wire::Bytes sent = e ? wire::Bytes(e->sent.data(), e->sent_size) : wire::Bytes{};
     const ReceivedFrame frame = e != nullptr ? restore(*e, arrival) : arrival;
     if (e == nullptr || !wire::same_shape(sent, frame.frame)) {
@@ -288,6 +308,7 @@ struct RedundantLink::Impl {
       ignored.fetch_add(1, std::memory_order_relaxed);
       return std::nullopt;
     }
+    const bool arrived_before = e->arrived[at];
     e->arrived[at] = true;
     owed_since[at] = kNever;  // this side answers (late, perhaps): it owes nothing any more
     if (wire::is_passthrough_copy(sent, frame.frame)) {
@@ -307,7 +328,12 @@ struct RedundantLink::Impl {
       const std::size_t s = kind == ArrivalKind::primary_bounce ? 0 : 1;
       silent[s] = 0;
       if (wire::any_processed(frame.frame)) set_ring(RingState::broken);
-      if (e->state != SlotState::waiting) return std::nullopt;  // the late half of a lone reply
+      if (e->state != SlotState::waiting) {
+        // The late half of an exchange answered or expired without it (a second copy of a half
+        // that came is stale): counted and dropped, never merged into another exchange.
+        (arrived_before ? stale : late_halves).fetch_add(1, std::memory_order_relaxed);
+        return std::nullopt;
+      }
       const std::size_t n = std::min(frame.frame.size(), e->bounce[s].size());
       std::memcpy(e->bounce[s].data(), frame.frame.data(), n);
       e->bounce_size[s] = n;
@@ -467,6 +493,53 @@ struct RedundantLink::Impl {
     return on_arrival(s == 0 ? RedundantPort::primary : RedundantPort::secondary, **received);
   }
 
+  // Waits until `until` for anything on either healthy leg, or interrupt()/close(): one ppoll on
+  // both legs' descriptors (Link::wait_fd) and the interrupter, so an arrival on either port ends
+  // it at once and an idle link sleeps. Without a descriptor on some healthy leg: a slice on one
+  // leg (arrivals there are handled), the legs in turn.
+  Result<std::optional<ReceivedFrame>> wait(Clock::time_point now, Clock::time_point until) {
+    std::array<pollfd, 3> fds{};
+    std::size_t n = 0;
+    bool all_waitable = true;
+    for (std::size_t k = 0; k < 2; ++k) {
+      if (!legs[k].healthy.load(std::memory_order_relaxed)) continue;
+      const int fd = legs[k].link->wait_fd();
+      if (fd < 0) {
+        all_waitable = false;
+        break;
+      }
+      fds[n].fd = fd;
+      fds[n].events = POLLIN;
+      ++n;
+    }
+    if (!all_waitable) return wait_on_one_leg(now, until);
+    fds[n].fd = interrupter.fd();
+    fds[n].events = POLLIN;
+    ++n;
+    const std::int64_t left =
+        std::max<std::int64_t>(0, std::chrono::duration_cast<nanoseconds>(until - now).count());
+    timespec ts{};
+    ts.tv_sec = static_cast<time_t>(left / 1'000'000'000);
+    ts.tv_nsec = static_cast<long>(left % 1'000'000'000);
+    const int r = ::ppoll(fds.data(), n, &ts, nullptr);
+    // ppoll fails only for want of memory: wait as a link without descriptors would.
+    if (r < 0 && errno != EINTR) return wait_on_one_leg(Clock::now(), until);
+    // A wake-up whose interrupt was already taken: drained, or it would end every later wait.
+    if (r > 0 && (fds[n - 1].revents & POLLIN) != 0 && !interrupter.pending()) {
+      interrupter.drain();
+    }
+    return std::optional<ReceivedFrame>{};
+  }
+
+  Result<std::optional<ReceivedFrame>> wait_on_one_leg(Clock::time_point now,
+                                                       Clock::time_point until) {
+    std::size_t k = next_leg_to_wait;
+    if (!legs[k].healthy.load(std::memory_order_relaxed)) k = other(k);
+    next_leg_to_wait = other(next_leg_to_wait);
+    const nanoseconds slice = std::min<nanoseconds>(kSlice, until - now);
+    return take(k, std::max(nanoseconds(0), slice));
+  }
+
   bool any_healthy() const {
     return legs[0].healthy.load(std::memory_order_relaxed) ||
            legs[1].healthy.load(std::memory_order_relaxed);
@@ -512,6 +585,7 @@ Result<std::unique_ptr<RedundantLink>> RedundantLink::open(std::unique_ptr<Link>
   auto impl = std::make_unique<Impl>();
   impl->options = options;
   impl->name = fmt::format("redundant:{},{}", primary->name(), secondary->name());
+  if (auto r = impl->interrupter.open(impl->name); !r) return std::move(r).error();
   impl->max_frame = std::min(primary->max_frame_size(), secondary->max_frame_size());
   impl->legs[0].name = primary->name();
   impl->legs[1].name = secondary->name();
@@ -639,31 +713,29 @@ Result<std::optional<ReceivedFrame>> RedundantLink::receive(nanoseconds timeout)
       }
       return Error(Errc::io_error, fmt::format("both ports of {} fail", s.name));
     }
-    if (s.interrupted.exchange(false, std::memory_order_acq_rel) || now >= deadline) {
-      return std::optional<ReceivedFrame>{};
+    if (s.interrupter.consume() || now >= deadline) return std::optional<ReceivedFrame>{};
+    if (s.closed.load(std::memory_order_acquire)) {
+      return Error(Errc::closed, fmt::format("link {} is closed", s.name));
     }
-    // Wait on one healthy leg for a slice, the legs in turn.
-    std::size_t k = s.next_leg_to_wait;
-    if (!s.legs[k].healthy.load(std::memory_order_relaxed)) k = other(k);
-    s.next_leg_to_wait = other(s.next_leg_to_wait);
-    const nanoseconds wait = std::min<nanoseconds>(kSlice, next - now);
-    auto taken = s.take(k, std::max(nanoseconds(0), wait));
-    if (!taken) {
-      error = std::move(taken).error();
+    auto waited = s.wait(now, next);
+    if (!waited) {
+      error = std::move(waited).error();
       continue;
     }
-    if (*taken) return std::move(*taken);
+    if (*waited) return std::move(*waited);
   }
 }
 
 void RedundantLink::interrupt() {
-  impl_->interrupted.store(true, std::memory_order_release);
+  impl_->interrupter.signal();
+  // A leg a receive() waits in (one without a descriptor: Impl::wait).
   for (auto& leg : impl_->legs)
     leg.link->interrupt();
 }
 
 void RedundantLink::close() {
   impl_->closed.store(true, std::memory_order_release);
+  impl_->interrupter.signal();
   for (auto& leg : impl_->legs)
     leg.link->close();
 }
@@ -764,6 +836,7 @@ RedundancyStatus RedundantLink::status() const {
   out.merged = s.merged.load(std::memory_order_relaxed);
   out.lone_bounces = s.lone.load(std::memory_order_relaxed);
   out.merge_timeouts = s.merge_timeouts.load(std::memory_order_relaxed);
+  out.late_halves = s.late_halves.load(std::memory_order_relaxed);
   out.unknown_sources = s.unknown_sources.load(std::memory_order_relaxed);
   out.stale = s.stale.load(std::memory_order_relaxed);
   out.ring_breaks = s.breaks.load(std::memory_order_relaxed);

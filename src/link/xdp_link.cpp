@@ -744,6 +744,12 @@ std::size_t XdpLink::max_frame_size() const {
   return impl_->info.max_frame;
 }
 
+int XdpLink::wait_fd() {
+  Impl& s = *impl_;
+  if (s.options.spin || s.info.busy_poll || s.guard.closed() || !s.resources) return -1;
+  return s.resources->fd();
+}
+
 XdpLinkInfo XdpLink::info() const {
   return impl_->info;
 }
@@ -795,6 +801,9 @@ LinkStats XdpLink::stats() const {
 }
 std::size_t XdpLink::max_frame_size() const {
   return 0;
+}
+int XdpLink::wait_fd() {
+  return -1;
 }
 XdpLinkInfo XdpLink::info() const {
   return {};

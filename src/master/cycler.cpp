@@ -75,6 +75,7 @@ struct Cycler::Schedule {
   };
   std::vector<Slot> slots;  // run order
   std::int64_t base_ns = 0;
+  std::int64_t fastest_ns = 0;  // the shortest participant period (the link's frame budget)
 };
 
 Cycler::Cycler(bus::Bus& bus) : bus_(bus) {}
@@ -98,6 +99,8 @@ Result<std::unique_ptr<Cycler::Schedule>> Cycler::build_locked(nanoseconds* base
                    fmt::format("cycler: a participant has a non-positive period ({} ns)", period));
     }
     gcd = std::gcd(gcd, period);
+    schedule->fastest_ns =
+        schedule->fastest_ns == 0 ? period : std::min(schedule->fastest_ns, period);
     schedule->slots.push_back({e.get(), period});
   }
   if (!entries_.empty() && gcd < kMinBasePeriod.count()) {
@@ -128,6 +131,11 @@ Result<void> Cycler::install_locked(std::unique_ptr<Schedule> next) {
       bus_.clear_cycle();
     } else {
       Schedule* raw = next.get();
+      // The link's frame budget follows the fastest participant, not the base tick
+      // (Bus::set_fastest_work_period); told first, so set_cycle's budget is already right.
+      if (auto r = bus_.set_fastest_work_period(nanoseconds(raw->fastest_ns)); !r) {
+        return std::move(r).error().context("cycler: telling the bus the fastest period");
+      }
       // The lambda holds two pointers: small enough for std::function's inline storage.
       if (auto r = bus_.set_cycle(nanoseconds(raw->base_ns),
                                   [this, raw](const bus::CycleTick& tick) { run(*raw, tick); });

@@ -181,7 +181,8 @@ Json redundancy_json(const link::RedundancyStatus& r) {
            {"ring_heals", r.ring_heals},
            {"merged", r.merged},
            {"lone_bounces", r.lone_bounces},
-           {"merge_timeouts", r.merge_timeouts}};
+           {"merge_timeouts", r.merge_timeouts},
+           {"late_halves", r.late_halves}};
   if (r.break_location) {
     const auto& b = *r.break_location;
     out["break"] = {

@@ -138,6 +138,43 @@ TEST(Bus, TellsTheLinkItsFrameBudgetBoundedByThreeCyclePeriods) {
   bus.stop();
 }
 
+// Several domains: the cycle ticks at their common base (2 ms and 3 ms tick at 1 ms), the cap is
+// three periods of the fastest domain (Bus::set_fastest_work_period), never of the base tick, and
+// the frame timeout still bounds it.
+TEST(Bus, FrameBudgetFollowsTheFastestWorkNotTheBaseTick) {
+  auto segment = make_segment();
+  auto budget = std::make_shared<std::atomic<std::int64_t>>(-1);
+  const auto told = [&] { return std::chrono::nanoseconds(budget->load()); };
+  BusOptions options;
+  options.frame_timeout = 25ms;
+  Bus bus(std::make_unique<BudgetLink>(FakeSegment::make_link(segment), budget), options);
+  ASSERT_TRUE(bus.start());
+  // Told before the cycle is set: no cycle runs, the frame timeout alone.
+  ASSERT_TRUE(bus.set_fastest_work_period(2ms));
+  EXPECT_EQ(told(), 25ms);
+  ASSERT_TRUE(bus.set_cycle(1ms, [](const CycleTick&) {}));
+  EXPECT_EQ(told(), 6ms);
+  // A faster domain joins (1 ms and 10 ms: the base is the fastest).
+  ASSERT_TRUE(bus.set_fastest_work_period(1ms));
+  EXPECT_EQ(told(), 3ms);
+  // Slow domains only: the frame timeout bounds the cap.
+  ASSERT_TRUE(bus.set_fastest_work_period(10ms));
+  EXPECT_EQ(told(), 25ms);
+  ASSERT_TRUE(bus.set_frame_timeout(12ms));
+  EXPECT_EQ(told(), 12ms);
+  EXPECT_FALSE(bus.set_fastest_work_period(-1ms));
+  EXPECT_EQ(told(), 12ms);
+  // 0: the cycle's own period again; clear_cycle forgets it too.
+  ASSERT_TRUE(bus.set_fastest_work_period(0ns));
+  EXPECT_EQ(told(), 3ms);
+  ASSERT_TRUE(bus.set_fastest_work_period(3ms));
+  bus.clear_cycle();
+  EXPECT_EQ(told(), 12ms);
+  ASSERT_TRUE(bus.set_cycle(2ms, [](const CycleTick&) {}));
+  EXPECT_EQ(told(), 6ms);
+  bus.stop();
+}
+
 // The bus thread carries BusOptions::thread_name (ps, top and perf show it), read back from
 // /proc/self/task/*/comm.
 TEST(Bus, ThreadIsNamed) {

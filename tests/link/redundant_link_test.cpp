@@ -2,10 +2,12 @@
 #include <deque>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
 
+#include <ecat/link/forwarding_link.hpp>
 #include <ecat/link/memory_link.hpp>
 #include <ecat/link/redundant_link.hpp>
 #include <ecat/link/udp_link.hpp>
@@ -414,6 +416,84 @@ TEST(RedundantLink, ASideOwingFramesIsWaitedForFromTheOldestOnce) {
   EXPECT_EQ(f.link->status().merged, 3u);
 }
 
+// A ring broken after slave 0: `frame` as each side returns it, built by hand (the primary's
+// side is slave 0, the secondary's slaves 1..3), with the sources the ESCs give them.
+std::pair<ByteVector, ByteVector> bounces_of(const ByteVector& frame) {
+  ToyRing ring;
+  ByteVector primary = frame;
+  ByteVector secondary = frame;
+  ring.process(primary, 0, 1);
+  ring.process(secondary, 1, 4);
+  return {primary, secondary};
+}
+
+wire::MacAddress forwarded(wire::MacAddress mac) {
+  mac[0] |= 0x02;
+  return mac;
+}
+
+// The late half of an exchange answered without it finds that exchange by its index, in the
+// order its port returns frames, even when a later exchange with the same index (an index
+// reused) is waiting: it is counted and dropped, never merged into the later one, which is then
+// merged from its own halves.
+TEST(RedundantLink, ALateHalfFindsItsOwnExchangeNotTheNextWithTheSameIndex) {
+  Fixture f;                        // merge window 500 us
+  f.link->set_frame_budget(600ms);  // patience 300 ms; an answered exchange owns halves 600 ms
+  const ByteVector a = lrw_frame(0x10);
+  ByteVector e = a;  // the next exchange with the same indices, other outputs
+  e[wire::kDatagramHeaderSize + 2 + 1] = 0x11;  // the LRW's second data byte
+  const auto [a_primary, a_secondary] = bounces_of(a);
+  const auto [e_primary, e_secondary] = bounces_of(e);
+  const auto lrw = [](const std::optional<ReceivedFrame>& r) {
+    auto decoded = wire::decode_frame(r->frame);
+    EXPECT_TRUE(decoded);
+    const auto d = *decoded.frame->begin();
+    return std::make_pair(ByteVector(d.data.begin(), d.data.end()), d.wkc);
+  };
+
+  // A: only the secondary's side answers in time; after the patience, its lone bounce.
+  ASSERT_TRUE(f.link->send(a));
+  f.ring.queues = {};
+  f.ring.queues[1].emplace_back(a_secondary, forwarded(kSecondaryMac));
+  auto lone = f.link->receive(5s);
+  ASSERT_TRUE(lone);
+  ASSERT_TRUE(*lone);
+  EXPECT_EQ(lrw(*lone).second, 3);
+  EXPECT_EQ(f.link->status().merge_timeouts, 1u);
+
+  // E, same index, sent; then A's primary half comes back, late.
+  ASSERT_TRUE(f.link->send(e));
+  f.ring.queues = {};
+  f.ring.queues[0].emplace_back(a_primary, forwarded(kPrimaryMac));
+  auto late = f.link->receive(0ns);
+  ASSERT_TRUE(late);
+  EXPECT_FALSE(*late);
+  EXPECT_EQ(f.link->status().late_halves, 1u);
+  // E's secondary half: E still waits for its own primary half (A's was not taken for it).
+  f.ring.queues[1].emplace_back(e_secondary, forwarded(kSecondaryMac));
+  auto waiting = f.link->receive(0ns);
+  ASSERT_TRUE(waiting);
+  EXPECT_FALSE(*waiting) << "merged with the late half of the previous exchange";
+  f.ring.queues[0].emplace_back(e_primary, forwarded(kPrimaryMac));
+  auto merged = f.link->receive(5ms);
+  ASSERT_TRUE(merged);
+  ASSERT_TRUE(*merged);
+  const ByteVector e_whole{0x5A, 0x11, 0x80, 0x81, 0x82, 0x83, 0x00, 0x00};
+  EXPECT_EQ(lrw(*merged).first, e_whole);
+  EXPECT_EQ(lrw(*merged).second, 4);
+  const auto status = f.link->status();
+  EXPECT_EQ(status.merged, 1u);
+  EXPECT_EQ(status.late_halves, 1u);
+  EXPECT_EQ(status.merge_timeouts, 1u);
+  // A second copy of a half already in is stale, not late.
+  f.ring.queues[0].emplace_back(e_primary, forwarded(kPrimaryMac));
+  auto duplicate = f.link->receive(0ns);
+  ASSERT_TRUE(duplicate);
+  EXPECT_FALSE(*duplicate);
+  EXPECT_EQ(f.link->status().late_halves, 1u);
+  EXPECT_EQ(f.link->status().stale, 1u);
+}
+
 TEST(RedundantLink, CableCutAtTheMasterWaitsOnceThenNotAgain) {
   for (auto shape : {ToyRing::Shape::primary_cut, ToyRing::Shape::secondary_cut}) {
     Fixture f(2ms);
@@ -483,6 +563,84 @@ TEST(RedundantLink, StaleAndForeignFramesAreNotHandedOn) {
   ASSERT_TRUE(r);
   ASSERT_TRUE(*r);
   EXPECT_EQ(f.link->status().unknown_sources, 1u);
+}
+
+// A memory link whose arrivals carry the source address a ring's ESCs would give them.
+class StampedLink final : public ForwardingLink {
+ public:
+  StampedLink(std::unique_ptr<Link> inner, wire::MacAddress source)
+      : ForwardingLink(std::move(inner)), source_(source) {}
+  Result<std::optional<ReceivedFrame>> receive(std::chrono::nanoseconds timeout) override {
+    auto received = ForwardingLink::receive(timeout);
+    if (received && *received) (*received)->source = source_;
+    return received;
+  }
+
+ private:
+  wire::MacAddress source_;
+};
+
+// Both ports waited on at once (Link::wait_fd): a reply that comes back only on the secondary
+// port, while the primary stays quiet, ends a long receive() as it arrives, and interrupt() ends
+// one that waits on both. The bounds are generous: nothing here is timed.
+TEST(RedundantLink, AReplyOnTheSecondaryAloneEndsTheWaitOnBothPorts) {
+  auto [primary, primary_ring] = make_memory_link_pair();
+  auto [secondary, secondary_ring] = make_memory_link_pair();
+  EXPECT_GE(primary->wait_fd(), 0);
+  EXPECT_GE(secondary->wait_fd(), 0);
+  RedundantLinkOptions options;
+  options.primary_mac = kPrimaryMac;
+  options.secondary_mac = kSecondaryMac;
+  auto opened = RedundantLink::open(
+      std::make_unique<StampedLink>(std::move(primary), forwarded(kSecondaryMac)),
+      std::make_unique<StampedLink>(std::move(secondary), forwarded(kPrimaryMac)), options);
+  ASSERT_TRUE(opened) << opened.error().describe();
+  RedundantLink& link = **opened;
+
+  // The ring: the primary's frame crosses it and leaves by the secondary port, a while after
+  // the master began to wait; the secondary's copy is lost.
+  std::thread ring([&] {
+    auto request = primary_ring->receive(10s);
+    ASSERT_TRUE(request && *request);
+    ByteVector frame((*request)->frame.begin(), (*request)->frame.end());
+    std::this_thread::sleep_for(20ms);
+    ToyRing toy;
+    toy.process(frame, 0, 4);
+    ASSERT_TRUE(secondary_ring->send(frame));
+  });
+  const auto start = std::chrono::steady_clock::now();
+  ASSERT_TRUE(link.send(lrw_frame(0x90)));
+  auto reply = link.receive(30s);
+  const auto waited = std::chrono::steady_clock::now() - start;
+  ring.join();
+  ASSERT_TRUE(reply) << reply.error().describe();
+  ASSERT_TRUE(*reply);
+  auto decoded = wire::decode_frame((**reply).frame);
+  ASSERT_TRUE(decoded);
+  EXPECT_EQ((*decoded.frame->begin()).wkc, 4);
+  EXPECT_LT(waited, 10s);
+  EXPECT_EQ(link.status().forward_crosses, 1u);
+  EXPECT_EQ(link.status().ring, RingState::whole);
+
+  // Nothing comes: interrupt() ends the wait on both ports.
+  std::thread waker([&] {
+    std::this_thread::sleep_for(20ms);
+    link.interrupt();
+  });
+  const auto idle_start = std::chrono::steady_clock::now();
+  auto idle = link.receive(30s);
+  waker.join();
+  ASSERT_TRUE(idle);
+  EXPECT_FALSE(*idle);
+  EXPECT_LT(std::chrono::steady_clock::now() - idle_start, 10s);
+  // A close from another thread ends it too.
+  std::thread closer([&] {
+    std::this_thread::sleep_for(20ms);
+    link.close();
+  });
+  auto closed = link.receive(30s);
+  closer.join();
+  EXPECT_FALSE(closed && *closed);
 }
 
 TEST(RedundantLink, RefusesUdpAndIndistinguishablePorts) {

@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <ecat/link/forwarding_link.hpp>
+#include <ecat/link/memory_link.hpp>
 #include <ecat/master/cycler.hpp>
 #include <ecat/master/domain.hpp>
 
@@ -211,6 +213,54 @@ TEST(CyclerTest, AddRemoveAndPeriodChangesAtRuntime) {
   std::this_thread::sleep_for(10ms);
   EXPECT_EQ(a.runs.load(), stopped_at);
   EXPECT_EQ(cycler.remove(odd).error().code(), Errc::not_found);
+}
+
+// A link that records the frame budget the bus tells it (Link::set_frame_budget).
+class BudgetLink final : public link::ForwardingLink {
+ public:
+  explicit BudgetLink(std::unique_ptr<link::Link> inner) : ForwardingLink(std::move(inner)) {}
+  void set_frame_budget(std::chrono::nanoseconds budget) override { told.store(budget.count()); }
+  std::atomic<std::int64_t> told{-1};
+};
+
+// The link's frame budget follows the fastest participant, not the base tick: at 2 ms and 3 ms
+// the bus ticks at 1 ms, and three of the fastest period (6 ms) is the cap, within the frame
+// timeout; the changes of the schedule carry it along.
+TEST(CyclerTest, TheLinksFrameBudgetFollowsTheFastestParticipant) {
+  auto pair = link::make_memory_link_pair();
+  auto budget_link = std::make_unique<BudgetLink>(std::move(pair.first));
+  BudgetLink* link = budget_link.get();
+  bus::BusOptions options;
+  options.frame_timeout = 50ms;
+  bus::Bus bus(std::move(budget_link), options);
+  ASSERT_TRUE(bus.start());
+  const auto told = [&] { return std::chrono::nanoseconds(link->told.load()); };
+  Cycler cycler(bus);
+  Counter two(2ms, 1);
+  Counter three(3ms, 2);
+  ASSERT_TRUE(cycler.add(two).ok());
+  ASSERT_TRUE(cycler.add(three).ok());
+  ASSERT_TRUE(cycler.start().ok());
+  EXPECT_EQ(cycler.base_period(), 1ms);
+  EXPECT_EQ(told(), 6ms);
+  {
+    Counter fast(1ms, 3);
+    ASSERT_TRUE(cycler.add(fast).ok());
+    EXPECT_EQ(told(), 3ms);
+    Counter slow(10ms, 4);
+    ASSERT_TRUE(cycler.add(slow).ok());
+    EXPECT_EQ(told(), 3ms);
+    ASSERT_TRUE(cycler.remove(fast).ok());
+    EXPECT_EQ(told(), 6ms);
+  }
+  ASSERT_TRUE(two.set_period(30ms).ok());
+  EXPECT_EQ(told(), 9ms);
+  ASSERT_TRUE(cycler.remove(three).ok());
+  EXPECT_EQ(told(), 50ms);  // 3 x 30 ms is beyond the frame timeout
+  ASSERT_TRUE(cycler.stop().ok());
+  EXPECT_EQ(told(), 50ms);
+  ASSERT_TRUE(cycler.remove(two).ok());
+  bus.stop();
 }
 
 TEST(CyclerTest, TwoDomainsAtOneAndTwoMilliseconds) {

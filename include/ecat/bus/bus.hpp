@@ -270,8 +270,15 @@ class Bus {
   // is no longer running); from the bus thread, takes effect after the current call returns.
   Result<void> set_cycle(std::chrono::nanoseconds period, CycleFunction function,
                          std::optional<Clock::time_point> first_deadline = std::nullopt);
-  // Stops calling the cycle function (same guarantee as set_cycle()).
+  // Stops calling the cycle function (same guarantee as set_cycle()); forgets the fastest work
+  // period (set_fastest_work_period).
   void clear_cycle();
+  // The shortest period of the work the cycle carries: the fastest of several domains (the
+  // cycle's own period is their common base tick, which may be shorter: 2 ms and 3 ms tick at
+  // 1 ms). While a cycle runs, the link's frame budget (Link::set_frame_budget) is capped at
+  // three of it rather than three cycle periods. 0 (the default, and after clear_cycle()): the
+  // cycle's period. Any thread; never on the cycle path. Errc::invalid_argument when negative.
+  Result<void> set_fastest_work_period(std::chrono::nanoseconds period);
 
   // Cycle steering, for a cycle that follows another clock (distributed clocks: the reference
   // clock's SYNC0 grid). Each deadline is its nominal grid point plus an offset; after every

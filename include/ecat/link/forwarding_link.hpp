@@ -32,6 +32,7 @@ class ForwardingLink : public Link {
     inner_->set_frame_budget(budget);
   }
   std::size_t max_frame_size() const override { return inner_->max_frame_size(); }
+  int wait_fd() override { return inner_->wait_fd(); }
 
  protected:
   Link& inner() noexcept { return *inner_; }

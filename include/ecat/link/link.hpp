@@ -118,10 +118,13 @@ struct RedundancyStatus {
   std::uint64_t merged = 0;              // replies merged from two bounces
   std::uint64_t lone_bounces = 0;        // replies from one bounce (the other side silent)
   std::uint64_t merge_timeouts = 0;      // lone bounces handed on when their wait ran out
-  std::uint64_t unknown_sources = 0;     // frames from neither port's address, handed on as is
-  std::uint64_t stale = 0;               // arrivals for no frame in flight, dropped
-  std::uint64_t ring_breaks = 0;         // whole -> broken changes seen
-  std::uint64_t ring_heals = 0;          // broken -> whole changes seen
+  // Halves that came back after their exchange was answered without them (lone) or expired:
+  // dropped, never merged into another exchange.
+  std::uint64_t late_halves = 0;
+  std::uint64_t unknown_sources = 0;  // frames from neither port's address, handed on as is
+  std::uint64_t stale = 0;            // arrivals for no frame in flight, dropped
+  std::uint64_t ring_breaks = 0;      // whole -> broken changes seen
+  std::uint64_t ring_heals = 0;       // broken -> whole changes seen
   // Where the ring is open, once the master has read the slaves' DL status after the ring was
   // seen broken (none from a link, none while whole or not yet located).
   std::optional<RingBreak> break_location;
@@ -210,10 +213,20 @@ class Link {
                                     std::optional<DatagramSelector> selector);
 
   // How long the sender waits for the reply to a frame (the bus tells its frame timeout, bounded
-  // by three cycle periods while a cycle runs). A redundant link waits for a late side of the
-  // ring up to half of it from the oldest frame that side owes (RedundantLink, the merge rule).
-  // Any thread; ignored by default.
+  // by three periods of the cycle's fastest work while a cycle runs). A redundant link waits for a
+  // late side of the ring up to half of it from the oldest frame that side owes (RedundantLink, the
+  // merge rule). Any thread; ignored by default.
   virtual void set_frame_budget(std::chrono::nanoseconds budget);
+
+  // A descriptor that poll() reports readable (POLLIN) while a frame may be waiting for
+  // receive(), so that a caller can wait on several links at once (RedundantLink waits on both
+  // its ports in one ppoll). It may be readable for nothing (a frame the link then ignores); a
+  // receive() that finds nothing leaves it quiet until something arrives. -1 when the link has
+  // none (the default; also a link that never sleeps in receive(): spinning, busy polling): its
+  // caller then waits in receive() itself. Only the receiving thread, between receives; may
+  // change after reopen(), invalid after close(). In-process links open it at the first call and
+  // only then signal it.
+  virtual int wait_fd();
 
   // Largest EtherCAT frame send() accepts.
   virtual std::size_t max_frame_size() const;  // wire::kMaxFrameSize unless the link says less

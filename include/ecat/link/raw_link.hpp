@@ -62,6 +62,8 @@ class RawLink final : public Link {
   LinkStats stats() const override;
   // The smaller of wire::kMaxFrameSize and the interface MTU.
   std::size_t max_frame_size() const override;
+  // The socket (readable while frames wait); -1 with `spin` (receive() never sleeps) or closed.
+  int wait_fd() override;
 
   int interface_index() const noexcept;
   // The interface's hardware address (not the override).

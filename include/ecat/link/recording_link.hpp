@@ -125,6 +125,7 @@ class RecordingLink final : public Link {
   std::string name() const override;
   LinkStats stats() const override;
   std::size_t max_frame_size() const override;
+  int wait_fd() override;
   std::optional<RedundancyStatus> redundancy() const override;
   void set_frame_budget(std::chrono::nanoseconds budget) override;
   Result<void> set_port_nop(Port port, NopSlot slot,

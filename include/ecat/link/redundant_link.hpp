@@ -18,8 +18,18 @@
 // its copy already came back empty. So a side answering late on a loaded host (a descheduled
 // thread, a slow NIC) is merged for every frame as long as it is less than a patience late, and a
 // cable cut at the master delays only the frames then in flight, together, by one patience, once.
-// The bus gives the link its frame timeout, bounded by three cycle periods while a cycle runs
-// (Bus::set_cycle), so on a master the patience is at most a period and a half.
+// The bus gives the link its frame timeout, bounded by three periods of the fastest domain while
+// a cycle runs (Bus::set_fastest_work_period), so on a master the patience is at most a period
+// and a half of it.
+//
+// An arrival belongs to the oldest exchange with its first datagram index and datagram count
+// whose copy on that port has not come back (a port returns frames in the order they were sent):
+// the late half of an exchange answered without it is counted (late_halves) and dropped, never
+// merged into a later exchange that reuses the index.
+//
+// Waiting: one ppoll on both legs' descriptors (Link::wait_fd) and an interrupt eventfd, so a
+// reply on either port ends the wait at once and an idle link sleeps; with a leg that has no
+// descriptor, 100 us on one leg, then the other.
 //
 // Port health is observed (send and receive errors, what arrives), never taken from the carrier:
 // a leg that fails is still tried on every frame, and reopened at most once a second when its

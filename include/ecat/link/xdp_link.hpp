@@ -104,6 +104,9 @@ class XdpLink final : public Link {
   std::string name() const override;  // "xdp:IFACE" (",queue=N" when not queue 0)
   LinkStats stats() const override;
   std::size_t max_frame_size() const override;
+  // The XSK socket (readable while the receive ring holds frames); -1 with `spin` or busy
+  // polling (receive() never sleeps), while failed or closed.
+  int wait_fd() override;
 
   XdpLinkInfo info() const;
   wire::MacAddress source_mac() const noexcept;
