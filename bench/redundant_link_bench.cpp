@@ -6,6 +6,7 @@
 // burns while nothing comes back.
 //
 //   redundant_link_bench --benchmark_filter=Redundant
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <chrono>
@@ -123,10 +124,15 @@ class WholeRing {
       const auto frame = (*r)->frame;
       std::copy(frame.begin(), frame.end(), copy.begin());
       const std::size_t size = frame.size();
-      if (process && size >= 2 + ecat::wire::kDatagramOverhead) {
-        // The single datagram's working counter (the frame's last two bytes before padding).
-        const std::size_t wkc_at = size - 2;
-        copy[wkc_at] = static_cast<std::uint8_t>(copy[wkc_at] + 1);
+      if (process) {
+        // Every datagram's working counter + 1, as one slave would (frames arrive padded).
+        const auto decoded = ecat::wire::decode_frame(frame);
+        if (decoded) {
+          for (const auto d : *decoded.frame) {
+            const auto at = static_cast<std::size_t>(d.data.data() + d.data.size() - frame.data());
+            copy[at] = static_cast<std::uint8_t>(copy[at] + 1);
+          }
+        }
       }
       (void)out.send_as(ecat::wire::Bytes(copy.data(), size), source, ecat::wire::kBroadcastMac);
     }
@@ -203,7 +209,10 @@ void BM_RedundantVethRoundTrip(benchmark::State& state) {
   WholeRing ring(*rig.s0, *rig.s1, rig.options.primary_mac, rig.options.secondary_mac);
   const auto frame = brd_frame();
   std::uint64_t lost = 0;
+  std::vector<std::int64_t> samples;
+  samples.reserve(1 << 20);
   for (auto _ : state) {
+    const auto start = std::chrono::steady_clock::now();
     if (!rig.link->send(frame)) {
       state.SkipWithError("send failed");
       break;
@@ -211,9 +220,25 @@ void BM_RedundantVethRoundTrip(benchmark::State& state) {
     auto r = rig.link->receive(100ms);
     if (!r || !*r) ++lost;
     // The passthrough copy, if it is still on its way, is dropped by the next receive.
+    if (samples.size() < samples.capacity()) {
+      samples.push_back(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                            std::chrono::steady_clock::now() - start)
+                            .count());
+    }
   }
   state.SetLabel(label(sliced));
   state.counters["lost"] = static_cast<double>(lost);
+  if (!samples.empty()) {
+    std::sort(samples.begin(), samples.end());
+    const auto at = [&](double q) {
+      return static_cast<double>(
+                 samples[static_cast<std::size_t>(q * static_cast<double>(samples.size() - 1))]) /
+             1000.0;
+    };
+    state.counters["p50_us"] = at(0.5);
+    state.counters["p99_us"] = at(0.99);
+    state.counters["max_us"] = at(1.0);
+  }
   state.counters["forward_crosses"] = static_cast<double>(rig.link->status().forward_crosses);
 }
 BENCHMARK(BM_RedundantVethRoundTrip)->Arg(0)->Arg(1)->UseRealTime();
