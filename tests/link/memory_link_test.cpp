@@ -8,6 +8,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <poll.h>
 
 #include <ecat/link/memory_link.hpp>
 #include <ecat/wire/frame.hpp>
@@ -64,6 +65,54 @@ TEST(MemoryLinkTest, RoundTripBothWays) {
   EXPECT_EQ(b->stats().frames_sent, 1u);
   EXPECT_EQ(b->stats().frames_received, 1u);
   EXPECT_EQ(b->stats().bytes_received, 40u);
+}
+
+// Whether poll() finds `fd` readable now.
+bool readable(int fd) {
+  pollfd p{fd, POLLIN, 0};
+  return ::poll(&p, 1, 0) == 1 && (p.revents & POLLIN) != 0;
+}
+
+// Link::wait_fd: readable while a frame waits (also one queued before it was asked for), quiet
+// once a receive found nothing; an interrupt and a close of the peer make it readable too.
+TEST(MemoryLinkTest, WaitFdIsReadableWhileAFrameWaits) {
+  auto [a, b] = make_memory_link_pair();
+  ASSERT_TRUE(a->send(frame_with(1)).ok());
+  const int fd = b->wait_fd();
+  ASSERT_GE(fd, 0);
+  EXPECT_EQ(b->wait_fd(), fd);
+  EXPECT_TRUE(readable(fd));
+  EXPECT_EQ(receive_now(*b), frame_with(1));
+  EXPECT_TRUE(receive_now(*b).empty());
+  EXPECT_FALSE(readable(fd));
+  ASSERT_TRUE(a->send(frame_with(2)).ok());
+  ASSERT_TRUE(a->send(frame_with(3)).ok());
+  EXPECT_TRUE(readable(fd));
+  EXPECT_EQ(receive_now(*b), frame_with(2));
+  EXPECT_EQ(receive_now(*b), frame_with(3));
+  EXPECT_TRUE(receive_now(*b).empty());
+  EXPECT_FALSE(readable(fd));
+  b->interrupt();
+  EXPECT_TRUE(readable(fd));
+  EXPECT_TRUE(receive_now(*b).empty());
+  EXPECT_FALSE(readable(fd));
+  a->close();
+  EXPECT_TRUE(readable(fd));
+  b->close();
+  EXPECT_EQ(b->wait_fd(), -1);
+}
+
+TEST(FunctionLinkTest, WaitFdIsReadableWhileRepliesWait) {
+  auto link = make_function_link(
+      [](wire::Bytes request, ReplySink& replies) { EXPECT_TRUE(replies.reply(request)); });
+  const int fd = link->wait_fd();
+  ASSERT_GE(fd, 0);
+  EXPECT_FALSE(readable(fd));
+  ASSERT_TRUE(link->send(frame_with(7)).ok());
+  EXPECT_TRUE(readable(fd));
+  EXPECT_EQ(receive_now(*link), frame_with(7));
+  EXPECT_TRUE(receive_now(*link).empty());
+  EXPECT_FALSE(readable(fd));
 }
 
 TEST(MemoryLinkTest, EmptyFrameIsDeliveredAsEmpty) {
