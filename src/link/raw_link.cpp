@@ -346,8 +346,10 @@ Result<std::optional<ReceivedFrame>> RawLink::receive(std::chrono::nanoseconds t
 }
 
 int RawLink::wait_fd() {
-  if (impl_->options.spin || impl_->guard.closed()) return -1;
-  return impl_->socket.get();
+  if (impl_->options.spin) return -1;
+  // Read inside the guard: a close() from another thread releases the socket only after.
+  detail::UseScope use(impl_->guard);
+  return use ? impl_->socket.get() : -1;
 }
 
 void RawLink::interrupt() {

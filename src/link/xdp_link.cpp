@@ -746,8 +746,9 @@ std::size_t XdpLink::max_frame_size() const {
 
 int XdpLink::wait_fd() {
   Impl& s = *impl_;
-  if (s.options.spin || s.info.busy_poll || s.guard.closed() || !s.resources) return -1;
-  return s.resources->fd();
+  if (s.options.spin || s.info.busy_poll) return -1;
+  detail::UseScope use(s.guard);
+  return use && s.resources ? s.resources->fd() : -1;
 }
 
 XdpLinkInfo XdpLink::info() const {
