@@ -584,8 +584,13 @@ class StampedLink final : public ForwardingLink {
 // port, while the primary stays quiet, ends a long receive() as it arrives, and interrupt() ends
 // one that waits on both. The bounds are generous: nothing here is timed.
 TEST(RedundantLink, AReplyOnTheSecondaryAloneEndsTheWaitOnBothPorts) {
-  auto [primary, primary_ring] = make_memory_link_pair();
-  auto [secondary, secondary_ring] = make_memory_link_pair();
+  // Not structured bindings: the ring's thread captures the far ends.
+  auto primary_pair = make_memory_link_pair();
+  auto secondary_pair = make_memory_link_pair();
+  std::unique_ptr<Link> primary = std::move(primary_pair.first);
+  std::unique_ptr<Link> primary_ring = std::move(primary_pair.second);
+  std::unique_ptr<Link> secondary = std::move(secondary_pair.first);
+  std::unique_ptr<Link> secondary_ring = std::move(secondary_pair.second);
   EXPECT_GE(primary->wait_fd(), 0);
   EXPECT_GE(secondary->wait_fd(), 0);
   RedundantLinkOptions options;
