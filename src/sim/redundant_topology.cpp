@@ -3,15 +3,11 @@
 #include <condition_variable>
 #include <cstring>
 #include <mutex>
-#include <optional>
 #include <thread>
 #include <utility>
 #include <vector>
 
 #include <fmt/format.h>
-#include <sys/timerfd.h>
-#include <time.h>
-#include <unistd.h>
 
 #include <ecat/sim/redundant_ring.hpp>
 #include <ecat/sim/server.hpp>
@@ -170,43 +166,11 @@ struct Slot {
   std::chrono::steady_clock::time_point due{};
 };
 
-// A port's Link::wait_fd: a timerfd (opened at the first call) that fires when the reply at the
-// head of the port's queue is due, disarmed while the queue is empty; kept so under the mutex at
-// every change of the queue, so it is readable exactly while a reply can be taken.
-struct DueTimer {
-  DueTimer() = default;
-  DueTimer(const DueTimer&) = delete;
-  DueTimer& operator=(const DueTimer&) = delete;
-  ~DueTimer() {
-    if (fd >= 0) ::close(fd);
-  }
-  void arm(std::optional<std::chrono::steady_clock::time_point> due) const noexcept {
-    if (fd < 0) return;
-    itimerspec spec{};
-    if (due) {
-      // steady_clock is CLOCK_MONOTONIC; a time already past fires at once (not 0: disarms).
-      const auto ns = std::max<std::int64_t>(
-          1, std::chrono::duration_cast<std::chrono::nanoseconds>(due->time_since_epoch()).count());
-      spec.it_value.tv_sec = static_cast<time_t>(ns / 1'000'000'000);
-      spec.it_value.tv_nsec = static_cast<long>(ns % 1'000'000'000);
-    }
-    (void)::timerfd_settime(fd, TFD_TIMER_ABSTIME, &spec, nullptr);
-  }
-  int fd = -1;
-};
-
 struct PortQueue {
   std::vector<Slot> slots;
   std::size_t head = 0;
   std::size_t count = 0;
   bool interrupted = false;
-  DueTimer timer;
-
-  // After every change (under the mutex).
-  void rearm() const noexcept {
-    if (timer.fd < 0) return;
-    timer.arm(count > 0 ? std::optional(slots[head].due) : std::nullopt);
-  }
 };
 
 std::size_t side(RedundantPort port) {
@@ -256,7 +220,6 @@ struct RedundantPorts::Shared {
       if (before.due <= at.due) break;
       std::swap(before, at);
     }
-    q.rearm();
     return true;
   }
 
@@ -370,7 +333,6 @@ struct RedundantPorts::Shared {
     const wire::MacAddress source = slot.source;
     q.head = (q.head + 1) % q.slots.size();
     --q.count;
-    q.rearm();
     return std::make_pair(size, source);
   }
 };
@@ -419,7 +381,6 @@ class PortLink final : public link::Link {
     const std::size_t size = slot.size;
     q.head = (q.head + 1) % q.slots.size();
     --q.count;
-    q.rearm();
     lock.unlock();
     ++stats_.frames_received;
     stats_.bytes_received += size;
@@ -439,17 +400,6 @@ class PortLink final : public link::Link {
   void close() override { closed_ = true; }
   std::string name() const override {
     return port_ == RedundantPort::primary ? "sim-primary" : "sim-secondary";
-  }
-  // Readable while the reply at the head of this port's queue is due (PortQueue::timer).
-  int wait_fd() override {
-    if (closed_) return -1;
-    std::lock_guard lock(shared_->mutex);
-    PortQueue& q = shared_->queues[side(port_)];
-    if (q.timer.fd < 0) {
-      q.timer.fd = ::timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
-      q.rearm();
-    }
-    return q.timer.fd;
   }
   link::LinkStats stats() const override { return stats_; }
 
