@@ -245,6 +245,9 @@ void Esc::layout_written(std::uint32_t first, std::uint32_t last) {
       overlaps(first, last, reg::kFmmuBase, reg::kFmmuSize * reg::kMaxFmmus)) {
     layout_observer_->esc_layout_changed(layout_tag_);
   }
+  if (overlaps(first, last, reg::kDlPortControl, 1)) {
+    layout_observer_->esc_port_control_written(layout_tag_);
+  }
 }
 
 void Esc::power_cycle(std::int64_t now_ns) {

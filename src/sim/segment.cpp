@@ -80,9 +80,13 @@ std::optional<std::size_t> Segment::find(std::string_view name) const noexcept {
 void Segment::set_link(std::size_t index, std::uint8_t port, bool up) {
   if (index >= nodes_.size() || port > 3) return;
   nodes_[index].link_up[port] = up;
+  // Link down shuts a port in auto close for good (until the master opens it again).
+  if (!up) nodes_[index].auto_closed[port] = true;
   // A cable has two ends: the peer sees the same link state.
   if (port == 0 && nodes_[index].parent) {
-    nodes_[*nodes_[index].parent].link_up[nodes_[index].parent_port] = up;
+    Node& peer = nodes_[*nodes_[index].parent];
+    peer.link_up[nodes_[index].parent_port] = up;
+    if (!up) peer.auto_closed[nodes_[index].parent_port] = true;
   } else if (port > 0 && nodes_[index].children[port]) {
     nodes_[*nodes_[index].children[port]].link_up[0] = up;
   }
@@ -161,16 +165,22 @@ bool Segment::link(std::size_t index, std::uint8_t port) const {
   return index < nodes_.size() && port <= 3 && nodes_[index].link_up[port];
 }
 
+bool Segment::has_link(std::size_t index, std::uint8_t port) const noexcept {
+  const Node& node = nodes_[index];
+  return node.children[port].has_value() && node.link_up[port];
+}
+
 bool Segment::port_open(std::size_t index, std::uint8_t port) const {
   const Node& node = nodes_[index];
-  const bool has_link = node.children[port].has_value() && node.link_up[port];
+  const bool link = has_link(index, port);
   const std::uint8_t control = (node.esc->read_u8(reg::kDlPortControl) >> (2 * port)) & 0x3;
   switch (control) {
     case 0:  // auto: open with link
-    case 1:  // auto close
-      return has_link;
+      return link;
+    case 1:  // auto close: open with link unless link down closed it and 01 was not written since
+      return link && !node.auto_closed[port];
     case 2:  // forced open: only useful with a link (without one the frame would be lost)
-      return has_link;
+      return link;
     default:  // forced closed
       return false;
   }
@@ -234,8 +244,8 @@ void Segment::set_reported_link(std::size_t index, std::uint8_t port, std::optio
 // DL status 0x0110, per port p: bit 4+p physical link, bit 8+2p loop closed, bit 9+2p
 // communication established (the ESC datasheet's register description as public masters read it:
 // IgH's fsm_slave_scan.c link_up / loop_closed / signal_detected, ethercrab's DlStatus). A port
-// without link closes its loop (auto mode); one with link opens it unless DL control 0x0101
-// forces it closed.
+// without link closes its loop; one with link opens it unless DL control 0x0101 forces it
+// closed or auto close keeps it closed (link up, loop closed: a device waiting behind it).
 void Segment::update_dl_status() {
   for (std::size_t i = 0; i < nodes_.size(); ++i)
     update_dl_status(i);
@@ -252,7 +262,7 @@ void Segment::update_dl_status(std::size_t i) {
     if (node.reported_link[port]) {
       link = *node.reported_link[port];
       const std::uint8_t control = (node.esc->read_u8(reg::kDlPortControl) >> (2 * port)) & 0x3;
-      loop_closed = !link || control == 3;
+      loop_closed = !link || control == 3 || (control == 1 && node.auto_closed[port]);
     }
     dl.ports[port].physical_link = link;
     dl.ports[port].communication = link;
@@ -272,6 +282,24 @@ void Segment::esc_layout_changed(std::size_t tag) {
     node.index_dirty = true;
     index_dirty_.push_back(tag);
   }
+}
+
+// A write of 0x0101: every port whose bits say auto close (01) is opened when it has link and
+// closed (latched) when it has none, whatever the byte held before.
+void Segment::esc_port_control_written(std::size_t tag) {
+  if (tag >= nodes_.size()) return;
+  Node& node = nodes_[tag];
+  const std::uint8_t control = node.esc->read_u8(reg::kDlPortControl);
+  bool changed = false;
+  for (std::uint8_t port = 1; port < 4; ++port) {
+    if (((control >> (2 * port)) & 0x3) != 1) continue;
+    const bool closed = !has_link(tag, port);
+    changed |= node.auto_closed[port] != closed;
+    node.auto_closed[port] = closed;
+  }
+  if (!changed) return;
+  port_control_seen_.clear();  // re-plan the route on the next frame
+  update_dl_status(tag);
 }
 
 void Segment::reindex(std::size_t index) {

@@ -756,6 +756,93 @@ TEST(Topology, LinkDownCutsOffTheRestAndClosesTheLoop) {
   EXPECT_FALSE(exchange(segment, Command::brd, 0, {0}).returned);
 }
 
+// Loop control "auto close" (0x0101 bits 01): a port shut at link down stays shut when the link
+// comes back (DL status: link up, loop closed) until the master writes 01 again; written while
+// the port has no link it closes it too. Auto (00) opens with the link.
+TEST(Topology, AutoCloseKeepsAPortClosedAfterLinkDownUntilTheMasterOpensIt) {
+  Segment segment;
+  ASSERT_TRUE(segment.add_slave("junction", make_esc(1)).ok());
+  ASSERT_TRUE(segment.add_slave("group", make_esc(2), Attachment{0, 1}).ok());  // on port 1
+  ASSERT_TRUE(segment.add_slave("far", make_esc(3), Attachment{0, 2}).ok());    // on port 2
+  const auto port_control = [&](std::uint8_t value) {
+    return exchange(segment, Command::apwr, wire::physical_address(0, reg::kDlPortControl),
+                    {value});
+  };
+  const auto dl = [&] {
+    exchange(segment, Command::brd, 0, {0});  // a frame: the route is planned again
+    return wire::DlStatus::decode(segment.esc(0).read_u16(reg::kDlStatus));
+  };
+  const auto count = [&] { return exchange(segment, Command::brd, 0, {0}).wkc; };
+  ASSERT_EQ(count(), 3);
+  ASSERT_EQ(port_control(0x04).wkc, 1);  // port 1: auto close, with link: stays open
+  EXPECT_EQ(count(), 3);
+  EXPECT_FALSE(dl().ports[1].loop_closed);
+
+  // Link down: closed; link up again: still closed, the group behind it unseen.
+  segment.set_link(1, 0, false);
+  EXPECT_EQ(count(), 2);
+  segment.set_link(1, 0, true);
+  EXPECT_EQ(count(), 2);
+  auto status = dl();
+  EXPECT_TRUE(status.ports[1].physical_link);
+  EXPECT_TRUE(status.ports[1].loop_closed);
+  EXPECT_FALSE(status.ports[2].loop_closed);
+  // The frame's route: the far slave right after the junction (auto-increment position 1).
+  auto far = exchange(segment, Command::aprd,
+                      wire::physical_address(wire::position_adp(1), reg::kType), {0});
+  EXPECT_EQ(far.wkc, 1);
+
+  // The same value written again opens it: the group is in the ring, in front of `far`.
+  ASSERT_EQ(port_control(0x04).wkc, 1);
+  EXPECT_EQ(count(), 3);
+  status = dl();
+  EXPECT_TRUE(status.ports[1].physical_link);
+  EXPECT_FALSE(status.ports[1].loop_closed);
+  EXPECT_EQ(segment.processing_order(), (std::vector<std::size_t>{0, 1, 2}));
+
+  // 01 written while the port has no link closes it: the link coming back leaves it closed.
+  segment.set_link(1, 0, false);
+  ASSERT_EQ(port_control(0x04).wkc, 1);
+  segment.set_link(1, 0, true);
+  EXPECT_EQ(count(), 2);
+  // Auto (00) opens with the link; auto close written then keeps it open.
+  ASSERT_EQ(port_control(0x00).wkc, 1);
+  EXPECT_EQ(count(), 3);
+  ASSERT_EQ(port_control(0x04).wkc, 1);
+  EXPECT_EQ(count(), 3);
+  EXPECT_FALSE(dl().ports[1].loop_closed);
+  // Forced closed (11) and forced open (10) ignore the latch.
+  segment.set_link(1, 0, false);
+  segment.set_link(1, 0, true);
+  ASSERT_EQ(port_control(0x08).wkc, 1);
+  EXPECT_EQ(count(), 3);
+  ASSERT_EQ(port_control(0x0C).wkc, 1);
+  EXPECT_EQ(count(), 2);
+}
+
+// A frame through a port opened by the master takes the longer way: the slaves behind it latch
+// their receive times later by the group's round trip.
+TEST(Topology, OpeningAnAutoClosedPortDelaysTheSlavesBehindIt) {
+  Segment segment;
+  ASSERT_TRUE(segment.add_slave("junction", make_esc(1)).ok());
+  ASSERT_TRUE(segment.add_slave("group", make_esc(2), Attachment{0, 1, 500}).ok());
+  ASSERT_TRUE(segment.add_slave("far", make_esc(3), Attachment{0, 2}).ok());
+  exchange(segment, Command::apwr, wire::physical_address(0, reg::kDlPortControl), {0x04});
+  segment.set_link(1, 0, false);
+  segment.set_link(1, 0, true);
+  const auto far_arrival = [&] {
+    exchange(segment, Command::bwr, wire::physical_address(0, reg::kDcReceiveTimePort0),
+             {0, 0, 0, 0}, 1'000'000);
+    return segment.esc(2).read_u32(reg::dc_receive_time(0));
+  };
+  const auto closed = far_arrival();
+  exchange(segment, Command::apwr, wire::physical_address(0, reg::kDlPortControl), {0x04});
+  const auto open = far_arrival();
+  // Two 500 ns cables, the group's processing (100) and turnaround (50), the junction's
+  // forwarding from port 1 (50).
+  EXPECT_EQ(open - closed, 2 * 500u + 100u + 50u + 50u);
+}
+
 TEST(DistributedClocks, ReceiveTimesFollowTheTopology) {
   Segment segment;
   for (int i = 0; i < 3; ++i) {

@@ -38,6 +38,9 @@ class EscLayoutObserver {
  public:
   virtual ~EscLayoutObserver() = default;
   virtual void esc_layout_changed(std::size_t tag) = 0;
+  // The loop control byte 0x0101 was written by a datagram or the PDI (also with the value it
+  // held: writing "auto close" again opens a port that auto close shut). Not for a power cycle.
+  virtual void esc_port_control_written(std::size_t tag) { (void)tag; }
 };
 
 // The hardware of one ESC: what its information registers report and how large it is.

@@ -118,7 +118,13 @@ class Segment : private EscLayoutObserver {
   void advance(std::int64_t now_ns);
 
   // Physical link of slave `index`'s `port` (0 = towards the master). Down on port 0 cuts the
-  // slave and everything behind it off; the parent's port then closes its loop.
+  // slave and everything behind it off; the parent's port then closes its loop. Loop control
+  // (DL control 0x0101, two bits per port) decides whether a port with link is open: 00 auto
+  // (open with link), 01 auto close (closed at link down and kept closed when the link comes
+  // back, until the master writes 01 to the port's bits again while it has link: DL status then
+  // shows link up, loop closed), 10 open, 11 closed. A frame arriving from outside at a port
+  // closed by auto close (which also opens it on a real ESC) does not exist here: frames enter
+  // at the first slave's port 0 only.
   void set_link(std::size_t index, std::uint8_t port, bool up);
   bool link(std::size_t index, std::uint8_t port) const;
   // The master's own link to the first slave.
@@ -173,6 +179,10 @@ class Segment : private EscLayoutObserver {
     std::array<std::optional<std::size_t>, 4> children{};  // by port; [0] unused
     std::array<bool, 4> link_up{true, true, true, true};
     std::array<std::optional<bool>, 4> reported_link{};  // set_reported_link
+    // Loop control "auto close" (0x0101 bits 01): the port was closed at link down (or 01 was
+    // written while it had no link) and stays closed, link or not, until 01 is written again
+    // while it has a link. Only read in that mode.
+    std::array<bool, 4> auto_closed{};
     std::int64_t cable_delay_ns = 5;
     HopTiming timing;
     // Dispatch indexes (see esc_layout_changed): what they hold for this node.
@@ -196,6 +206,8 @@ class Segment : private EscLayoutObserver {
   void update_dl_status();
   void update_dl_status(std::size_t index);  // one slave's
   void esc_layout_changed(std::size_t tag) override;
+  void esc_port_control_written(std::size_t tag) override;
+  bool has_link(std::size_t index, std::uint8_t port) const noexcept;
   void reindex(std::size_t index);
   void rebuild_logical_index();
   void find_addressed();
