@@ -261,7 +261,8 @@ std::array<std::uint8_t, 2> le16(std::uint16_t v) {
 exec::Task<Result<std::int64_t>> latch_receive_times(exec::EventLoop& loop, bus::Bus& bus,
                                                      const std::function<std::int64_t()>& clock,
                                                      std::chrono::nanoseconds timeout,
-                                                     std::string who) {
+                                                     std::string who,
+                                                     std::uint16_t* answered = nullptr) {
   const std::int64_t before = clock();
   bus::Transaction tx;
   const std::uint8_t zero[4]{};
@@ -272,6 +273,7 @@ exec::Task<Result<std::int64_t>> latch_receive_times(exec::EventLoop& loop, bus:
     co_return Error(Errc::wkc_mismatch,
                     who + ": receive time latch (BWR 0x0900) not acknowledged by any slave");
   }
+  if (answered != nullptr) *answered = reply->wkc(0);
   const std::int64_t after = clock();
   co_return before + (after - before) / 2;
 }
@@ -302,24 +304,38 @@ struct RingReading {
   std::vector<std::uint32_t> delays;   // 0x0928
 };
 
+// `by_position`: every slave the latch reached, read by ring position (APRD, `stations`
+// ignored: slaves that have no station of their own yet, a hot-connect group just let in, are
+// read too); each snapshot's station is the one the slave holds now.
 exec::Task<Result<RingReading>> read_ring(exec::EventLoop& loop, bus::Bus& bus,
-                                          const std::vector<std::uint16_t>& stations,
-                                          const DcInitOptions& options, const std::string& who) {
+                                          std::vector<std::uint16_t> stations,
+                                          const DcInitOptions& options, const std::string& who,
+                                          bool by_position = false) {
   auto master_clock = options.master_clock ? options.master_clock : dc_master_time_now;
-  auto latched =
-      co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout, who);
+  std::uint16_t reached = 0;
+  auto latched = co_await latch_receive_times(loop, bus, master_clock, options.transaction_timeout,
+                                              who, &reached);
   if (!latched) co_return std::move(latched).error();
-  constexpr std::size_t kReads = 7;
+  if (by_position) stations.assign(reached, 0);
+  const std::size_t kReads = by_position ? 8 : 7;
   bus::Transaction tx;
-  tx.reserve(stations.size() * kReads, stations.size() * 44);
-  for (const std::uint16_t st : stations) {
-    tx.fprd(st, reg::kFeatures, 2);
-    tx.fprd(st, reg::kDlStatus, 2);
-    tx.fprd(st, reg::kDcReceiveTimePort0, 16);
-    tx.fprd(st, reg::kDcReceiveTimeEpu, 8);
-    tx.fprd(st, reg::kDcSpeedCounterStart, 2);
-    tx.fprd(st, reg::kDcSystemTimeOffset, 8);
-    tx.fprd(st, reg::kDcSystemTimeDelay, 4);
+  tx.reserve(stations.size() * kReads, stations.size() * 46);
+  for (std::size_t i = 0; i < stations.size(); ++i) {
+    const auto read = [&](std::uint16_t offset, std::uint16_t length) {
+      if (by_position) {
+        tx.aprd(static_cast<std::uint16_t>(i), offset, length);
+      } else {
+        tx.fprd(stations[i], offset, length);
+      }
+    };
+    read(reg::kFeatures, 2);
+    read(reg::kDlStatus, 2);
+    read(reg::kDcReceiveTimePort0, 16);
+    read(reg::kDcReceiveTimeEpu, 8);
+    read(reg::kDcSpeedCounterStart, 2);
+    read(reg::kDcSystemTimeOffset, 8);
+    read(reg::kDcSystemTimeDelay, 4);
+    if (by_position) read(reg::kStationAddress, 2);
   }
   const bus::TransactOptions reliable{options.transaction_timeout, 2};
   auto reply = co_await exec::transact(loop, bus, std::move(tx), reliable);
@@ -332,6 +348,15 @@ exec::Task<Result<RingReading>> read_ring(exec::EventLoop& loop, bus::Bus& bus,
   for (std::size_t i = 0; i < stations.size(); ++i) {
     const std::size_t base = i * kReads;
     auto& s = out.snapshots[i];
+    if (by_position) {
+      if (reply->wkc(base + 7) != 1) {
+        co_return Error(Errc::wkc_mismatch,
+                        fmt::format("{}: read of the station address at position {}: working "
+                                    "counter {}, expected 1 (the ring changed under the reads)",
+                                    who, i, reply->wkc(base + 7)));
+      }
+      stations[i] = wire::load_le16(reply->data(base + 7).data());
+    }
     s.station = stations[i];
     if (reply->wkc(base) != 1)
       co_return wkc_error("read of 0x0008", s.station, reply->wkc(base)).context(who);
@@ -641,19 +666,62 @@ exec::Task<Result<DcRingChangeResult>> adapt_dc_to_ring(exec::EventLoop& loop, b
   co_return result;
 }
 
+exec::Task<Result<DcDelayUpdate>> update_dc_delays(exec::EventLoop& loop, bus::Bus& bus,
+                                                   std::uint16_t reference_station,
+                                                   std::vector<std::uint16_t> dc_stations,
+                                                   DcInitOptions options) {
+  const bus::TransactOptions reliable{options.transaction_timeout, 2};
+  const std::string who = "DC delays after a junction port changed";
+  auto reading = co_await read_ring(loop, bus, {}, options, who, true);
+  if (!reading) co_return std::move(reading).error();
+  const std::vector<DcSlaveSnapshot>& snapshots = reading->snapshots;
+  auto measured = plan_dc(snapshots, reading->master_time, options.plan);
+  if (!measured) co_return measured.error().context(who);
+  if (measured->reference_station != reference_station) {
+    co_return Error(Errc::unsupported,
+                    fmt::format("{}: the measured ring has reference 0x{:04X}, the session's is "
+                                "0x{:04X}",
+                                who, measured->reference_station, reference_station));
+  }
+  DcDelayUpdate result;
+  result.slaves = snapshots.size();
+  bus::Transaction writes;
+  for (std::size_t i = 0; i < snapshots.size(); ++i) {
+    const auto& now = measured->slaves[i];
+    if (!now.dc || i == measured->reference_position) continue;
+    if (std::find(dc_stations.begin(), dc_stations.end(), now.station) == dc_stations.end())
+      continue;
+    // A station held twice (a slave come up at another's) is nobody's to write.
+    const auto holders =
+        std::count_if(snapshots.begin(), snapshots.end(),
+                      [&](const DcSlaveSnapshot& x) { return x.station == now.station; });
+    if (holders != 1 || now.delay_ns == reading->delays[i]) continue;
+    writes.fpwr(now.station, reg::kDcSystemTimeDelay, le32(now.delay_ns), 1);
+    result.changed.push_back({now.station, now.delay_ns});
+  }
+  if (!writes.empty()) {
+    auto written = co_await exec::transact(loop, bus, std::move(writes), reliable);
+    if (!written) co_return written.error().context(who + ": writing the delays");
+  }
+  co_return result;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
 namespace {
 
+// The FRMW, the 0x092C reads (with_reads), then the watched stations' DL status.
 bus::Transaction maintainer_layout(std::uint16_t reference, std::span<const std::uint16_t> stations,
-                                   bool with_reads) {
+                                   bool with_reads, std::span<const std::uint16_t> watched) {
   bus::Transaction tx;
   tx.frmw(reference, reg::kDcSystemTime, 8);
   if (with_reads) {
     for (std::uint16_t st : stations)
       tx.fprd(st, reg::kDcSystemTimeDifference, 4);
   }
+  for (std::uint16_t st : watched)
+    tx.fprd(st, reg::kDlStatus, 2);
   return tx;
 }
 
@@ -684,8 +752,11 @@ DcMaintainer::DcMaintainer(bus::Bus& bus, std::uint16_t reference_station,
       options_(std::move(options)),
       reference_station_(reference_station),
       stations_(with_optional(dc_stations, options_)),
-      frmw_only_(maintainer_layout(reference_station, stations_, false)),
-      frmw_and_reads_(maintainer_layout(reference_station, stations_, true)) {
+      frmw_only_(maintainer_layout(reference_station, stations_, false, options_.watch_stations)),
+      frmw_and_reads_(
+          maintainer_layout(reference_station, stations_, true, options_.watch_stations)) {
+  watch_last_.assign(options_.watch_stations.size(), 0);
+  watch_seen_.assign(options_.watch_stations.size(), false);
   if (options_.read_every == 0) options_.read_every = 1;
   if (options_.history == 0) options_.history = 1;
   if (options_.sync0_cycle.count() <= 0) options_.sync0_cycle = options_.period;
@@ -766,7 +837,8 @@ void DcMaintainer::rejoin_free_running() {
 void DcMaintainer::update_membership_locked() {
   std::size_t outside = 0;
   for (std::size_t i = 0; i < stations_.size(); ++i) {
-    const bool out = membership_[i] == kFreeRunning || membership_[i] == kRejoining;
+    const bool out =
+        membership_[i] == kFreeRunning || membership_[i] == kRejoining || membership_[i] == kHeld;
     status_.slaves[i].free_running = out;
     if (out) ++outside;
   }
@@ -797,11 +869,34 @@ void DcMaintainer::leave_stations(std::span<const std::uint16_t> stations) {
   update_membership_locked();
 }
 
+void DcMaintainer::hold_stations(std::span<const std::uint16_t> stations) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (membership_[i] == kAbsent) continue;
+    if (std::find(stations.begin(), stations.end(), stations_[i]) == stations.end()) continue;
+    membership_[i] = kHeld;
+  }
+  update_membership_locked();
+}
+
+void DcMaintainer::release_stations(std::span<const std::uint16_t> stations) {
+  std::lock_guard lock(mutex_);
+  for (std::size_t i = 0; i < stations_.size(); ++i) {
+    if (membership_[i] != kHeld) continue;
+    if (std::find(stations.begin(), stations.end(), stations_[i]) == stations.end()) continue;
+    membership_[i] = kRejoining;
+    rejoin_samples_[i] = 0;
+    rejoin_good_[i] = 0;
+  }
+  update_membership_locked();
+}
+
 bool DcMaintainer::all_in_lock(std::span<const std::uint16_t> stations) const {
   std::lock_guard lock(mutex_);
   for (std::size_t i = 0; i < stations_.size(); ++i) {
     if (std::find(stations.begin(), stations.end(), stations_[i]) == stations.end()) continue;
-    if (membership_[i] == kFreeRunning || membership_[i] == kRejoining) return false;
+    if (membership_[i] == kFreeRunning || membership_[i] == kRejoining || membership_[i] == kHeld)
+      return false;
   }
   return true;
 }
@@ -1081,6 +1176,21 @@ void DcMaintainer::on_complete(bus::RealtimeTransaction& rt, bool with_reads) {
     if (lock_callback_) lock_callback_(*lock_change);
   }
   if (health_change && health_callback_) health_callback_(*health_change);
+  if (replied && !watch_last_.empty()) {
+    // Bits 4..15: the ports' link, loop and communication.
+    constexpr std::uint16_t kPortBits = 0xFFF0;
+    const std::size_t first = 1 + (with_reads ? stations_.size() : 0);
+    bool changed = false;
+    for (std::size_t w = 0; w < watch_last_.size(); ++w) {
+      if (rt.wkc(first + w) != 1) continue;
+      const auto bits =
+          static_cast<std::uint16_t>(wire::load_le16(rt.input(first + w).data()) & kPortBits);
+      changed |= watch_seen_[w] && bits != watch_last_[w];
+      watch_last_[w] = bits;
+      watch_seen_[w] = true;
+    }
+    if (changed && watch_callback_) watch_callback_();
+  }
 }
 
 DcStatus DcMaintainer::status() const {

@@ -561,6 +561,7 @@ struct Master::Impl : DomainObserver {
     if (s->stopping) co_return Error(Errc::closed, "stopped");
     if (s->config.dc) co_await init_dc(s);
     if (s->stopping) co_return Error(Errc::closed, "stopped");
+    if (auto r = co_await set_junction_auto_close(s); !r) co_return r.error();
     // A dynamic session names a coupler `coupler` (its SII decides: dynamic_names.hpp), the
     // others slave_<position>. Read now, with every slave in INIT and the EEPROM with ECAT (the
     // reset block), for all slaves at once: the name is needed before the Slave is made.
@@ -850,8 +851,204 @@ struct Master::Impl : DomainObserver {
     co_return NewRun{};
   }
 
+  // Junction ports (Session::JunctionPort) at startup, all slaves in INIT and the DC delays
+  // measured: from the startup's DL status, the tree of the ring; every port of a fixed slave
+  // that leads to no fixed slave (free, or a group plugged at start) and has fixed DC slaves
+  // after it in frame order (depth first, ports 3, 1, 2) gets loop control "auto close" (01):
+  // a port with link stays open (a group in at start is measured with the rest), one without
+  // stays closed when a group is plugged there until the hot-connect watch opens it. Only with
+  // hot-connect groups, distributed clocks and a line (a redundant ring's break heals by the
+  // ports' own link detection). Ports at the end of a line have nobody behind them: untouched.
+  exec::Task<Result<void>> set_junction_auto_close(std::shared_ptr<Session> s) {
+    s->junction_ports.clear();
+    if (s->config.hot_connect.empty() || !s->dc_init || s->bus->info().redundancy) co_return ok();
+    const auto& stations = s->start_ring_stations;
+    const std::size_t n = stations.size();
+    if (n == 0 || s->dl_status.size() != n) co_return ok();
+    std::vector<std::uint16_t> raw;
+    raw.reserve(n);
+    for (const auto& dl : s->dl_status)
+      raw.push_back(dl.encode());
+    auto tree = ring_tree(raw, stations, false);
+    if (!tree) {
+      events.publish(make_event(
+          EventKind::recovery_step, "hotconnect",
+          "junction ports left in auto mode (a group plugged there disturbs the clocks behind "
+          "it): " +
+              tree.error().describe()));
+      co_return ok();
+    }
+    const auto base = s->config.base_station;
+    const auto fixed = [&](std::size_t pos) {
+      return stations[pos] >= base && stations[pos] - base < s->fixed_end;
+    };
+    std::vector<std::uint16_t> dc_fixed;
+    for (const auto& p : s->dc_init->plan.slaves) {
+      if (p.dc && p.position < n && fixed(p.position)) dc_fixed.push_back(p.station);
+    }
+    // End (exclusive) of each slave's subtree in ring order.
+    std::vector<std::size_t> end(n);
+    for (std::size_t i = 0; i < n; ++i)
+      end[i] = i + 1;
+    for (std::size_t i = n; i-- > 1;) {
+      if (const auto parent = tree->slaves[i].parent) end[*parent] = std::max(end[*parent], end[i]);
+    }
+    bus::Transaction tx;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!fixed(i)) continue;
+      std::uint8_t control = 0;
+      std::size_t at = i + 1;  // where a slave on the next port would be
+      for (const std::uint8_t port : {std::uint8_t{3}, std::uint8_t{1}, std::uint8_t{2}}) {
+        const auto child = tree->slaves[i].children[port];
+        if (!child || !fixed(*child)) {
+          Session::JunctionPort jp;
+          jp.owner = stations[i];
+          jp.port = port;
+          jp.open = child.has_value();
+          for (std::size_t pos = at; pos < n; ++pos) {
+            if (std::find(dc_fixed.begin(), dc_fixed.end(), stations[pos]) != dc_fixed.end())
+              jp.behind.push_back(stations[pos]);
+          }
+          if (!jp.behind.empty()) {
+            control = static_cast<std::uint8_t>(control | (1u << (2 * port)));
+            s->junction_ports.push_back(std::move(jp));
+          }
+        }
+        if (child) at = end[*child];
+      }
+      if (control == 0) continue;
+      const std::uint8_t byte[1] = {control};
+      tx.fpwr(stations[i], wire::reg::kDlPortControl, byte, 1);
+    }
+    if (tx.empty()) co_return ok();
+    auto written = co_await exec::transact(loop, *s->bus, std::move(tx));
+    if (!written) {
+      co_return written.error().context(
+          "setting the junction ports hot-connect groups plug into to auto close (0x0101)");
+    }
+    co_return ok();
+  }
+
+  // The loop control byte the master keeps in `owner`'s 0x0101: auto close on its junction ports.
+  static std::uint8_t junction_control(const Session& s, std::uint16_t owner) {
+    std::uint8_t control = 0;
+    for (const auto& jp : s.junction_ports) {
+      if (jp.owner == owner) control = static_cast<std::uint8_t>(control | (1u << (2 * jp.port)));
+    }
+    return control;
+  }
+
+  // Every hot-connect poll: the DL status of the slaves that own junction ports. A port with
+  // link and its loop closed has a group waiting behind it: the fixed DC slaves behind it are
+  // taken out of the lock, the port opened (0x0101 written again: auto close with link opens),
+  // and the delays measured by position and written at once (update_dc_delays), before those
+  // slaves' clocks follow the later frame far; then they rejoin the lock. A port the master
+  // opened that lost its link was shut by the ESC itself (auto close) as the group left: the
+  // same measurement for the shorter way. The group itself is found, joined or lost by the
+  // scan that follows.
+  exec::Task<void> watch_junctions(std::shared_ptr<Session> s) {
+    std::vector<std::uint16_t> owners;
+    for (const auto& jp : s->junction_ports) {
+      if (std::find(owners.begin(), owners.end(), jp.owner) == owners.end())
+        owners.push_back(jp.owner);
+    }
+    bus::Transaction read;
+    for (const auto owner : owners)
+      read.fprd(owner, wire::reg::kDlStatus, 2);
+    auto reply = co_await exec::transact(loop, *s->bus, std::move(read), {50ms, 0});
+    if (!reply || s->stopping || session != s) co_return;
+    std::vector<std::uint16_t> open_owners;
+    std::vector<std::uint16_t> held;
+    std::string what;
+    for (std::size_t k = 0; k < owners.size(); ++k) {
+      if (reply->wkc(k) != 1) continue;  // a fixed slave missing: the session's recovery
+      const auto dl = wire::DlStatus::decode(wire::load_le16(reply->data(k).data()));
+      for (auto& jp : s->junction_ports) {
+        if (jp.owner != owners[k]) continue;
+        const auto& port = dl.ports[jp.port];
+        bool moved = false;
+        if (port.physical_link && port.loop_closed) {
+          if (std::find(open_owners.begin(), open_owners.end(), jp.owner) == open_owners.end())
+            open_owners.push_back(jp.owner);
+          moved = true;
+          jp.open = true;
+          what += fmt::format("{}port {} of station 0x{:04x} opened", what.empty() ? "" : ", ",
+                              jp.port, jp.owner);
+        } else if (!port.physical_link && jp.open) {
+          moved = true;
+          jp.open = false;
+          what += fmt::format("{}port {} of station 0x{:04x} closed at link down",
+                              what.empty() ? "" : ", ", jp.port, jp.owner);
+        } else if (port.physical_link && !port.loop_closed) {
+          jp.open = true;
+        }
+        if (!moved) continue;
+        for (const auto st : jp.behind) {
+          if (std::find(held.begin(), held.end(), st) == held.end()) held.push_back(st);
+        }
+      }
+    }
+    if (what.empty()) co_return;
+    if (s->dc) s->dc->hold_stations(held);
+    if (!open_owners.empty()) {
+      bus::Transaction open;
+      for (const auto owner : open_owners) {
+        const std::uint8_t byte[1] = {junction_control(*s, owner)};
+        open.fpwr(owner, wire::reg::kDlPortControl, byte, 1);
+      }
+      auto opened = co_await exec::transact(loop, *s->bus, std::move(open), {50ms, 1});
+      if (s->stopping || session != s) co_return;
+      if (!opened) {
+        events.publish(
+            make_event(EventKind::recovery_step, "hotconnect",
+                       opened.error().context("opening a junction port (0x0101)").describe()));
+      }
+    }
+    if (s->dc_init) {
+      std::vector<std::uint16_t> dc_stations;
+      for (const auto& p : s->dc_init->plan.slaves)
+        if (p.dc) dc_stations.push_back(p.station);
+      DcInitOptions options;
+      options.threshold = s->config.dc->lock_threshold;
+      auto updated = co_await update_dc_delays(loop, *s->bus, s->dc_init->reference_station,
+                                               std::move(dc_stations), options);
+      if (s->stopping || session != s) co_return;
+      if (updated) {
+        std::lock_guard lock(mutex);
+        for (const auto& c : updated->changed) {
+          for (auto& p : s->dc_init->plan.slaves)
+            if (p.station == c.station) p.delay_ns = c.delay_ns;
+        }
+      } else {
+        // The join (or the leave) measures the ring again: the delays are written there.
+        events.publish(make_event(EventKind::recovery_step, "dc",
+                                  fmt::format("{}: {}", what, updated.error().describe())));
+      }
+    }
+    if (s->dc) s->dc->release_stations(held);
+  }
+
+  // watch_junctions, one at a time: asked for while one runs, it runs once more after it.
+  exec::Task<void> junction_watch(std::shared_ptr<Session> s) {
+    if (s->junction_ports.empty()) co_return;
+    if (s->junction_watching) {
+      s->junction_watch_again = true;
+      co_return;
+    }
+    s->junction_watching = true;
+    do {
+      s->junction_watch_again = false;
+      co_await watch_junctions(s);
+    } while (s->junction_watch_again && !s->stopping && session == s);
+    s->junction_watching = false;
+  }
+
   exec::Task<void> hot_connect_scan(std::shared_ptr<Session> s) {
     auto& bus = *s->bus;
+    if (!s->junction_ports.empty()) {
+      co_await junction_watch(s);
+      if (s->stopping || session != s) co_return;
+    }
     auto count = co_await count_slaves(loop, bus, {50ms, 0});
     if (!count || s->stopping || session != s) co_return;  // a lost frame says nothing
     const std::uint16_t n = *count;
@@ -1405,7 +1602,20 @@ struct Master::Impl : DomainObserver {
       for (const Slave* slave : g.slaves)
         options.optional_stations.push_back(slave->station());
     }
+    for (const auto& jp : s.junction_ports) {
+      auto& watched = options.watch_stations;
+      if (std::find(watched.begin(), watched.end(), jp.owner) == watched.end())
+        watched.push_back(jp.owner);
+    }
     auto dc = std::make_unique<DcMaintainer>(*s.bus, *s.dc_init, options);
+    // A junction port's link changed (a group plugged or pulled): looked at now, not at the next
+    // hot-connect poll.
+    dc->set_watch_callback([this, weak = s.weak_from_this()] {
+      loop.post([this, weak] {
+        if (auto sp = weak.lock(); sp && !sp->stopping && session == sp)
+          exec::spawn(loop, junction_watch(sp));
+      });
+    });
     // Lock changes are rare: the bus thread only posts them to the loop.
     dc->set_lock_callback([this, weak = s.weak_from_this()](bool locked) {
       loop.post([this, weak, locked] {

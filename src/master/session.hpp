@@ -89,8 +89,21 @@ struct Session : std::enable_shared_from_this<Session> {
   // fixed slaves (place_at_start): then the fixed slaves' positions are not their indices.
   std::vector<std::uint16_t> start_ring_stations;
   bool groups_in_front = false;
-  bool dc_adapting = false;     // a group left: the DC delays are being measured again (loop)
-  bool dc_adapt_again = false;  // another left meanwhile: measure once more after this one
+  // Hot connect on junction ports (docs/ARCHITECTURE.md "Hot connect", DC): a port of a fixed
+  // slave where a group plugged in would delay the fixed DC slaves behind it (`behind`, later in
+  // frame order) is set to auto close at startup; the hot-connect watch opens it (`open`) when a
+  // link comes up behind it and the delays are measured again at once. Loop thread.
+  struct JunctionPort {
+    std::uint16_t owner = 0;  // the fixed slave's station
+    std::uint8_t port = 0;    // 1, 2 or 3
+    std::vector<std::uint16_t> behind;
+    bool open = false;  // a group behind it, let in (or in at start)
+  };
+  std::vector<JunctionPort> junction_ports;
+  bool junction_watching = false;     // watch_junctions under way
+  bool junction_watch_again = false;  // ... and asked for again meanwhile
+  bool dc_adapting = false;           // a group left: the DC delays are being measured again (loop)
+  bool dc_adapt_again = false;        // another left meanwhile: measure once more after this one
   std::uint16_t hot_connect_scratch = 0;             // the station a candidate is read at
   std::string hot_connect_refused;                   // the last device that matched no group
   std::uint16_t hot_connect_refused_count = 0;       // ... at this slave count

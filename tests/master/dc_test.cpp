@@ -3,6 +3,7 @@
 // maintainer's lock, loss of lock on a clock jump and re-lock, SYNC0 alignment across slaves,
 // latch events, and the allocation-free realtime path.
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -416,6 +417,90 @@ TEST(DcSim, SyncOneAndLatchEvents) {
   auto again = bench->run(poll_latches(bench->loop, *bench->bus, station_at(1)));
   ASSERT_TRUE(again);
   EXPECT_TRUE(again->empty()) << "reading the timestamps acknowledged the events";
+}
+
+exec::Task<Result<void>> write_port_control(exec::EventLoop& loop, bus::Bus& bus,
+                                            std::uint16_t station, std::uint8_t value) {
+  bus::Transaction tx;
+  const std::uint8_t byte[1] = {value};
+  tx.fpwr(station, wire::reg::kDlPortControl, byte, 1);
+  auto written = co_await exec::transact(loop, bus, std::move(tx));
+  if (!written) co_return written.error();
+  co_return ok();
+}
+
+// Hot connect on a junction port: j0's port 1 in auto close, a slave plugged there waits behind
+// the closed port (the runtime's DL status watch sees the link come up), the slave behind the
+// junction is held outside the lock (no loss of lock), the port is opened and update_dc_delays
+// measures the ring by position (the new slave has no station) and rewrites that slave's delay
+// alone: 1.2 us longer (two 500 ns cables, processing, turnaround, the junction's forwarding).
+// Released, it rejoins the lock.
+TEST(DcSim, AJunctionPortOpenedByTheMasterHasTheDelaysBehindItRewritten) {
+  auto bench = SimBench::make(R"(version: 1
+simulator:
+  slaves:
+    - {name: j0, profile: generic, clock: {drift_ppm: 20}}
+    - {name: g, profile: generic, parent: j0, port: 1, cable_delay_ns: 500, clock: {drift_ppm: -30, offset_ns: 4000}}
+    - {name: d, profile: generic, parent: j0, port: 2, clock: {drift_ppm: 40, offset_ns: 9000}}
+)");
+  ASSERT_TRUE(bench);
+  bench->server->with_segment(
+      [](sim::Segment& segment, sim::FaultInjector&) { segment.set_link(1, 0, false); });
+  auto init = init_dc(*bench, 2);  // j0 and d
+  ASSERT_TRUE(init) << init.error().describe();
+  const std::uint16_t j0 = station_at(0);
+  const std::uint16_t d = station_at(1);
+  const auto old_delay = init->plan.slaves[1].delay_ns;
+  ASSERT_TRUE(bench->run(write_port_control(bench->loop, *bench->bus, j0, 0x04)));
+
+  DcRuntimeOptions options = runtime(2);
+  options.threshold = 200ns;
+  options.watch_stations = {j0};
+  Cycler cycler(*bench->bus);
+  DcMaintainer maintainer(*bench->bus, *init, options);
+  std::atomic<int> watched{0};
+  maintainer.set_watch_callback([&] { watched.fetch_add(1); });
+  ASSERT_TRUE(cycler.add(maintainer, Cycler::kPriorityDc));
+  ASSERT_TRUE(cycler.start());
+  ASSERT_TRUE(wait_for([&] { return maintainer.locked(); }));
+  const auto unlocks = maintainer.status().unlock_count;
+  EXPECT_EQ(watched.load(), 0);
+
+  bench->server->with_segment(
+      [](sim::Segment& segment, sim::FaultInjector&) { segment.set_link(1, 0, true); });
+  ASSERT_TRUE(wait_for([&] { return watched.load() >= 1; })) << "the link change was not seen";
+  const auto dl = bench->server->with_segment([](sim::Segment& segment, sim::FaultInjector&) {
+    return wire::DlStatus::decode(segment.esc(0).read_u16(wire::reg::kDlStatus));
+  });
+  EXPECT_TRUE(dl.ports[1].physical_link);
+  EXPECT_TRUE(dl.ports[1].loop_closed) << "auto close let the plugged slave in by itself";
+
+  const std::uint16_t held[] = {d};
+  maintainer.hold_stations(held);
+  EXPECT_FALSE(maintainer.all_in_lock(held));
+  EXPECT_EQ(maintainer.status().free_running, 1u);
+  ASSERT_TRUE(bench->run(write_port_control(bench->loop, *bench->bus, j0, 0x04)));
+  auto updated = bench->run(update_dc_delays(bench->loop, *bench->bus, j0, {j0, d}));
+  ASSERT_TRUE(updated) << updated.error().describe();
+  EXPECT_EQ(updated->slaves, 3u);
+  ASSERT_EQ(updated->changed.size(), 1u);
+  EXPECT_EQ(updated->changed[0].station, d);
+  EXPECT_NEAR(static_cast<double>(updated->changed[0].delay_ns),
+              static_cast<double>(old_delay) + 1200.0, 3.0);
+  auto delay = bench->server->read_memory("d", wire::reg::kDcSystemTimeDelay, 4);
+  ASSERT_TRUE(delay);
+  EXPECT_EQ(wire::load_le32(delay->data()), updated->changed[0].delay_ns);
+  // The new slave (station 0) is nobody's to write.
+  auto untouched = bench->server->read_memory("g", wire::reg::kDcSystemTimeDelay, 4);
+  ASSERT_TRUE(untouched);
+  EXPECT_EQ(wire::load_le32(untouched->data()), 0u);
+
+  maintainer.release_stations(held);
+  ASSERT_TRUE(wait_for([&] { return maintainer.all_in_lock(held); }));
+  const auto status = maintainer.status();
+  EXPECT_TRUE(status.locked);
+  EXPECT_EQ(status.unlock_count, unlocks) << "holding the slave cost the lock";
+  EXPECT_EQ(status.free_running, 0u);
 }
 
 TEST(DcSim, RealtimePathDoesNotAllocate) {

@@ -1016,23 +1016,25 @@ TEST(HotConnectDc, TwoGroupsLeavingTogetherBothHaveTheDelaysMeasuredAgain) {
 }
 
 // coupler (the reference) -> junction (EK1122): on its port 1 the group `tool` (a servo with
-// SYNC0), on its port 2 the fixed `drive` (SYNC0): the group plugs in front of a fixed DC slave.
+// SYNC0) on a 500 ns cable, on its port 2 the fixed `drive` (SYNC0): the group plugs in front of
+// a fixed DC slave, which then sees the frame 1.2 us later (two cables, the group's processing
+// and turnaround, the junction's forwarding).
 constexpr const char* kJunctionDcRing = R"(version: 1
 simulator:
   slaves:
     - {name: coupler, profile: EK1100}
     - {name: junction, profile: EK1122}
-    - {name: tool_drive, profile: servo, parent: junction, port: 1, clock: {drift_ppm: 70, offset_ns: 900000000}, hot_connect: {group: tool, plugged: false}}
+    - {name: tool_drive, profile: servo, parent: junction, port: 1, cable_delay_ns: 500, clock: {drift_ppm: 70, offset_ns: 900000000}, hot_connect: {group: tool, plugged: false}}
     - {name: drive, profile: servo, parent: junction, port: 2, clock: {drift_ppm: -40, offset_ns: 1500000}}
 )";
 
-// A DC group plugged on a junction port in the middle: the fixed `drive` behind it sees the
-// frame later from the moment the cable is in, before its new delay is written. With the
-// simulator's default cables (5 ns) its 0x092C difference stays within the lock bound throughout
-// the join and the leave (sampled as the master reads it), the lock is never lost, and its system
-// time stays on the reference's. (Known limit: with a 500 ns cable into the group the difference
-// reaches about 280 ns before the new delay is written and the lock is lost, at the plug and at
-// the unplug: docs/ARCHITECTURE.md "Hot connect".)
+// A DC group plugged on a junction port in the middle: the master set the port to auto close at
+// startup, so the plugged group waits behind a closed port (DL status: link up, loop closed)
+// until the hot-connect watch opens it and writes `drive`'s new delay right behind; at the
+// unplug the ESC shuts the port itself and the watch writes the shorter delay. `drive`'s 0x092C
+// difference (sampled as the master reads it) stays within the lock bound through the join and
+// the leave, the lock is never lost, and its system time stays on the reference's. (Without
+// auto close, the 500 ns cable took it to about 280 ns and the lock was lost at both.)
 TEST(HotConnectDc, AGroupOnAJunctionPortKeepsTheFixedSlavesBehindItLocked) {
   RingSpec spec = dc_group_spec();
   spec.ring_yaml = kJunctionDcRing;
@@ -1051,6 +1053,11 @@ TEST(HotConnectDc, AGroupOnAJunctionPortKeepsTheFixedSlavesBehindItLocked) {
   auto before = m.dc_status();
   ASSERT_TRUE(before);
   const auto unlocks = before->unlock_count;
+  // The master set the junction's port 1 (bits 2..3) to auto close at startup; port 2 (the
+  // fixed drive's) is left in auto.
+  const auto port_control = ring->server->with_segment(
+      [](sim::Segment& segment, sim::FaultInjector&) { return segment.esc(1).read_u8(0x0101); });
+  EXPECT_EQ(port_control & 0x3C, 0x04) << int(port_control);
   const std::int64_t bound = 200;  // the lock threshold
   for (int round = 0; round < 2; ++round) {
     SCOPED_TRACE(round);

@@ -233,6 +233,25 @@ exec::Task<Result<DcRingChangeResult>> adapt_dc_to_ring(exec::EventLoop& loop, b
                                                         std::vector<std::uint16_t> joining,
                                                         DcInitOptions options = {});
 
+// Hot connect on a junction port (docs/ARCHITECTURE.md "Hot connect"): the master just let a
+// group in (opened the port) or the ESC shut the port behind a group that left. The ring as it
+// is now, latched and read by position (the new slaves have no station yet), planned (plan_dc);
+// each DC slave among `dc_stations` (stations the session owns, held by exactly one slave) whose
+// propagation delay changed gets the new one; nothing else is written. Four exchanges: latch,
+// reads, writes. Errors name the step (a position that does not answer: the ring changed).
+struct DcDelayUpdate {
+  struct Changed {
+    std::uint16_t station = 0;
+    std::uint32_t delay_ns = 0;
+  };
+  std::vector<Changed> changed;  // stations given a new delay
+  std::size_t slaves = 0;        // in the ring as measured
+};
+exec::Task<Result<DcDelayUpdate>> update_dc_delays(exec::EventLoop& loop, bus::Bus& bus,
+                                                   std::uint16_t reference_station,
+                                                   std::vector<std::uint16_t> dc_stations,
+                                                   DcInitOptions options = {});
+
 // ---------------------------------------------------------------------------------------------
 // Runtime
 
@@ -262,6 +281,10 @@ struct DcRuntimeOptions {
   // one of them (its group unplugged, before the master noticed) never costs the others' lock.
   // Stations already among the DC slaves are only marked optional.
   std::vector<std::uint16_t> optional_stations{};
+  // Hot connect on junction ports: stations whose DL status (0x0110) every FRMW frame reads too;
+  // a change of its port bits (link, loop, communication) calls the watch callback, so a group
+  // plugged or pulled there is seen within a cycle (DcMaintainer::set_watch_callback).
+  std::vector<std::uint16_t> watch_stations{};
 };
 
 // Runs on the bus thread through a Cycler (add with Cycler::kPriorityDc). Every tick it sends
@@ -295,6 +318,9 @@ class DcMaintainer final : public CyclicParticipant {
   void set_health_callback(std::function<void(bool healthy)> callback) {
     health_callback_ = std::move(callback);
   }
+  // Called on the bus thread when the port bits of a watched station's DL status changed
+  // (DcRuntimeOptions::watch_stations); same rules as the lock callback.
+  void set_watch_callback(std::function<void()> callback) { watch_callback_ = std::move(callback); }
   // Starts counting the lock afresh (e.g. after re-initialising a slave).
   void reset_lock();
   // Counts a re-initialisation of `station` (reinitialize_dc_slave) in its status. Any thread.
@@ -317,6 +343,12 @@ class DcMaintainer final : public CyclicParticipant {
   // They left the ring: absent, out of the status and the lock, which is not lost for it. Any
   // thread, allocation-free.
   void leave_stations(std::span<const std::uint16_t> stations);
+  // Hot connect on a junction port: `stations` (any DC slaves here, not absent ones) are about
+  // to see their propagation delay change (a group let in or gone in front of them): outside
+  // the lock, not counted and not rejoining, until release_stations (their new delay written);
+  // then they rejoin as after a heal. Any thread, allocation-free.
+  void hold_stations(std::span<const std::uint16_t> stations);
+  void release_stations(std::span<const std::uint16_t> stations);
   // True when every one of `stations` that is a DC slave here is in the lock (or absent).
   bool all_in_lock(std::span<const std::uint16_t> stations) const;
   const DcRuntimeOptions& options() const noexcept { return options_; }
@@ -361,6 +393,7 @@ class DcMaintainer final : public CyclicParticipant {
   static constexpr std::uint32_t kFreeRunning = 1;
   static constexpr std::uint32_t kRejoining = 2;
   static constexpr std::uint32_t kAbsent = 3;  // an optional station out of the ring
+  static constexpr std::uint32_t kHeld = 4;    // hold_stations: out until released
   std::vector<std::uint32_t> membership_;
   std::vector<bool> optional_;                 // fixed at construction
   std::vector<std::uint32_t> rejoin_samples_;  // samples since rejoining began
@@ -368,6 +401,10 @@ class DcMaintainer final : public CyclicParticipant {
   void update_membership_locked();
   std::function<void(bool)> lock_callback_;
   std::function<void(bool)> health_callback_;
+  std::function<void()> watch_callback_;
+  // Watched DL status (options_.watch_stations): the last port bits read; bus thread only.
+  std::vector<std::uint16_t> watch_last_;
+  std::vector<bool> watch_seen_;
 
   mutable std::mutex mutex_;  // guards status_ (short sections, no allocation under it)
   DcStatus status_;
