@@ -1104,6 +1104,68 @@ TEST(HotConnectDc, AGroupOnAJunctionPortKeepsTheFixedSlavesBehindItLocked) {
   EXPECT_EQ(m.state(), MasterState::operational);
 }
 
+// The same group plugged at start: its port is set to auto close with the link up, so it stays
+// open (the start-up's DC measurement has the group in front of `drive`); pulled, the ESC shuts
+// it and `drive` gets the shorter delay; plugged again, it waits until the master opens it.
+TEST(HotConnectDc, AJunctionGroupPluggedAtStartLeavesAndComesBackWithTheFixedSlavesLocked) {
+  RingSpec spec = dc_group_spec();
+  std::string yaml = kJunctionDcRing;
+  const std::string absent = "plugged: false";
+  yaml.replace(yaml.find(absent), absent.size(), "plugged: true");
+  spec.ring_yaml = yaml;
+  spec.adjust = [inner = spec.adjust](master::MasterConfig& c) {
+    inner(c);
+    master::SlaveConfig junction;
+    junction.name = "junction";
+    c.slaves.insert(c.slaves.begin() + 1, junction);
+  };
+  auto ring = ScenarioRing::operational(spec);
+  ASSERT_TRUE(ring);
+  auto& m = *ring->master;
+  ASSERT_TRUE(m.await_dc_locked(20s)) << ring->describe();
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }, 15s))
+      << group_status(m).detail << "\n"
+      << ring->describe();
+  const auto drive_station = (*m.slave("drive"))->station();
+  const auto port_control = ring->server->with_segment(
+      [](sim::Segment& segment, sim::FaultInjector&) { return segment.esc(1).read_u8(0x0101); });
+  EXPECT_EQ(port_control & 0x3C, 0x04) << int(port_control);
+  auto before = m.dc_status();
+  ASSERT_TRUE(before);
+  const auto unlocks = before->unlock_count;
+  std::int64_t worst = 0;
+  const auto sample_for = [&](std::chrono::milliseconds span) {
+    const auto until = std::chrono::steady_clock::now() + span;
+    while (std::chrono::steady_clock::now() < until) {
+      if (const auto st = m.dc_status()) {
+        for (const auto& s : st->slaves)
+          if (s.station == drive_station)
+            worst = std::max<std::int64_t>(worst, std::llabs(s.difference_ns));
+      }
+      std::this_thread::sleep_for(1ms);
+    }
+  };
+  ASSERT_TRUE(ring->server->plug("tool", false));
+  sample_for(300ms);
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::absent); }));
+  EXPECT_LT(worst, 200) << "drive's 0x092C difference reached " << worst << " ns at the unplug";
+  worst = 0;
+  ASSERT_TRUE(ring->server->plug("tool", true));
+  ASSERT_TRUE(eventually([&] { return group_in(m, HotConnectState::present); }, 15s))
+      << group_status(m).detail;
+  sample_for(300ms);
+  EXPECT_LT(worst, 200) << "drive's 0x092C difference reached " << worst << " ns at the plug";
+  const auto clock = sim_clock(*ring, 3);
+  EXPECT_LT(std::llabs(clock.offset_ns), 1000)
+      << "drive off the reference by " << clock.offset_ns << " ns with the group in";
+  const auto st = m.dc_status();
+  ASSERT_TRUE(st);
+  EXPECT_TRUE(st->locked);
+  EXPECT_EQ(st->unlock_count, unlocks) << "the fixed slaves' lock was lost";
+  EXPECT_EQ(ring->slave_state("tool_drive"), SlaveState::op);
+  EXPECT_EQ(m.state(), MasterState::operational);
+}
+
 // ---- groups known by an explicit device ID ---------------------------------------------------
 
 // coupler -> inputs -> outputs -> junction; on the junction's port 1 the group `a` (device ID 5),
