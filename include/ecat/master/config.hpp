@@ -312,8 +312,10 @@ struct DcSlaveStatus {
   // Outside the lock: the redundant ring is broken between it and the reference clock, so no
   // reference time reaches it and it runs on its last drift correction; and after the ring
   // healed and its offset was stepped again, until its difference is back below the threshold.
-  // Its difference (0x092C, not updated without reference times) counts for neither the lock
-  // nor max_difference_ns meanwhile.
+  // Also while a hot-connect group comes or goes on a junction port in front of it, until its
+  // new propagation delay is written and its difference is back below the threshold (and a
+  // joining group's slave until it is). Its difference (0x092C, not updated without reference
+  // times) counts for neither the lock nor max_difference_ns meanwhile.
   bool free_running = false;
   std::uint64_t free_runs = 0;  // times the ring broke between it and the reference
 };
