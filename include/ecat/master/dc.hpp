@@ -237,7 +237,7 @@ exec::Task<Result<DcRingChangeResult>> adapt_dc_to_ring(exec::EventLoop& loop, b
 // group in (opened the port) or the ESC shut the port behind a group that left. The ring as it
 // is now, latched and read by position (the new slaves have no station yet), planned (plan_dc);
 // each DC slave among `dc_stations` (stations the session owns, held by exactly one slave) whose
-// propagation delay changed gets the new one; nothing else is written. Four exchanges: latch,
+// propagation delay changed gets the new one; nothing else is written. Three exchanges: latch,
 // reads, writes. Errors name the step (a position that does not answer: the ring changed).
 struct DcDelayUpdate {
   struct Changed {
