@@ -29,6 +29,7 @@
 #include <ecat/wire/frame.hpp>
 
 #include "build_info.hpp"
+#include "veth_namespace.hpp"
 
 namespace {
 
@@ -36,54 +37,6 @@ using namespace std::chrono_literals;
 using ecat::link::Link;
 using ecat::link::RawLink;
 using ecat::link::RedundantLink;
-
-// Two veth pairs, "m0"/"s0" (the primary's cable) and "m1"/"s1" (the secondary's), in an
-// anonymous network namespace of the constructing thread; construct, use and destroy on one thread.
-class TwoVethPairs {
- public:
-  TwoVethPairs() {
-    if (geteuid() != 0) {
-      problem_ = "needs root to create veth pairs in a private network namespace";
-      return;
-    }
-    original_ = ::open("/proc/thread-self/ns/net", O_RDONLY | O_CLOEXEC);
-    if (original_ < 0 || ::unshare(CLONE_NEWNET) != 0) {
-      problem_ = "network namespaces are not available";
-      return;
-    }
-    for (const char* n : {"0", "1"}) {
-      const std::string c = std::string("ip link add name m") + n + " type veth peer name s" + n +
-                            " >/dev/null 2>&1 && ip link set dev m" + n +
-                            " up && ip link set dev s" + n + " up";
-      if (std::system(c.c_str()) != 0) problem_ = "cannot create a veth pair (is `ip` installed?)";
-    }
-  }
-  ~TwoVethPairs() {
-    if (original_ >= 0) {
-      (void)::setns(original_, CLONE_NEWNET);
-      ::close(original_);
-    }
-  }
-  TwoVethPairs(const TwoVethPairs&) = delete;
-  TwoVethPairs& operator=(const TwoVethPairs&) = delete;
-  const std::string& problem() const { return problem_; }
-
-  std::unique_ptr<RawLink> open(const std::string& name) {
-    ecat::link::RawLinkOptions options;
-    options.interface = name;
-    options.kernel_filter = true;
-    auto opened = RawLink::open(options);
-    if (!opened) {
-      problem_ = opened.error().describe();
-      return nullptr;
-    }
-    return std::move(*opened);
-  }
-
- private:
-  int original_ = -1;
-  std::string problem_;
-};
 
 // A leg that hides its descriptor: the redundant link then waits as it did before it had one,
 // 100 us on one port, then the other.
@@ -151,7 +104,7 @@ std::vector<std::uint8_t> brd_frame() {
 }
 
 struct Rig {
-  TwoVethPairs pairs;
+  ecat::bench::VethPair pairs{"0", "1"};
   std::unique_ptr<RedundantLink> link;
   std::unique_ptr<RawLink> s0, s1;
   ecat::link::RedundantLinkOptions options;
@@ -162,10 +115,10 @@ struct Rig {
       problem = pairs.problem();
       return;
     }
-    auto m0 = pairs.open("m0");
-    auto m1 = pairs.open("m1");
-    s0 = pairs.open("s0");
-    s1 = pairs.open("s1");
+    auto m0 = pairs.open("m0", false);
+    auto m1 = pairs.open("m1", false);
+    s0 = pairs.open("s0", false);
+    s1 = pairs.open("s1", false);
     if (!m0 || !m1 || !s0 || !s1) {
       problem = pairs.problem();
       return;

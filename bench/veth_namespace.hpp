@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdint>
 #include <cstdlib>
+#include <initializer_list>
 #include <memory>
 #include <string>
 #include <thread>
@@ -53,12 +54,13 @@ class Echo {
   std::thread thread_;
 };
 
-// A veth pair "m" / "s" in an anonymous network namespace of the constructing thread (threads it
-// starts afterwards inherit it); gone when the links close and the thread returns to its original
-// namespace. Construct, use and destroy it on one thread.
+// A veth pair "m" / "s" (or one "m<suffix>" / "s<suffix>" per suffix given: "m0"/"s0" and
+// "m1"/"s1" for a redundant link's two cables) in an anonymous network namespace of the
+// constructing thread (threads it starts afterwards inherit it); gone when the links close and
+// the thread returns to its original namespace. Construct, use and destroy it on one thread.
 class VethPair {
  public:
-  VethPair() {
+  explicit VethPair(std::initializer_list<const char*> suffixes = {""}) {
     if (geteuid() != 0) {
       problem_ = "needs root to create a veth pair in a private network namespace";
       return;
@@ -68,9 +70,13 @@ class VethPair {
       problem_ = "network namespaces are not available";
       return;
     }
-    if (std::system("ip link add name m type veth peer name s >/dev/null 2>&1 && ip link set "
-                    "dev m up && ip link set dev s up") != 0) {
-      problem_ = "cannot create a veth pair (is `ip` installed?)";
+    for (const std::string n : suffixes) {
+      const std::string command = "ip link add name m" + n + " type veth peer name s" + n +
+                                  " >/dev/null 2>&1 && ip link set dev m" + n +
+                                  " up && ip link set dev s" + n + " up";
+      if (std::system(command.c_str()) != 0) {
+        problem_ = "cannot create a veth pair (is `ip` installed?)";
+      }
     }
   }
   ~VethPair() {
