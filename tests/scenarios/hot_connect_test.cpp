@@ -1028,6 +1028,25 @@ simulator:
     - {name: drive, profile: servo, parent: junction, port: 2, clock: {drift_ppm: -40, offset_ns: 1500000}}
 )";
 
+// dc_group_spec on kJunctionDcRing, the junction configured after the coupler; the group plugged
+// at start or not.
+RingSpec junction_dc_spec(bool plugged) {
+  RingSpec spec = dc_group_spec();
+  std::string yaml = kJunctionDcRing;
+  if (plugged) {
+    const std::string absent = "plugged: false";
+    yaml.replace(yaml.find(absent), absent.size(), "plugged: true");
+  }
+  spec.ring_yaml = yaml;
+  spec.adjust = [inner = spec.adjust](master::MasterConfig& c) {
+    inner(c);
+    master::SlaveConfig junction;
+    junction.name = "junction";
+    c.slaves.insert(c.slaves.begin() + 1, junction);
+  };
+  return spec;
+}
+
 // A DC group plugged on a junction port in the middle: the master set the port to auto close at
 // startup, so the plugged group waits behind a closed port (DL status: link up, loop closed)
 // until the hot-connect watch opens it and writes `drive`'s new delay right behind; at the
@@ -1036,14 +1055,7 @@ simulator:
 // the leave, the lock is never lost, and its system time stays on the reference's. (Without
 // auto close, the 500 ns cable took it to about 280 ns and the lock was lost at both.)
 TEST(HotConnectDc, AGroupOnAJunctionPortKeepsTheFixedSlavesBehindItLocked) {
-  RingSpec spec = dc_group_spec();
-  spec.ring_yaml = kJunctionDcRing;
-  spec.adjust = [inner = spec.adjust](master::MasterConfig& c) {
-    inner(c);
-    master::SlaveConfig junction;
-    junction.name = "junction";
-    c.slaves.insert(c.slaves.begin() + 1, junction);
-  };
+  RingSpec spec = junction_dc_spec(false);
   auto ring = ScenarioRing::operational(spec);
   ASSERT_TRUE(ring);
   auto& m = *ring->master;
@@ -1108,17 +1120,7 @@ TEST(HotConnectDc, AGroupOnAJunctionPortKeepsTheFixedSlavesBehindItLocked) {
 // open (the start-up's DC measurement has the group in front of `drive`); pulled, the ESC shuts
 // it and `drive` gets the shorter delay; plugged again, it waits until the master opens it.
 TEST(HotConnectDc, AJunctionGroupPluggedAtStartLeavesAndComesBackWithTheFixedSlavesLocked) {
-  RingSpec spec = dc_group_spec();
-  std::string yaml = kJunctionDcRing;
-  const std::string absent = "plugged: false";
-  yaml.replace(yaml.find(absent), absent.size(), "plugged: true");
-  spec.ring_yaml = yaml;
-  spec.adjust = [inner = spec.adjust](master::MasterConfig& c) {
-    inner(c);
-    master::SlaveConfig junction;
-    junction.name = "junction";
-    c.slaves.insert(c.slaves.begin() + 1, junction);
-  };
+  RingSpec spec = junction_dc_spec(true);
   auto ring = ScenarioRing::operational(spec);
   ASSERT_TRUE(ring);
   auto& m = *ring->master;

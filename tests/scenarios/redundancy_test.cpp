@@ -161,6 +161,20 @@ TEST(Scenario00, RedundantRingThroughABreakAndBack) {
 
 // ---- 00 (redundant part) on a ring through a junction ------------------------------------------
 
+// The ring file's slaves after the basic three, configured in that order: process data in
+// `main` where asked, health polled every 20 ms.
+void configure_after_basic(RingSpec& spec, std::vector<std::pair<const char*, bool>> extra) {
+  spec.adjust = [extra = std::move(extra)](master::MasterConfig& c) {
+    for (const auto& [name, process_data] : extra) {
+      master::SlaveConfig s;
+      s.name = name;
+      if (process_data) s.process_data = master::ProcessDataRequest::all("main");
+      s.health_poll = 20ms;
+      c.slaves.push_back(std::move(s));
+    }
+  };
+}
+
 // coupler -> inputs -> outputs -> junction (EK1122); on the junction's port 1 a branch that ends
 // there (branch_coupler -> branch_in), on its port 2 the ring goes on (far_coupler -> far_in ->
 // far_out, whose port 1 is cabled to the secondary port). A frame leaves the junction by port 1
@@ -183,21 +197,12 @@ simulator:
     - {from: outputs.channel_1, to: inputs.channel_1}
     - {from: outputs.channel_16, to: inputs.channel_16}
 )";
-  spec.adjust = [](master::MasterConfig& c) {
-    for (const auto& [name, process_data] :
-         std::vector<std::pair<const char*, bool>>{{"junction", false},
-                                                   {"branch_coupler", false},
-                                                   {"branch_in", true},
-                                                   {"far_coupler", false},
-                                                   {"far_in", true},
-                                                   {"far_out", true}}) {
-      master::SlaveConfig s;
-      s.name = name;
-      if (process_data) s.process_data = master::ProcessDataRequest::all("main");
-      s.health_poll = 20ms;
-      c.slaves.push_back(std::move(s));
-    }
-  };
+  configure_after_basic(spec, {{"junction", false},
+                               {"branch_coupler", false},
+                               {"branch_in", true},
+                               {"far_coupler", false},
+                               {"far_in", true},
+                               {"far_out", true}});
   return spec;
 }
 
@@ -299,20 +304,11 @@ simulator:
     - {from: outputs.channel_1, to: inputs.channel_1}
     - {from: outputs.channel_16, to: inputs.channel_16}
 )";
-  spec.adjust = [](master::MasterConfig& c) {
-    for (const auto& [name, process_data] :
-         std::vector<std::pair<const char*, bool>>{{"junction", false},
-                                                   {"branch_coupler", false},
-                                                   {"branch_in", true},
-                                                   {"far_in", true},
-                                                   {"far_out", true}}) {
-      master::SlaveConfig s;
-      s.name = name;
-      if (process_data) s.process_data = master::ProcessDataRequest::all("main");
-      s.health_poll = 20ms;
-      c.slaves.push_back(std::move(s));
-    }
-  };
+  configure_after_basic(spec, {{"junction", false},
+                               {"branch_coupler", false},
+                               {"branch_in", true},
+                               {"far_in", true},
+                               {"far_out", true}});
   return spec;
 }
 
