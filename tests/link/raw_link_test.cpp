@@ -386,10 +386,17 @@ TEST_F(RawLinkTest, ReceiveTimestampsAreMonotonicClock) {
   RawLink& segment = open_ok("b");
   EXPECT_TRUE(segment.has_kernel_timestamps());
   // The kernel switches receive stamping on through deferred work after the first socket asks for
-  // it; until then a frame is stamped when it is read. Let that settle.
-  ASSERT_TRUE(master.send(pattern(20, 0xFF)).ok());
-  ASSERT_EQ(receive_frame(segment).size(), 46u);
-  std::this_thread::sleep_for(20ms);
+  // it; until then a frame is stamped when it is read. Let that settle: frames until one is
+  // stamped at its arrival (a loaded machine runs the deferred work late), for 5 s at most.
+  const auto settle_until = std::chrono::steady_clock::now() + 5s;
+  bool settled = false;
+  while (!settled && std::chrono::steady_clock::now() < settle_until) {
+    ASSERT_TRUE(master.send(pattern(20, 0xFF)).ok());
+    std::this_thread::sleep_for(2ms);
+    ASSERT_EQ(receive_frame(segment).size(), 46u);
+    settled = last_timestamp_ < now_ns() - 1'000'000;
+  }
+  ASSERT_TRUE(settled) << "every frame for 5 s was stamped when read, not when it arrived";
   std::int64_t previous = 0;
   for (int i = 0; i < 5; ++i) {
     const std::int64_t before = now_ns();
