@@ -8,6 +8,8 @@
 
 #include <fmt/format.h>
 
+#include <ecat/wire/bytes.hpp>
+
 namespace ecat::master::detail {
 
 namespace reg = wire::reg;
@@ -339,12 +341,12 @@ std::vector<RegisterWrite> process_data_writes(const ProcessDataPlan& plan) {
     written.insert(sm.sync_manager);
   };
   if (const auto& w = plan.watchdog) {
-    out.push_back({reg::kWatchdogDivider,
-                   {static_cast<std::uint8_t>(w->divider & 0xFF),
-                    static_cast<std::uint8_t>(w->divider >> 8)}});
-    out.push_back(
-        {reg::kWatchdogTimeProcessData,
-         {static_cast<std::uint8_t>(w->ticks & 0xFF), static_cast<std::uint8_t>(w->ticks >> 8)}});
+    for (const auto& [address, value] : {std::pair{reg::kWatchdogDivider, w->divider},
+                                         std::pair{reg::kWatchdogTimeProcessData, w->ticks}}) {
+      std::vector<std::uint8_t> data(2);
+      wire::store_le16(data.data(), value);
+      out.push_back({address, std::move(data)});
+    }
   }
   for (const auto& a : plan.attachments) {
     if (written.count(a.sync_manager) == 0) {

@@ -20,8 +20,6 @@ constexpr std::uint32_t kRegisterAreaEnd = 0x1000;
 // SyncManagers may cover the digital I/O and user RAM registers too (0x0F00..0x0FFF): Beckhoff
 // digital output terminals (EL2004, EL2809 ...) place their output SyncManager at 0x0F00.
 constexpr std::uint32_t kSyncManagerAreaStart = 0x0F00;
-constexpr std::uint16_t kDefaultWatchdogDivider = 0x09C2;  // 2498 -> 100 us watchdog ticks
-constexpr std::uint16_t kDefaultWatchdogTime = 0x03E8;     // 1000 ticks -> 100 ms
 constexpr std::size_t kMaxDatagram = wire::kMaxDatagramLength + 1;
 // EEPROMs up to 16 kbit (2 KiB) take one address byte, larger ones two (SII control bit 7).
 constexpr std::size_t kOneAddressByteEepromBytes = 2048;
@@ -221,9 +219,11 @@ void Esc::reset_registers() {
   wire::store_le32(&memory_[reg::kDlControl], hardware_.dl_control);
 
   wire::store_le16(&memory_[reg::kAlStatus], static_cast<std::uint16_t>(wire::AlState::init));
-  wire::store_le16(&memory_[reg::kWatchdogDivider], kDefaultWatchdogDivider);
-  wire::store_le16(&memory_[reg::kWatchdogTimePdi], kDefaultWatchdogTime);
-  wire::store_le16(&memory_[reg::kWatchdogTimeProcessData], kDefaultWatchdogTime);
+  // 100 us ticks, 100 ms for both watchdogs.
+  wire::store_le16(&memory_[reg::kWatchdogDivider], wire::ProcessDataWatchdog::kDefaultDivider);
+  wire::store_le16(&memory_[reg::kWatchdogTimePdi], wire::ProcessDataWatchdog::kDefaultTicks);
+  wire::store_le16(&memory_[reg::kWatchdogTimeProcessData],
+                   wire::ProcessDataWatchdog::kDefaultTicks);
   wire::store_le16(&memory_[reg::kWatchdogStatus], 0x0001);
 
   for (auto& sm : sms_)
@@ -294,10 +294,9 @@ void Esc::advance(std::int64_t now_ns) {
   for (std::uint32_t bits = watchdog_sms_; bits != 0; bits &= bits - 1) {
     const auto& sm = sms_[static_cast<std::size_t>(std::countr_zero(bits))];
     if (!timeout_ns) {
-      const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
-      const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
-      if (ticks == 0) break;
-      timeout_ns = static_cast<std::int64_t>(ticks * (divider + 2) * 40);
+      const auto watchdog = process_data_watchdog();
+      if (watchdog.off()) break;
+      timeout_ns = watchdog.time().count();
     }
     if ((read_u16(reg::kWatchdogStatus) & 1) != 0 && now_ns_ - sm.last_write_ns > *timeout_ns) {
       wire::store_le16(&memory_[reg::kWatchdogStatus], 0);
@@ -318,10 +317,9 @@ bool Esc::advance_due(std::int64_t now_ns) const noexcept {
   for (std::uint32_t bits = watchdog_sms_; bits != 0; bits &= bits - 1) {
     const auto& sm = sms_[static_cast<std::size_t>(std::countr_zero(bits))];
     if ((read_u16(reg::kWatchdogStatus) & 1) == 0) break;
-    const std::uint64_t divider = read_u16(reg::kWatchdogDivider);
-    const std::uint64_t ticks = read_u16(reg::kWatchdogTimeProcessData);
-    if (ticks == 0) break;
-    if (now - sm.last_write_ns > static_cast<std::int64_t>(ticks * (divider + 2) * 40)) return true;
+    const auto watchdog = process_data_watchdog();
+    if (watchdog.off()) break;
+    if (now - sm.last_write_ns > watchdog.time().count()) return true;
   }
   if (dc_ && (dc_->sync_state() == SyncUnitState::waiting ||
               dc_->sync_state() == SyncUnitState::running)) {

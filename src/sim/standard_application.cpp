@@ -40,9 +40,7 @@ bool is_output(PdoDirection direction) noexcept {
 // Process-data watchdog time from the ESC registers (0x0400 divider, 0x0420 ticks), as the ESC
 // itself computes it; 0 when disabled.
 std::int64_t watchdog_time_ns(const Esc& esc) noexcept {
-  const std::int64_t divider = esc.read_u16(reg::kWatchdogDivider);
-  const std::int64_t ticks = esc.read_u16(reg::kWatchdogTimeProcessData);
-  return ticks * (divider + 2) * 40;
+  return esc.process_data_watchdog().time().count();
 }
 
 }  // namespace

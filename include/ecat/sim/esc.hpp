@@ -158,6 +158,10 @@ class Esc {
     layout_tag_ = tag;
   }
 
+  // The process-data watchdog as the registers hold it now (0x0400 divider, 0x0420 time).
+  wire::ProcessDataWatchdog process_data_watchdog() const noexcept {
+    return {read_u16(wire::reg::kWatchdogDivider), read_u16(wire::reg::kWatchdogTimeProcessData)};
+  }
   // Lets time-driven behaviour (watchdogs, DC SYNC, device dynamics) advance to `now_ns`.
   void advance(std::int64_t now_ns);
   // Whether advance(now_ns) has something to do that cannot wait until a datagram next addresses
