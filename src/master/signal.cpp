@@ -544,6 +544,16 @@ Result<void> encode(const Signal& s, const Value& value, std::span<std::uint8_t>
   return ok();
 }
 
+bool store_bits(std::span<std::uint8_t> image, std::uint32_t bit_offset, std::uint16_t bit_length,
+                std::uint64_t raw) noexcept {
+  if (bit_length == 0 || bit_length > 64 ||
+      std::size_t{bit_offset} + bit_length > 8 * image.size()) {
+    return false;
+  }
+  write_bits(image.data(), bit_offset, bit_length, raw);
+  return true;
+}
+
 Result<void> store_field(const Signal& s, std::uint64_t raw, std::span<std::uint8_t> image) {
   if (!field_usable(s)) return not_a_field(s);
   if (!usable(s, image.size())) return unusable(s, image.size());

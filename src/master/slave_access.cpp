@@ -121,20 +121,11 @@ Result<void> SlaveAccess::stage_output(Slave& slave, const Signal& signal, std::
   if (it == impl.output_images.end()) [[unlikely]] {
     return ok();
   }
-  if (signal.type != SignalType::bytes) return store_field(signal, raw, it->second);
-  // A `bytes` signal of at most 64 bits (the handle's word, LSB first): bit by bit.
-  auto& image = it->second;
-  if (signal.bit_length > 64 || signal.bit_offset + signal.bit_length > 8 * image.size()) {
+  // The signal's bits as the handle staged them (a `bytes` signal of at most 64 bits too).
+  if (!store_bits(it->second, signal.bit_offset, signal.bit_length, raw)) [[unlikely]] {
     return Error(Errc::out_of_range,
                  fmt::format("signal \"{}\" of slave {} lies outside its SyncManager's {} bytes",
-                             signal.name, slave.name(), image.size()));
-  }
-  for (std::uint32_t b = 0; b < signal.bit_length; ++b) {
-    const std::uint32_t at = signal.bit_offset + b;
-    const auto mask = static_cast<std::uint8_t>(1u << (at % 8));
-    auto& byte = image[at / 8];
-    byte = ((raw >> b) & 1u) != 0 ? static_cast<std::uint8_t>(byte | mask)
-                                  : static_cast<std::uint8_t>(byte & ~mask);
+                             signal.name, slave.name(), it->second.size()));
   }
   return ok();
 }

@@ -143,6 +143,11 @@ Result<void> encode_scaled(const Signal& signal, const Value& value,
 Result<Value> decode_field(const Signal& signal, std::uint64_t raw);
 Result<std::uint64_t> encode_field(const Signal& signal, const Value& value);
 Result<void> store_field(const Signal& signal, std::uint64_t raw, std::span<std::uint8_t> sm_image);
+// The low `bit_length` (1..64) bits of `raw` at bit `bit_offset` of `image` (EtherCAT bit order:
+// LSB first), every other bit kept, whatever the signal's type (store_field's bit writer; a
+// `bytes` field of at most 64 bits too). False, with nothing written, when they do not fit.
+bool store_bits(std::span<std::uint8_t> image, std::uint32_t bit_offset, std::uint16_t bit_length,
+                std::uint64_t raw) noexcept;
 
 // Parses text (a command line, a configuration file) into a value for the signal: "true" /
 // "false" / "1" / "0" for booleans, decimal or 0x-hexadecimal integers, decimal reals, hex byte
