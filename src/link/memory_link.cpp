@@ -217,16 +217,10 @@ class MemoryLink final : public Link {
 
   int wait_fd() override {
     if (closed_.load(std::memory_order_acquire)) return -1;
-    if (in_->wake.opened()) return in_->wake.get_or_open();
-    const int fd = in_->wake.get_or_open();
-    // Frames queued before it was opened signalled nothing.
-    bool waiting = false;
-    {
+    return in_->wake.wait_fd([&] {
       std::lock_guard lock(in_->mutex);
-      waiting = !in_->queue.empty() || in_->interrupt || in_->writer_closed;
-    }
-    if (waiting) in_->wake.signal();
-    return fd;
+      return !in_->queue.empty() || in_->interrupt || in_->writer_closed;
+    });
   }
 
  private:
@@ -293,15 +287,10 @@ class FunctionLink final : public Link, private ReplySink {
   // Replies are queued by send() (any thread): signalled from then on.
   int wait_fd() override {
     if (closed_.load(std::memory_order_acquire)) return -1;
-    if (wake_.opened()) return wake_.get_or_open();
-    const int fd = wake_.get_or_open();
-    bool waiting = false;
-    {
+    return wake_.wait_fd([&] {
       std::lock_guard lock(mutex_);
-      waiting = !replies_.empty();
-    }
-    if (waiting) wake_.signal();
-    return fd;
+      return !replies_.empty();
+    });
   }
 
  private:

@@ -101,6 +101,16 @@ class WakeFd {
   ~WakeFd();
   // The reader only. -1 when no eventfd can be created.
   int get_or_open() noexcept;
+  // The reader's Link::wait_fd: get_or_open(), and signalled at once when it was opened now and
+  // `waiting()` (asked after opening, under the writer's lock) finds something already queued,
+  // since what came before it was opened signalled nothing.
+  template <class Waiting>
+  int wait_fd(Waiting&& waiting) {
+    if (opened()) return get_or_open();
+    const int fd = get_or_open();
+    if (waiting()) signal();
+    return fd;
+  }
   bool opened() const noexcept { return fd_.load(std::memory_order_seq_cst) >= 0; }
   void signal() noexcept;
   void drain() noexcept;

@@ -837,8 +837,7 @@ void DcMaintainer::rejoin_free_running() {
 void DcMaintainer::update_membership_locked() {
   std::size_t outside = 0;
   for (std::size_t i = 0; i < stations_.size(); ++i) {
-    const bool out =
-        membership_[i] == kFreeRunning || membership_[i] == kRejoining || membership_[i] == kHeld;
+    const bool out = outside_lock(membership_[i]);
     status_.slaves[i].free_running = out;
     if (out) ++outside;
   }
@@ -895,8 +894,7 @@ bool DcMaintainer::all_in_lock(std::span<const std::uint16_t> stations) const {
   std::lock_guard lock(mutex_);
   for (std::size_t i = 0; i < stations_.size(); ++i) {
     if (std::find(stations.begin(), stations.end(), stations_[i]) == stations.end()) continue;
-    if (membership_[i] == kFreeRunning || membership_[i] == kRejoining || membership_[i] == kHeld)
-      return false;
+    if (outside_lock(membership_[i])) return false;
   }
   return true;
 }

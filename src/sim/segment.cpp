@@ -170,17 +170,19 @@ bool Segment::has_link(std::size_t index, std::uint8_t port) const noexcept {
   return node.children[port].has_value() && node.link_up[port];
 }
 
+// A port's loop control: its two bits of DL control 0x0101.
+std::uint8_t Segment::loop_control(std::size_t index, std::uint8_t port) const noexcept {
+  return (nodes_[index].esc->read_u8(reg::kDlPortControl) >> (2 * port)) & 0x3;
+}
+
 bool Segment::port_open(std::size_t index, std::uint8_t port) const {
-  const Node& node = nodes_[index];
   const bool link = has_link(index, port);
-  const std::uint8_t control = (node.esc->read_u8(reg::kDlPortControl) >> (2 * port)) & 0x3;
-  switch (control) {
+  switch (loop_control(index, port)) {
     case 0:  // auto: open with link
-      return link;
-    case 1:  // auto close: open with link unless link down closed it and 01 was not written since
-      return link && !node.auto_closed[port];
     case 2:  // forced open: only useful with a link (without one the frame would be lost)
       return link;
+    case 1:  // auto close: open with link unless link down closed it and 01 was not written since
+      return link && !nodes_[index].auto_closed[port];
     default:  // forced closed
       return false;
   }
@@ -261,7 +263,7 @@ void Segment::update_dl_status(std::size_t i) {
     bool loop_closed = port == 0 ? !link : !port_open(i, port);
     if (node.reported_link[port]) {
       link = *node.reported_link[port];
-      const std::uint8_t control = (node.esc->read_u8(reg::kDlPortControl) >> (2 * port)) & 0x3;
+      const std::uint8_t control = loop_control(i, port);
       loop_closed = !link || control == 3 || (control == 1 && node.auto_closed[port]);
     }
     dl.ports[port].physical_link = link;
@@ -289,10 +291,9 @@ void Segment::esc_layout_changed(std::size_t tag) {
 void Segment::esc_port_control_written(std::size_t tag) {
   if (tag >= nodes_.size()) return;
   Node& node = nodes_[tag];
-  const std::uint8_t control = node.esc->read_u8(reg::kDlPortControl);
   bool changed = false;
   for (std::uint8_t port = 1; port < 4; ++port) {
-    if (((control >> (2 * port)) & 0x3) != 1) continue;
+    if (loop_control(tag, port) != 1) continue;
     const bool closed = !has_link(tag, port);
     changed |= node.auto_closed[port] != closed;
     node.auto_closed[port] = closed;

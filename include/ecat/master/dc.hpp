@@ -394,6 +394,10 @@ class DcMaintainer final : public CyclicParticipant {
   static constexpr std::uint32_t kRejoining = 2;
   static constexpr std::uint32_t kAbsent = 3;  // an optional station out of the ring
   static constexpr std::uint32_t kHeld = 4;    // hold_stations: out until released
+  // Not counted in the lock (nor as locked): free running, rejoining or held.
+  static constexpr bool outside_lock(std::uint32_t m) noexcept {
+    return m == kFreeRunning || m == kRejoining || m == kHeld;
+  }
   std::vector<std::uint32_t> membership_;
   std::vector<bool> optional_;                 // fixed at construction
   std::vector<std::uint32_t> rejoin_samples_;  // samples since rejoining began

@@ -208,6 +208,7 @@ class Segment : private EscLayoutObserver {
   void esc_layout_changed(std::size_t tag) override;
   void esc_port_control_written(std::size_t tag) override;
   bool has_link(std::size_t index, std::uint8_t port) const noexcept;
+  std::uint8_t loop_control(std::size_t index, std::uint8_t port) const noexcept;
   void reindex(std::size_t index);
   void rebuild_logical_index();
   void find_addressed();
