@@ -19,7 +19,7 @@
 #include <ecat/bus/bus.hpp>
 
 #include "../tests/bus/fake_segment.hpp"
-#include "build_info.hpp"
+#include "benchmark_main.hpp"
 
 namespace {
 
@@ -158,12 +158,6 @@ BENCHMARK(BM_PackingRatio)->UseRealTime()->Unit(benchmark::kMillisecond);
 
 }  // namespace
 
-// BENCHMARK_MAIN, plus what the figures were measured with (bench/build_info.hpp) in the context.
 int main(int argc, char** argv) {
-  benchmark::AddCustomContext("ecat build", ecat::bench::build_info());
-  benchmark::Initialize(&argc, argv);
-  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
-  benchmark::RunSpecifiedBenchmarks();
-  benchmark::Shutdown();
-  return 0;
+  return ecat::bench::benchmark_main(argc, argv);
 }

@@ -32,7 +32,7 @@
 #include <ecat/wire/al.hpp>
 #include <ecat/wire/registers.hpp>
 
-#include "build_info.hpp"
+#include "benchmark_main.hpp"
 
 namespace {
 
@@ -266,12 +266,6 @@ BENCHMARK(BM_DomainCycle)
 
 }  // namespace
 
-// BENCHMARK_MAIN, plus what the figures were measured with (bench/build_info.hpp) in the context.
 int main(int argc, char** argv) {
-  benchmark::AddCustomContext("ecat build", ecat::bench::build_info());
-  benchmark::Initialize(&argc, argv);
-  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
-  benchmark::RunSpecifiedBenchmarks();
-  benchmark::Shutdown();
-  return 0;
+  return ecat::bench::benchmark_main(argc, argv);
 }

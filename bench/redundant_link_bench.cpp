@@ -28,7 +28,7 @@
 #include <ecat/link/redundant_link.hpp>
 #include <ecat/wire/frame.hpp>
 
-#include "build_info.hpp"
+#include "benchmark_main.hpp"
 #include "veth_namespace.hpp"
 
 namespace {
@@ -225,10 +225,5 @@ BENCHMARK(BM_RedundantIdleWait)->Arg(0)->Arg(1)->Iterations(20)->UseRealTime();
 }  // namespace
 
 int main(int argc, char** argv) {
-  benchmark::AddCustomContext("ecat build", ecat::bench::build_info());
-  benchmark::Initialize(&argc, argv);
-  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
-  benchmark::RunSpecifiedBenchmarks();
-  benchmark::Shutdown();
-  return 0;
+  return ecat::bench::benchmark_main(argc, argv);
 }

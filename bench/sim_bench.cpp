@@ -19,7 +19,7 @@
 #include <ecat/wire/frame.hpp>
 #include <ecat/wire/registers.hpp>
 
-#include "build_info.hpp"
+#include "benchmark_main.hpp"
 #include "veth_namespace.hpp"
 
 namespace {
@@ -345,12 +345,6 @@ BENCHMARK(BM_VethSimServer)->Arg(1)->Arg(16)->Arg(64)->Arg(256)->UseRealTime();
 
 }  // namespace
 
-// BENCHMARK_MAIN, plus what the figures were measured with (bench/build_info.hpp) in the context.
 int main(int argc, char** argv) {
-  benchmark::AddCustomContext("ecat build", ecat::bench::build_info());
-  benchmark::Initialize(&argc, argv);
-  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
-  benchmark::RunSpecifiedBenchmarks();
-  benchmark::Shutdown();
-  return 0;
+  return ecat::bench::benchmark_main(argc, argv);
 }

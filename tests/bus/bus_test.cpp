@@ -112,15 +112,25 @@ class BudgetLink final : public link::ForwardingLink {
   std::shared_ptr<std::atomic<std::int64_t>> budget_;
 };
 
+// A bus with a 25 ms frame timeout over a BudgetLink: told() is the budget the link was told last.
+struct BudgetBus {
+  std::shared_ptr<FakeSegment> segment = make_segment();
+  std::shared_ptr<std::atomic<std::int64_t>> budget =
+      std::make_shared<std::atomic<std::int64_t>>(-1);
+  Bus bus{std::make_unique<BudgetLink>(FakeSegment::make_link(segment), budget), [] {
+            BusOptions options;
+            options.frame_timeout = 25ms;
+            return options;
+          }()};
+  std::chrono::nanoseconds told() const { return std::chrono::nanoseconds(budget->load()); }
+};
+
 // The link is told the frame timeout, bounded by three cycle periods while a cycle runs (a
 // redundant link waits for a late side of the ring up to half of it).
 TEST(Bus, TellsTheLinkItsFrameBudgetBoundedByThreeCyclePeriods) {
-  auto segment = make_segment();
-  auto budget = std::make_shared<std::atomic<std::int64_t>>(-1);
-  const auto told = [&] { return std::chrono::nanoseconds(budget->load()); };
-  BusOptions options;
-  options.frame_timeout = 25ms;
-  Bus bus(std::make_unique<BudgetLink>(FakeSegment::make_link(segment), budget), options);
+  BudgetBus b;
+  auto& bus = b.bus;
+  const auto told = [&] { return b.told(); };
   EXPECT_EQ(told(), 25ms);
   ASSERT_TRUE(bus.start());
   ASSERT_TRUE(bus.set_frame_timeout(8ms));
@@ -142,12 +152,9 @@ TEST(Bus, TellsTheLinkItsFrameBudgetBoundedByThreeCyclePeriods) {
 // three periods of the fastest domain (Bus::set_fastest_work_period), never of the base tick, and
 // the frame timeout still bounds it.
 TEST(Bus, FrameBudgetFollowsTheFastestWorkNotTheBaseTick) {
-  auto segment = make_segment();
-  auto budget = std::make_shared<std::atomic<std::int64_t>>(-1);
-  const auto told = [&] { return std::chrono::nanoseconds(budget->load()); };
-  BusOptions options;
-  options.frame_timeout = 25ms;
-  Bus bus(std::make_unique<BudgetLink>(FakeSegment::make_link(segment), budget), options);
+  BudgetBus b;
+  auto& bus = b.bus;
+  const auto told = [&] { return b.told(); };
   ASSERT_TRUE(bus.start());
   // Told before the cycle is set: no cycle runs, the frame timeout alone.
   ASSERT_TRUE(bus.set_fastest_work_period(2ms));
